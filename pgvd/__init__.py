@@ -1,0 +1,1 @@
+"""The PGVD map-merging method: pure functions on numpy arrays, no network, no clocks."""

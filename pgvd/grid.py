@@ -1,0 +1,134 @@
+"""The occupancy grid in log-odds, eq. (9), and the one place where frames meet.
+
+Pixel frame (used everywhere in ``pgvd``): ``x`` is the column, ``y`` is the
+row, row 0 is the top row of the image as stored in a PGM/PNG, and cell
+centres sit at integer coordinates.  A relative transform is a 3x3
+homogeneous matrix ``M`` with ``[xa, ya, 1]^T = M [xb, yb, 1]^T``.
+
+Metric frame (ROS ``map_server``): ``origin`` is the pose of the lower-left
+cell's outer corner and metric ``y`` points up.  :func:`pixel_to_world` and
+:func:`world_to_pixel` are the only conversions between the two.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Log-odds are clipped to this magnitude so that p never reaches exactly 0 or 1.
+LOGODDS_LIMIT = 20.0
+
+
+@dataclass(frozen=True)
+class Grid:
+    """An occupancy grid: log-odds per cell, eq. (9); 0 means unknown.
+
+    Attributes
+    ----------
+    logodds : (H, W) float32 array, row 0 at the top of the image.
+    resolution : metres per cell, > 0.
+    origin : ``(x, y, yaw)`` of the lower-left cell corner in metres/radians (ROS).
+    """
+
+    logodds: np.ndarray
+    resolution: float = 0.05
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if self.logodds.ndim != 2:
+            raise ValueError(f"a grid must be 2-D, got shape {self.logodds.shape}")
+        if not np.isfinite(self.resolution) or self.resolution <= 0:
+            raise ValueError(f"resolution must be > 0, got {self.resolution}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.logodds.shape  # type: ignore[return-value]
+
+    def probability(self) -> np.ndarray:
+        """Occupancy probability per cell, the inverse of eq. (9)."""
+        return logodds_to_probability(self.logodds)
+
+    @classmethod
+    def from_probability(
+        cls,
+        p: np.ndarray,
+        resolution: float = 0.05,
+        origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> Grid:
+        """Build a grid from occupancy probabilities (0.5 = unknown), eq. (9)."""
+        return cls(probability_to_logodds(p), resolution, origin)
+
+
+def probability_to_logodds(p: np.ndarray) -> np.ndarray:
+    """Eq. (9): ``l = log(p / (1 - p))``, clipped to +-LOGODDS_LIMIT, as float32."""
+    p = np.asarray(p, dtype=np.float64)
+    eps = 1.0 / (1.0 + np.exp(LOGODDS_LIMIT))
+    p = np.clip(p, eps, 1.0 - eps)
+    return np.log(p / (1.0 - p)).astype(np.float32)
+
+
+def logodds_to_probability(lo: np.ndarray) -> np.ndarray:
+    """Inverse of eq. (9) (the paper's eq. (34)): ``p = 1 - 1 / (1 + exp(l))``."""
+    return (1.0 / (1.0 + np.exp(-np.asarray(lo, dtype=np.float64)))).astype(np.float32)
+
+
+def pixel_to_world(grid: Grid, xy: np.ndarray) -> np.ndarray:
+    """Map pixel coordinates ``(N, 2)`` of ``grid`` (x=col, y=row) to metric ``(N, 2)``."""
+    xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+    h = grid.shape[0]
+    ox, oy, yaw = grid.origin
+    local = np.column_stack(
+        [(xy[:, 0] + 0.5) * grid.resolution, (h - 1 - xy[:, 1] + 0.5) * grid.resolution]
+    )
+    c, s = np.cos(yaw), np.sin(yaw)
+    return local @ np.array([[c, s], [-s, c]]) + np.array([ox, oy])
+
+
+def world_to_pixel(grid: Grid, pts: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`pixel_to_world`: metric ``(N, 2)`` to pixel ``(N, 2)``."""
+    pts = np.atleast_2d(np.asarray(pts, dtype=np.float64))
+    h = grid.shape[0]
+    ox, oy, yaw = grid.origin
+    c, s = np.cos(yaw), np.sin(yaw)
+    local = (pts - np.array([ox, oy])) @ np.array([[c, -s], [s, c]])
+    return np.column_stack(
+        [local[:, 0] / grid.resolution - 0.5, h - 1 - (local[:, 1] / grid.resolution - 0.5)]
+    )
+
+
+def world_pose_to_pixel_matrix(grid: Grid) -> np.ndarray:
+    """3x3 homogeneous matrix from metric ``[x, y, 1]`` to this grid's pixel ``[x, y, 1]``."""
+    h = grid.shape[0]
+    ox, oy, yaw = grid.origin
+    c, s = np.cos(yaw), np.sin(yaw)
+    r = grid.resolution
+    world_to_local = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array(
+        [[1.0, 0.0, -ox], [0.0, 1.0, -oy], [0.0, 0.0, 1.0]]
+    )
+    local_to_pixel = np.array([[1 / r, 0.0, -0.5], [0.0, -1 / r, h - 0.5], [0.0, 0.0, 1.0]])
+    return local_to_pixel @ world_to_local
+
+
+def relative_matrix(a: Grid, b: Grid) -> np.ndarray:
+    """The true B-pixel -> A-pixel matrix of two grids that share one metric frame.
+
+    This is the ground truth for map pairs rendered in one world frame
+    (``*_split_gt``), whose offset is the difference of their YAML origins.
+    """
+    return world_pose_to_pixel_matrix(a) @ np.linalg.inv(world_pose_to_pixel_matrix(b))
+
+
+def rigid_matrix(psi: float, tx: float, ty: float) -> np.ndarray:
+    """Eqs. (1)-(2) as a 3x3 homogeneous matrix in the pixel frame.
+
+    ``R_psi = [[cos, sin], [-sin, cos]]`` as in eq. (2); with rows pointing
+    down, a positive ``psi`` turns the image counter-clockwise on screen.
+    """
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, s, tx], [-s, c, ty], [0.0, 0.0, 1.0]])
+
+
+def matrix_to_pose(m: np.ndarray) -> tuple[float, float, float]:
+    """Inverse of :func:`rigid_matrix`: ``(psi, tx, ty)`` of a rigid 3x3 matrix."""
+    return float(np.arctan2(m[0, 1], m[0, 0])), float(m[0, 2]), float(m[1, 2])
