@@ -1,0 +1,54 @@
+"""The ``pgvd`` command line: one sub-command per module, dispatched from here.
+
+Exit codes (design.md): 0 success, 2 bad input (one line on stderr), 3 no overlap.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 2
+EXIT_NO_OVERLAP = 3
+
+
+class CliError(Exception):
+    """A user error: printed as one line on stderr, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse exits with code 2 on bad arguments already; keep the message to one line."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"pgvd: error: {message}\n")
+
+
+def _subcommands() -> list[Callable[[argparse._SubParsersAction], None]]:
+    """Each sub-command module exposes ``register(subparsers)`` setting ``func``."""
+    registrars: list[Callable[[argparse._SubParsersAction], None]] = []
+    return registrars
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="pgvd", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for register in _subcommands():
+        register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except CliError as exc:
+        print(f"pgvd {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
