@@ -1,0 +1,331 @@
+"""Edge matching (25)-(32), the verification the paper leaves to future work, and refinement.
+
+* :func:`similarity` builds the similarity matrix Gamma (27) from the 2-D
+  cross-correlations (26) of every pair of probabilistic edge sub-matrices
+  (25), batched by size class and computed with real FFTs; the peak of each
+  correlation gives that pair's translation (29).  A's edges are grey-dilated
+  by ``tolerance`` cells first, so a skeleton that moved by one cell between
+  the two maps still matches; ``max(E)`` then stays ``alpha_1 alpha_2 L`` with
+  ``L`` the number of matched cells within that tolerance (31).
+* :func:`rho_test` is the existence test (32).
+* :func:`pair_support` re-evaluates every edge pair at one translation, so a
+  translation counts only when *several* edge pairs pass (32) there.
+* :func:`map_agreement` overlays the whole maps: walls of one map that fall
+  on walls of the other agree, walls that fall on clear free space disagree.
+* :func:`refine` aligns the wall cells at full resolution (trimmed ICP) and
+  :func:`alignment_covariance` reads the covariance from the curvature of the
+  alignment cost at its minimum (a Laplace approximation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft as sfft
+from scipy import ndimage as ndi
+from scipy.spatial import cKDTree
+
+from pgvd.graph import Edge
+from pgvd.grid import rigid_matrix
+
+#: Upper bound on complex cells of one batched correlation block (memory, not speed).
+_BLOCK_CELLS = 1 << 21
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """Gamma (27) with the translation of each pair's correlation peak (29).
+
+    Attributes
+    ----------
+    gamma : (N1, N2) ``max(E(i1, i2))``.
+    shift : (N1, N2, 2) ``(tx, ty)`` moving B's edge onto A's edge at the peak (B -> A, cells).
+    """
+
+    gamma: np.ndarray
+    shift: np.ndarray
+
+
+def _size_class(h: int, w: int) -> tuple[int, int]:
+    return max(8, 1 << (h - 1).bit_length()), max(8, 1 << (w - 1).bit_length())
+
+
+def _dilated(edge: Edge, tolerance: int) -> tuple[np.ndarray, tuple[int, int]]:
+    if tolerance <= 0:
+        return edge.matrix, edge.origin
+    m = ndi.grey_dilation(np.pad(edge.matrix, tolerance), size=2 * tolerance + 1)
+    return m, (edge.origin[0] - tolerance, edge.origin[1] - tolerance)
+
+
+def _groups(mats: list[np.ndarray]) -> dict[tuple[int, int], list[int]]:
+    groups: dict[tuple[int, int], list[int]] = {}
+    for i, m in enumerate(mats):
+        groups.setdefault(_size_class(*m.shape), []).append(i)
+    return groups
+
+
+def _stack(mats: list[np.ndarray], idx: list[int], size: tuple[int, int]) -> np.ndarray:
+    out = np.zeros((len(idx), *size), dtype=np.float32)
+    for k, i in enumerate(idx):
+        h, w = mats[i].shape
+        out[k, :h, :w] = mats[i]
+    return out
+
+
+def similarity(edges_a: list[Edge], edges_b: list[Edge], tolerance: int = 1) -> Similarity:
+    """Similarity matrix Gamma (27) by batched FFT cross-correlation (26) of edge sub-matrices.
+
+    Parameters
+    ----------
+    edges_a, edges_b : probabilistic edges (25) of the two maps in a common orientation.
+    tolerance : A's edges are grey-dilated by this many cells before correlating.
+
+    Returns
+    -------
+    Similarity with Gamma and, per pair, the translation ``(tx, ty)`` at the
+    correlation peak: B's edge cell ``(x, y)`` lands on A's edge at ``(x + tx, y + ty)``.
+    """
+    na, nb = len(edges_a), len(edges_b)
+    gamma = np.zeros((na, nb))
+    shift = np.zeros((na, nb, 2))
+    if na == 0 or nb == 0:
+        return Similarity(gamma, shift)
+    dil = [_dilated(e, tolerance) for e in edges_a]
+    mats_a = [m for m, _ in dil]
+    org_a = np.array([o for _, o in dil], dtype=float)
+    mats_b = [e.matrix for e in edges_b]
+    org_b = np.array([e.origin for e in edges_b], dtype=float)
+    groups_b = _groups(mats_b)
+    for ka, ia in _groups(mats_a).items():
+        stack_a = _stack(mats_a, ia, ka)
+        for kb, ib in groups_b.items():
+            size = (ka[0] + kb[0], ka[1] + kb[1])
+            fb = np.conj(sfft.rfft2(_stack(mats_b, ib, kb), s=size))
+            per_a = len(ib) * size[0] * (size[1] // 2 + 1)
+            chunk = max(1, _BLOCK_CELLS // per_a)
+            for start in range(0, len(ia), chunk):
+                sub = ia[start : start + chunk]
+                fa = sfft.rfft2(stack_a[start : start + chunk], s=size)
+                corr = sfft.irfft2(fa[:, None] * fb[None], s=size)
+                flat = corr.reshape(len(sub), len(ib), -1)
+                arg = flat.argmax(axis=2)
+                peak = np.take_along_axis(flat, arg[..., None], axis=2)[..., 0]
+                u, v = np.divmod(arg, size[1])
+                u = np.where(u < ka[0], u, u - size[0])
+                v = np.where(v < ka[1], v, v - size[1])
+                rows, cols = np.ix_(sub, ib)
+                gamma[rows, cols] = peak
+                shift[rows, cols, 0] = org_a[sub, 1][:, None] - org_b[ib, 1][None] + v
+                shift[rows, cols, 1] = org_a[sub, 0][:, None] - org_b[ib, 0][None] + u
+    return Similarity(gamma, shift)
+
+
+def rho_threshold(edges_a: list[Edge], edges_b: list[Edge], rho: float) -> np.ndarray:
+    """Right-hand side of (32): ``rho * alpha_1 * alpha_2 * min(l_1, l_2)`` for every pair."""
+    alpha_a = np.array([e.confidence for e in edges_a])
+    alpha_b = np.array([e.confidence for e in edges_b])
+    len_a = np.array([e.length for e in edges_a], dtype=float)
+    len_b = np.array([e.length for e in edges_b], dtype=float)
+    return rho * np.outer(alpha_a, alpha_b) * np.minimum.outer(len_a, len_b)
+
+
+def rho_test(gamma: np.ndarray, edges_a: list[Edge], edges_b: list[Edge], rho: float) -> np.ndarray:
+    """Existence test (32): pairs with ``max(E) > rho alpha_1 alpha_2 min(l1, l2)``.
+
+    Returns a (N1, N2) bool mask; no True entry means the maps do not match.
+    """
+    if not 0.0 < rho <= 1.0:
+        raise ValueError(f"rho must lie in (0, 1], got {rho}")
+    return gamma > rho_threshold(edges_a, edges_b, rho)
+
+
+class PairSupport:
+    """Evaluates the correlation of every edge pair at a given translation, sparsely.
+
+    ``E_(i1,i2)(t)`` of (26) at one ``t`` is a sum over B's edge cells, so
+    all pairs are computed at once by looking B's cells up in A's dilated
+    edge matrix: ``O(cells of B)`` per translation instead of an FFT.
+    """
+
+    def __init__(
+        self, shape_a: tuple[int, int], edges_a: list[Edge], edges_b: list[Edge], tolerance: int
+    ) -> None:
+        self.value = np.zeros(shape_a)
+        self.label = np.full(shape_a, -1, dtype=np.int64)
+        h, w = shape_a
+        for i, e in enumerate(edges_a):
+            m, (r0, c0) = _dilated(e, tolerance)
+            rs, cs = (
+                slice(max(r0, 0), min(r0 + m.shape[0], h)),
+                slice(max(c0, 0), min(c0 + m.shape[1], w)),
+            )
+            sub = m[rs.start - r0 : rs.stop - r0, cs.start - c0 : cs.stop - c0]
+            better = sub > self.value[rs, cs]
+            self.value[rs, cs][better] = sub[better]
+            self.label[rs, cs][better] = i
+        cells = [e.cells() for e in edges_b]
+        self.rows = np.concatenate([r for r, _ in cells]) if cells else np.zeros(0, int)
+        self.cols = np.concatenate([c for _, c in cells]) if cells else np.zeros(0, int)
+        self.owner = np.repeat(np.arange(len(edges_b)), [r.size for r, _ in cells])
+        self.weight = (
+            np.concatenate([e.matrix[e.matrix > 0] for e in edges_b]) if cells else np.zeros(0)
+        )
+        self.na, self.nb = len(edges_a), len(edges_b)
+
+    def correlation(self, t: tuple[int, int]) -> np.ndarray:
+        """(N1, N2) matrix of ``E_(i1,i2)`` evaluated at the translation ``t = (tx, ty)``."""
+        h, w = self.value.shape
+        r, c = self.rows + t[1], self.cols + t[0]
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        lab = self.label[r[inside], c[inside]]
+        hit = lab >= 0
+        keys = lab[hit] * self.nb + self.owner[inside][hit]
+        vals = self.weight[inside][hit] * self.value[r[inside][hit], c[inside][hit]]
+        return np.bincount(keys, vals, self.na * self.nb).reshape(self.na, self.nb)
+
+
+def pair_support(passing: np.ndarray) -> int:
+    """Number of distinct edge pairs in a pass mask, counting each edge of either map once."""
+    ia, ib = np.nonzero(passing)
+    return int(min(np.unique(ia).size, np.unique(ib).size))
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """Whole-map consistency counts of an overlay.
+
+    Attributes
+    ----------
+    agree : wall cells of either map landing within the tolerance of a wall of the other.
+    disagree : wall cells of either map landing on clear free space of the other.
+    """
+
+    agree: int
+    disagree: int
+
+    @property
+    def ratio(self) -> float:
+        """``agree / (agree + disagree)``, 0 without overlap."""
+        total = self.agree + self.disagree
+        return self.agree / total if total else 0.0
+
+
+class MapView:
+    """One map prepared for overlay checks: wall cells, near-wall and clear-free masks."""
+
+    def __init__(self, prob: np.ndarray, occupied: float, free: float, tolerance: int) -> None:
+        prob = np.asarray(prob)
+        occ = prob > occupied
+        struct = np.ones((2 * tolerance + 1, 2 * tolerance + 1), bool)
+        self.near = ndi.binary_dilation(occ, struct) if tolerance else occ
+        self.clear = (prob < free) & ~ndi.binary_dilation(occ, struct, iterations=2)
+        r, c = np.nonzero(occ)
+        self.walls = np.column_stack([c, r]).astype(float)
+        self.shape = prob.shape
+
+    def count(self, points: np.ndarray) -> tuple[int, int]:
+        """(agree, disagree) of wall points ``(N, 2)`` (x, y) of the other map in this frame."""
+        ij = np.rint(points).astype(np.int64)
+        h, w = self.shape
+        ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        x, y = ij[ok, 0], ij[ok, 1]
+        return int(self.near[y, x].sum()), int(self.clear[y, x].sum())
+
+
+def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    return pts @ m[:2, :2].T + m[:2, 2]
+
+
+def map_agreement(a: MapView, b: MapView, matrix: np.ndarray) -> Agreement:
+    """Overlay B on A with the B->A pixel ``matrix`` and count agreement both ways."""
+    ag1, dis1 = a.count(_apply(matrix, b.walls))
+    ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), a.walls))
+    return Agreement(ag1 + ag2, dis1 + dis2)
+
+
+def _fit_rigid(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares rigid matrix (eq. (1) convention) with ``dst ~ R src + t``."""
+    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    s, d = src - ms, dst - md
+    phi = np.arctan2(np.sum(s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0]), np.sum(s * d))
+    m = rigid_matrix(-phi, 0.0, 0.0)
+    t = md - m[:2, :2] @ ms
+    m[:2, 2] = t
+    return m
+
+
+def refine(
+    walls_a: cKDTree,
+    walls_b: np.ndarray,
+    matrix: np.ndarray,
+    radii: tuple[float, ...] = (12.0, 8.0, 5.0, 3.0, 2.0),
+    iterations: int = 4,
+) -> np.ndarray:
+    """Trimmed point-to-point ICP of B's wall cells onto A's, from ``matrix`` (B->A pixels).
+
+    Correspondences farther than the current radius are dropped; the radius
+    shrinks over ``radii`` so the coarse estimate is pulled in, then tightened.
+    """
+    m = matrix.copy()
+    for radius in radii:
+        for _ in range(iterations):
+            moved = _apply(m, walls_b)
+            dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+            ok = np.isfinite(dist)
+            if ok.sum() < 10:
+                return m
+            m = _fit_rigid(walls_b[ok], walls_a.data[idx[ok]])
+    return m
+
+
+def alignment_covariance(
+    walls_a: cKDTree, walls_b: np.ndarray, matrix: np.ndarray, radius: float = 3.0
+) -> np.ndarray:
+    """Covariance of ``(tx, ty, psi)`` from the curvature of the alignment cost.
+
+    The cost ``F = sum_i min(d_i, radius)^2`` over B's wall cells is read as
+    ``-2 log`` likelihood with the residual variance ``sigma^2 = F / N``
+    (Laplace approximation): ``Sigma = 2 sigma^2 H^-1`` with ``H`` the Hessian
+    of ``F`` by central differences.  Along a straight corridor the cost is
+    flat and the variance large, as it should be.
+    """
+    from pgvd.grid import matrix_to_pose
+
+    psi0, tx0, ty0 = matrix_to_pose(matrix)
+    x0 = np.array([tx0, ty0, psi0])
+    centre = walls_b.mean(axis=0)
+    local = walls_b - centre
+
+    def cost(x: np.ndarray) -> float:
+        m = rigid_matrix(x[2], 0.0, 0.0)
+        moved = local @ m[:2, :2].T + (x[:2] + matrix[:2, :2] @ centre - matrix[:2, 2] + x0[:2])
+        d, _ = walls_a.query(moved, distance_upper_bound=radius)
+        return float(np.sum(np.minimum(d, radius) ** 2))
+
+    # Parametrise about B's wall centroid so psi and t decorrelate numerically.
+    base = np.array([0.0, 0.0, psi0])
+    steps = np.array([1.0, 1.0, 1.0 / max(1.0, float(np.abs(local).max()))])
+    f0 = cost(base)
+    hess = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            ei, ej = np.eye(3)[i] * steps[i], np.eye(3)[j] * steps[j]
+            if i == j:
+                val = (cost(base + ei) - 2 * f0 + cost(base - ei)) / steps[i] ** 2
+            else:
+                val = (
+                    cost(base + ei + ej)
+                    - cost(base + ei - ej)
+                    - cost(base - ei + ej)
+                    + cost(base - ei - ej)
+                ) / (4 * steps[i] * steps[j])
+            hess[i, j] = hess[j, i] = val
+    sigma2 = max(f0 / len(walls_b), 0.25)
+    cov_c = 2.0 * sigma2 * np.linalg.pinv(hess)
+    # Back from the centroid parametrisation to t: t = t_c - R(psi) c  (first order in psi).
+    jac = np.eye(3)
+    r_dot = np.array([[-np.sin(psi0), np.cos(psi0)], [-np.cos(psi0), -np.sin(psi0)]])
+    jac[:2, 2] = -r_dot @ centre
+    cov = jac @ cov_c @ jac.T
+    return 0.5 * (cov + cov.T)

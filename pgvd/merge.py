@@ -1,0 +1,447 @@
+"""The map-merging pipeline of the paper's Fig. 1, with verification and refinement.
+
+Stages (``timings_ms`` keys):
+
+``rotation``
+    candidate headings from the angle spectra (10), :mod:`pgvd.rotation`.
+``coarsen``
+    both maps pooled to the search scale (``MergeParams.coarse_resolution``,
+    0.2 m by default): a coarse cell is a wall if any of its cells is one
+    (walls are one cell thick and must survive), else it holds the mean
+    probability.  All PGVD/Gamma/rho stages run at this scale, exactly as
+    the paper defines them, only on fewer cells.
+``pgvd``
+    for A once and for B once per candidate heading: B is rotated (12) and
+    the heading variance is propagated as the tangential blur of (8)
+    (:func:`pgvd.uncertainty.rotation_blur`), then the PGVD (13)-(24).
+``graph``
+    vertices and edges (Sec. IV-D); the longest edges are kept.
+``gamma``
+    the similarity matrix (26)-(28) by batched FFT and the rho test (32);
+    every passing pair proposes its correlation-peak translation (29).
+``verify``
+    the paper's future work: a proposed translation counts only if at least
+    ``min_pairs`` edge pairs pass (32) *at that translation* and the overlaid
+    maps agree (agreement / (agreement + disagreement) of walls vs free space).
+    The best (heading, translation) over all candidates wins.
+``refine``
+    trimmed ICP of the wall cells at full resolution, then the final
+    agreement check at full resolution decides acceptance.
+``covariance``
+    Laplace approximation of the alignment cost at the optimum.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pgvd.graph import EdgeGraph, build_graph
+from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
+from pgvd.gvd import pgvd
+from pgvd.matching import (
+    MapView,
+    PairSupport,
+    alignment_covariance,
+    map_agreement,
+    pair_support,
+    refine,
+    rho_test,
+    rho_threshold,
+    similarity,
+)
+from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
+from pgvd.transform import warp
+from pgvd.uncertainty import rotation_blur
+
+
+@dataclass(frozen=True)
+class MergeParams:
+    """Parameters of :func:`merge` (lengths in metres are converted to cells).
+
+    Attributes
+    ----------
+    coarse_resolution : cell size (m) of the PGVD/Gamma search stages.
+    max_candidates : candidate headings tried (:func:`pgvd.rotation.estimate_headings`).
+    rho : matching percentage of the existence test (32).
+    edge_tolerance : cells of tolerance when correlating edges (A's edges are grey-dilated).
+    min_edge_length : edges shorter than this (m) are dropped (Sec. IV-E).
+    max_edges : longest edges kept per map, bounding Gamma's size.
+    max_hypotheses : translations proposed per heading (best Gamma first).
+    min_pairs : edge pairs that must pass (32) at an accepted translation.
+    min_agreement : minimum agreement / (agreement + disagreement) of the overlay.
+    min_overlap : minimum length (m) of agreeing walls, so a sliver of overlap is no match.
+    occupied, free : probability thresholds of walls and free space.
+    diagnostics : fill :attr:`MergeResult.diagnostics`.
+    """
+
+    coarse_resolution: float = 0.2
+    max_candidates: int = 4
+    rho: float = 0.7
+    edge_tolerance: int = 1
+    min_edge_length: float = 1.6
+    max_edges: int = 80
+    max_hypotheses: int = 40
+    min_pairs: int = 2
+    min_agreement: float = 0.75
+    min_overlap: float = 15.0
+    occupied: float = OCCUPIED
+    free: float = 0.3
+    diagnostics: bool = True
+
+
+@dataclass
+class MergeDiagnostics:
+    """What a person wants to look at after a merge (all at full resolution).
+
+    Attributes
+    ----------
+    pgvd_a : A's PGVD (24) in A's pixel frame.
+    pgvd_b : B's PGVD in B's own pixel frame (computed on rotated B, mapped back).
+    edges_a : bool mask (A frame) of A's edges in the edge pairs supporting the result.
+    edges_b : bool mask (B frame) of B's edges in those pairs.
+    gamma : Gamma (27) of the chosen heading.
+    """
+
+    pgvd_a: np.ndarray
+    pgvd_b: np.ndarray
+    edges_a: np.ndarray
+    edges_b: np.ndarray
+    gamma: np.ndarray
+
+
+@dataclass
+class MergeResult:
+    """Outcome of :func:`merge`; ``matrix`` maps B pixels to A pixels."""
+
+    accepted: bool
+    matrix: np.ndarray
+    rotation_deg: float
+    translation_px: tuple[float, float]
+    covariance: np.ndarray
+    score: float
+    timings_ms: dict[str, float]
+    reason: str
+    diagnostics: MergeDiagnostics | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        """The ``pgvd merge --json`` object of design.md (plus ``reason``)."""
+        return {
+            "accepted": bool(self.accepted),
+            "matrix": [[float(v) for v in row] for row in self.matrix],
+            "rotation_deg": float(self.rotation_deg),
+            "translation_px": [float(self.translation_px[0]), float(self.translation_px[1])],
+            "covariance": [[float(v) for v in row] for row in self.covariance],
+            "score": float(self.score),
+            "timings_ms": {k: round(float(v), 3) for k, v in self.timings_ms.items()},
+            "reason": self.reason,
+        }
+
+
+@dataclass
+class _Hypothesis:
+    heading: HeadingCandidate
+    coarse_matrix: np.ndarray  # coarse B -> coarse A
+    net: int
+    ratio: float
+    support: int
+    passing: np.ndarray
+    graph_b: EdgeGraph
+    rotation: np.ndarray  # coarse B -> coarse rotated B
+    sp_b: np.ndarray
+    gamma: np.ndarray
+
+
+def coarsen(p: np.ndarray, k: int, occupied: float = OCCUPIED) -> np.ndarray:
+    """Pool a probability grid by ``k x k`` blocks, keeping one-cell walls.
+
+    A block holds its largest probability if that is a wall, otherwise its
+    mean; cells beyond the map edge count as unknown (0.5).
+    """
+    if k == 1:
+        return np.asarray(p, dtype=np.float32)
+    h, w = p.shape
+    hp, wp = -(-h // k) * k, -(-w // k) * k
+    padded = np.full((hp, wp), 0.5, dtype=np.float32)
+    padded[:h, :w] = p
+    blocks = padded.reshape(hp // k, k, wp // k, k)
+    top = blocks.max(axis=(1, 3))
+    return np.where(top > occupied, top, blocks.mean(axis=(1, 3))).astype(np.float32)
+
+
+def _scale(k: int) -> np.ndarray:
+    """Coarse cell -> full-resolution pixel (cell centres at integers in both)."""
+    c = (k - 1) / 2.0
+    return np.array([[k, 0.0, c], [0.0, k, c], [0.0, 0.0, 1.0]])
+
+
+def _translation(tx: float, ty: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, tx], [0.0, 1.0, ty], [0.0, 0.0, 1.0]])
+
+
+def _rotation_about_centre(
+    psi: float, shape: tuple[int, int]
+) -> tuple[np.ndarray, tuple[int, int]]:
+    """Rotation by ``psi`` (eq. (2)) of a map of ``shape`` into a canvas that holds it whole."""
+    h, w = shape
+    side = int(np.ceil(np.hypot(h, w))) + 2
+    rot = rigid_matrix(psi, 0.0, 0.0)
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    rot[:2, 2] = (side - 1) / 2.0 - rot[:2, :2] @ centre
+    return rot, (side, side)
+
+
+def _keep_edges(graph: EdgeGraph, n: int) -> EdgeGraph:
+    edges = sorted(graph.edges, key=lambda e: -e.length * e.confidence)[:n]
+    return EdgeGraph(graph.vertices, graph.labels, edges)
+
+
+class _Clock:
+    def __init__(self, progress: Callable[[str], None] | None) -> None:
+        self.timings: dict[str, float] = {}
+        self.progress = progress
+        self.t0 = self.last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.timings[stage] = self.timings.get(stage, 0.0) + 1e3 * (now - self.last)
+        self.last = now
+        if self.progress is not None:
+            self.progress(f"{stage}: {self.timings[stage]:.1f} ms")
+
+    def total(self) -> dict[str, float]:
+        self.timings["total"] = 1e3 * (time.perf_counter() - self.t0)
+        return self.timings
+
+
+def _check_inputs(a: Grid, b: Grid, params: MergeParams) -> None:
+    if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
+        raise ValueError(
+            f"maps have different resolutions ({a.resolution} vs {b.resolution} m/cell); "
+            "resample B first (pgvd.transform.resample)"
+        )
+    for name, g in (("A", a), ("B", b)):
+        if g.logodds.size == 0:
+            raise ValueError(f"map {name} is empty")
+        if not np.isfinite(g.logodds).all():
+            raise ValueError(f"map {name} contains NaN or infinite values")
+        if not (g.probability() > params.occupied).any():
+            raise ValueError(f"map {name} has no occupied cells")
+
+
+def _search_heading(
+    heading: HeadingCandidate,
+    cb: np.ndarray,
+    graph_a: EdgeGraph,
+    support: PairSupport | None,
+    view_a: MapView,
+    params: MergeParams,
+    min_len: int,
+    clock: _Clock,
+) -> list[_Hypothesis]:
+    """All verified translations for one candidate heading (coarse scale)."""
+    rot, shape = _rotation_about_centre(heading.psi, cb.shape)
+    rb = warp(cb, rot, shape, order=1, cval=0.5)
+    centre = ((shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0)
+    rb = rotation_blur(rb, float(np.sqrt(heading.variance)), centre)
+    s_b, sp_b = pgvd(rb, params.free)
+    clock.lap("pgvd")
+    graph_b = _keep_edges(build_graph(s_b, sp_b, min_len), params.max_edges)
+    clock.lap("graph")
+    sim = similarity(graph_a.edges, graph_b.edges, params.edge_tolerance)
+    passing = rho_test(sim.gamma, graph_a.edges, graph_b.edges, params.rho)
+    ia, ib = np.nonzero(passing)
+    order = np.argsort(-sim.gamma[ia, ib], kind="stable")
+    shifts: list[tuple[int, int]] = []
+    for i, j in zip(ia[order], ib[order], strict=True):
+        t = (int(sim.shift[i, j, 0]), int(sim.shift[i, j, 1]))
+        if t not in shifts:
+            shifts.append(t)
+        if len(shifts) >= params.max_hypotheses:
+            break
+    clock.lap("gamma")
+    out: list[_Hypothesis] = []
+    if not shifts:
+        return out
+    view_b = MapView(rb, params.occupied, params.free, 1)
+    pairs = PairSupport(view_a.shape, graph_a.edges, graph_b.edges, params.edge_tolerance)
+    thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
+    for t in shifts:
+        ok = pairs.correlation(t) > thresh
+        agreement = map_agreement(view_a, view_b, _translation(*t))
+        out.append(
+            _Hypothesis(
+                heading=heading,
+                coarse_matrix=_translation(*t) @ rot,
+                net=agreement.agree - agreement.disagree,
+                ratio=agreement.ratio,
+                support=pair_support(ok),
+                passing=ok,
+                graph_b=graph_b,
+                rotation=rot,
+                sp_b=sp_b,
+                gamma=sim.gamma,
+            )
+        )
+    clock.lap("verify")
+    return out
+
+
+def _edge_mask(graph: EdgeGraph, idx: np.ndarray) -> np.ndarray:
+    mask = np.zeros(graph.labels.shape, bool)
+    for i in np.unique(idx):
+        r, c = graph.edges[i].cells()
+        mask[r, c] = True
+    return mask
+
+
+def _upsample(coarse: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
+    return np.kron(coarse, np.ones((k, k), coarse.dtype))[: shape[0], : shape[1]]
+
+
+def _diagnostics(
+    best: _Hypothesis, graph_a: EdgeGraph, sp_a: np.ndarray, k: int, a: Grid, b: Grid
+) -> MergeDiagnostics:
+    ia, ib = np.nonzero(best.passing)
+    to_fine = _scale(k)
+    # B's PGVD lives in the rotated coarse frame: pull it back to B's pixels (nearest cell).
+    back = np.linalg.inv(to_fine @ best.rotation @ np.linalg.inv(to_fine))
+    sp_b = warp(
+        _upsample(best.sp_b, k, (best.sp_b.shape[0] * k,) * 2),
+        np.linalg.inv(back),
+        b.shape,
+        order=0,
+    )
+    edges_b = warp(
+        _upsample(
+            _edge_mask(best.graph_b, ib).astype(np.float32), k, (best.sp_b.shape[0] * k,) * 2
+        ),
+        np.linalg.inv(back),
+        b.shape,
+        order=0,
+    )
+    return MergeDiagnostics(
+        pgvd_a=_upsample(sp_a, k, a.shape),
+        pgvd_b=sp_b,
+        edges_a=_upsample(_edge_mask(graph_a, ia), k, a.shape),
+        edges_b=edges_b > 0.5,
+        gamma=best.gamma,
+    )
+
+
+def _rejected(
+    reason: str, clock: _Clock, matrix: np.ndarray | None = None, score: float = 0.0
+) -> MergeResult:
+    m = np.eye(3) if matrix is None else matrix
+    psi, tx, ty = matrix_to_pose(m)
+    return MergeResult(
+        accepted=False,
+        matrix=m,
+        rotation_deg=float(np.degrees(psi)),
+        translation_px=(tx, ty),
+        covariance=np.full((3, 3), np.nan),
+        score=score,
+        timings_ms=clock.total(),
+        reason=reason,
+    )
+
+
+def merge(
+    a: Grid,
+    b: Grid,
+    params: MergeParams | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> MergeResult:
+    """Find the B-pixel -> A-pixel transform of two occupancy grids and verify it (Fig. 1).
+
+    Parameters
+    ----------
+    a, b : the two maps, equal resolutions.
+    params : :class:`MergeParams`; defaults when None.
+    progress : called with one line per finished stage.
+
+    Returns
+    -------
+    MergeResult; ``accepted`` is False (with a ``reason``) when no transform passes
+    the rho test (32), the edge-pair agreement and the map agreement checks.
+
+    Raises
+    ------
+    ValueError
+        Different resolutions, an empty map, NaN, or a map without occupied cells.
+    """
+    params = params or MergeParams()
+    clock = _Clock(progress)
+    _check_inputs(a, b, params)
+    pa, pb = a.probability(), b.probability()
+    headings = estimate_headings(pa, pb, params.max_candidates)
+    clock.lap("rotation")
+    k = max(1, round(params.coarse_resolution / a.resolution))
+    ca, cb = coarsen(pa, k, params.occupied), coarsen(pb, k, params.occupied)
+    coarse_res = a.resolution * k
+    min_len = max(3, round(params.min_edge_length / coarse_res))
+    clock.lap("coarsen")
+    s_a, sp_a = pgvd(ca, params.free)
+    clock.lap("pgvd")
+    graph_a = _keep_edges(build_graph(s_a, sp_a, min_len), params.max_edges)
+    view_a = MapView(ca, params.occupied, params.free, 1)
+    clock.lap("graph")
+    hyps: list[_Hypothesis] = []
+    for heading in headings:
+        hyps += _search_heading(heading, cb, graph_a, None, view_a, params, min_len, clock)
+    good = [h for h in hyps if h.support >= params.min_pairs]
+    if not good:
+        why = (
+            "no edge pair passes the rho test (32)"
+            if not hyps
+            else (f"no translation is supported by {params.min_pairs} edge pairs")
+        )
+        return _rejected(why, clock)
+    best = max(good, key=lambda h: (h.net, h.ratio))
+    to_fine = _scale(k)
+    matrix = to_fine @ best.coarse_matrix @ np.linalg.inv(to_fine)
+    walls_a = np.column_stack(np.nonzero(pa > params.occupied)[::-1]).astype(float)
+    walls_b = np.column_stack(np.nonzero(pb > params.occupied)[::-1]).astype(float)
+    tree_a = cKDTree(walls_a)
+    matrix = refine(tree_a, walls_b, matrix)
+    clock.lap("refine")
+    fine_a = MapView(pa, params.occupied, params.free, 2)
+    fine_b = MapView(pb, params.occupied, params.free, 2)
+    agreement = map_agreement(fine_a, fine_b, matrix)
+    overlap_m = 0.5 * agreement.agree * a.resolution
+    clock.lap("verify")
+    if agreement.ratio < params.min_agreement:
+        return _rejected(
+            f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {params.min_agreement}",
+            clock,
+            matrix,
+            agreement.ratio,
+        )
+    if overlap_m < params.min_overlap:
+        return _rejected(
+            f"overlap too small: {overlap_m:.1f} m of agreeing walls < {params.min_overlap} m",
+            clock,
+            matrix,
+            agreement.ratio,
+        )
+    cov = alignment_covariance(tree_a, walls_b, matrix)
+    clock.lap("covariance")
+    diag = _diagnostics(best, graph_a, sp_a, k, a, b) if params.diagnostics else None
+    if diag is not None:
+        clock.lap("diagnostics")
+    psi, tx, ty = matrix_to_pose(matrix)
+    return MergeResult(
+        accepted=True,
+        matrix=matrix,
+        rotation_deg=float(np.degrees(psi)),
+        translation_px=(tx, ty),
+        covariance=cov,
+        score=agreement.ratio,
+        timings_ms=clock.total(),
+        reason="accepted",
+        diagnostics=diag,
+    )

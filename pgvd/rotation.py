@@ -1,0 +1,155 @@
+"""Rotation alignment by Radon/Hough angle spectra, eq. (10).
+
+The Radon transform of an occupancy grid projects the occupied cells along
+every direction ``theta``; straight walls become sharp peaks.  Summarising
+each projection by its energy (the sum of the squared projection bins) gives
+an *angle spectrum* ``s(theta)`` over ``[0, 180)`` degrees whose peaks are the
+map's dominant wall directions.  Eq. (10) takes the difference of the arg-max
+of the two spectra; we use the circular cross-correlation of the whole
+spectra instead, which uses every wall direction at once and degrades
+gracefully when one map lacks the dominant direction of the other.
+
+A spectrum has period 180 degrees and indoor maps are nearly symmetric under
+90 degree turns, so the heading is ambiguous: several candidate headings are
+returned (each correlation peak ``delta`` as ``delta`` and ``delta + 180``)
+and the translation stage decides among them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Cells with an occupancy probability above this are walls for the spectrum.
+OCCUPIED = 0.65
+
+
+@dataclass(frozen=True)
+class HeadingCandidate:
+    """One candidate relative heading.
+
+    Attributes
+    ----------
+    psi : heading in radians, in the convention of :func:`pgvd.grid.rigid_matrix`:
+        rotating B by ``psi`` aligns it with A.
+    variance : variance of ``psi`` in rad^2, from the curvature (width) of the
+        spectrum correlation peak relative to the correlation's noise level.
+    score : normalised correlation of the two spectra at ``psi`` (<= 1).
+    """
+
+    psi: float
+    variance: float
+    score: float
+
+
+def angle_spectrum(p: np.ndarray, n_angles: int = 360, max_points: int = 3000) -> np.ndarray:
+    """Angle spectrum of an occupancy grid, the Radon image of eq. (10) reduced per angle.
+
+    Parameters
+    ----------
+    p : (H, W) occupancy probabilities.
+    n_angles : number of angles ``theta_i = i * pi / n_angles`` in ``[0, pi)``.
+    max_points : occupied cells beyond this are subsampled (evenly, deterministically).
+
+    Returns
+    -------
+    (n_angles,) float array: ``s(theta) = sum_rho R_theta(rho)^2 / (sum w)^2`` where
+    ``R_theta`` is the projection (1-cell bins) of the occupied cells weighted by
+    their probability onto the normal ``(cos theta, sin theta)`` (x = column, y = row).
+    """
+    p = np.asarray(p, dtype=np.float64)
+    if p.ndim != 2:
+        raise ValueError(f"angle_spectrum needs a 2-D grid, got shape {p.shape}")
+    rows, cols = np.nonzero(p > OCCUPIED)
+    if rows.size == 0:
+        raise ValueError("angle_spectrum: the map has no occupied cells")
+    step = -(-rows.size // max_points)
+    rows, cols = rows[::step], cols[::step]
+    w = p[rows, cols]
+    theta = np.arange(n_angles) * (np.pi / n_angles)
+    reach = int(np.ceil(np.hypot(*p.shape))) + 1
+    rho = np.outer(np.cos(theta), cols) + np.outer(np.sin(theta), rows)
+    bins = np.floor(rho + 0.5).astype(np.int64) + reach
+    n_bins = 2 * reach + 1
+    keys = bins + (np.arange(n_angles) * n_bins)[:, None]
+    proj = np.bincount(keys.ravel(), np.broadcast_to(w, keys.shape).ravel(), n_angles * n_bins)
+    proj = proj.reshape(n_angles, n_bins)
+    return (proj**2).sum(axis=1) / w.sum() ** 2
+
+
+def spectrum_correlation(s_a: np.ndarray, s_b: np.ndarray) -> np.ndarray:
+    """Normalised circular correlation ``C(delta) = corr(s_a(theta), s_b(theta + delta))``.
+
+    A rotation of B by ``psi`` (eq. (2)) turns a wall normal at ``theta`` into
+    ``theta - psi``, so ``s_a(theta) = s_b(theta + psi)`` and ``C`` peaks at
+    ``delta = psi`` (mod 180 degrees).  Values are Pearson correlations in [-1, 1].
+    """
+    a = (s_a - s_a.mean()) / (s_a.std() + 1e-300)
+    b = (s_b - s_b.mean()) / (s_b.std() + 1e-300)
+    return np.fft.irfft(np.conj(np.fft.rfft(a)) * np.fft.rfft(b), n=a.size) / a.size
+
+
+def _peak_variance(c: np.ndarray, i: int, bin_rad: float) -> float:
+    """Variance (rad^2) of the heading at correlation peak ``i`` (Laplace approximation).
+
+    The correlation is read as a log-likelihood whose temperature is its own
+    noise level ``tau`` (robust spread of ``C`` over all shifts), so that
+    ``var = tau / -C''(peak)``: a sharp, tall peak over a quiet background is
+    a precise heading, a broad or low one is not.
+    """
+    n = c.size
+    curvature = -(c[(i - 1) % n] - 2 * c[i] + c[(i + 1) % n]) / bin_rad**2
+    tau = 1.4826 * float(np.median(np.abs(c - np.median(c))))
+    floor = (0.5 * bin_rad) ** 2
+    if curvature <= 0:
+        return float(max(floor, (n * bin_rad / 4) ** 2))
+    return float(max(floor, tau / curvature))
+
+
+def estimate_headings(
+    a: np.ndarray,
+    b: np.ndarray,
+    max_candidates: int = 4,
+    n_angles: int = 360,
+    min_separation_deg: float = 5.0,
+) -> list[HeadingCandidate]:
+    """Candidate relative headings of B with respect to A, eq. (10).
+
+    Parameters
+    ----------
+    a, b : occupancy probabilities of the two maps (any sizes).
+    max_candidates : number of headings returned; each spectrum-correlation peak
+        (strongest first) contributes ``delta`` and ``delta + pi``.
+    n_angles : spectrum resolution over 180 degrees; peaks are interpolated below it.
+    min_separation_deg : correlation peaks closer than this are one peak.
+
+    Returns
+    -------
+    Candidates sorted by decreasing score, ``psi`` in ``(-pi, pi]``.
+    """
+    if max_candidates < 1:
+        raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
+    c = spectrum_correlation(angle_spectrum(a, n_angles), angle_spectrum(b, n_angles))
+    n = c.size
+    bin_rad = np.pi / n
+    is_peak = (c >= np.roll(c, 1)) & (c > np.roll(c, -1))
+    order = [int(i) for i in np.argsort(-c) if is_peak[i]]
+    sep = round(np.radians(min_separation_deg) / bin_rad)
+    peaks: list[int] = []
+    for i in order:
+        if all(min((i - j) % n, (j - i) % n) >= sep for j in peaks):
+            peaks.append(i)
+        if 2 * len(peaks) >= max_candidates:
+            break
+    out: list[HeadingCandidate] = []
+    for i in peaks:
+        y0, y1, y2 = c[(i - 1) % n], c[i], c[(i + 1) % n]
+        denom = y0 - 2 * y1 + y2
+        offset = 0.5 * (y0 - y2) / denom if denom < 0 else 0.0
+        delta = (i + offset) * bin_rad
+        var = _peak_variance(c, i, bin_rad)
+        for psi in (delta, delta + np.pi):
+            wrapped = float(np.angle(np.exp(1j * psi)))
+            out.append(HeadingCandidate(wrapped, var, float(y1)))
+    return out[:max_candidates]
