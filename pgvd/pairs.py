@@ -1,0 +1,258 @@
+"""Two robots' maps with a known truth: two segments of one real log, each in its own frame.
+
+A segment of a corrected CARMEN log, ray-cast in a random frame (random yaw in
+[0, 2 pi) and random shift), is one robot's partial map.  Two segments give a
+pair whose true relative transform -- the B-pixel -> A-pixel matrix of eqs.
+(1)-(2) -- follows from the two frames.  Everything is a pure function of the
+log and the seed.
+
+Overlap of a pair is ``|cells known in both| / min(|known in A|, |known in B|)``,
+where "known" means log-odds != 0 and B's known cells are carried into A by the
+true matrix (rounded to the nearest cell).  1 means the smaller map lies
+entirely inside the larger one; 0 means no cell was seen by both robots.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from pgvd.integrate import (
+    DEFAULT_MODEL,
+    InverseSensorModel,
+    frame_for,
+    integrate,
+    se2,
+    select_segment,
+)
+from pgvd.io import LaserScan, write_map
+
+#: Segment lengths (fractions of the log) drawn for overlapping pairs.
+OVERLAP_LENGTHS = (0.12, 0.5)
+#: Segment lengths drawn for disjoint pairs: short, so that two can see disjoint parts.
+DISJOINT_LENGTHS = (0.03, 0.12)
+#: Overlapping pairs below this overlap are redrawn: they are rejection cases, not merges.
+MIN_OVERLAP = 0.1
+#: Resolution (m) of the cheap footprints used to find disjoint segments before rendering.
+FOOTPRINT_RESOLUTION = 0.5
+#: Random shift of each robot's frame, metres (any value works; it only moves the origin).
+MAX_SHIFT = 100.0
+MAX_DRAWS = 400
+
+
+@dataclass
+class MapPair:
+    """Two partial maps and their true relation.
+
+    Attributes
+    ----------
+    a, b : the two log-odds grids, each in its own frame.
+    truth : 3x3 B-pixel -> A-pixel matrix (eqs. (1)-(2)), or None if unknown.
+    overlap : fraction of shared known cells (see the module docstring).
+    name : a label, e.g. ``"intel-ov03"``.
+    info : how the pair was made (segments, seed, frames), JSON-serialisable.
+    """
+
+    a: Grid
+    b: Grid
+    truth: np.ndarray | None
+    overlap: float
+    name: str
+    info: dict = field(default_factory=dict)
+
+
+def random_frame(rng: np.random.Generator) -> np.ndarray:
+    """A random 3x3 SE(2) world-to-map transform: yaw in [0, 2 pi), shift up to MAX_SHIFT."""
+    yaw = rng.uniform(0.0, 2.0 * np.pi)
+    tx, ty = rng.uniform(-MAX_SHIFT, MAX_SHIFT, 2)
+    return se2(tx, ty, yaw)
+
+
+def true_matrix(a: Grid, a_from_world: np.ndarray, b: Grid, b_from_world: np.ndarray) -> np.ndarray:
+    """B-pixel -> A-pixel matrix of two maps rendered from one log in two frames.
+
+    ``a_from_world`` / ``b_from_world`` are the frames' 3x3 world-to-map transforms.
+    """
+    return (
+        world_pose_to_pixel_matrix(a)
+        @ a_from_world
+        @ np.linalg.inv(b_from_world)
+        @ np.linalg.inv(world_pose_to_pixel_matrix(b))
+    )
+
+
+def overlap_fraction(a: Grid, b: Grid, truth: np.ndarray) -> float:
+    """Shared known cells over the smaller map's known cells (module docstring)."""
+    known_a = a.logodds != 0
+    rows, cols = np.nonzero(b.logodds != 0)
+    n_a, n_b = int(known_a.sum()), rows.size
+    if n_a == 0 or n_b == 0:
+        return 0.0
+    pts = truth @ np.vstack([cols, rows, np.ones_like(rows)]).astype(np.float64)
+    x = np.rint(pts[0]).astype(np.int64)
+    y = np.rint(pts[1]).astype(np.int64)
+    inside = (x >= 0) & (x < a.shape[1]) & (y >= 0) & (y < a.shape[0])
+    shared = int(known_a[y[inside], x[inside]].sum())
+    return shared / min(n_a, n_b)
+
+
+def make_pair(
+    scans: list[LaserScan],
+    seg_a: tuple[float, float] | slice,
+    seg_b: tuple[float, float] | slice,
+    seed: int,
+    resolution: float = 0.05,
+    odom_noise: tuple[float, float] | None = None,
+    model: InverseSensorModel = DEFAULT_MODEL,
+    name: str = "pair",
+) -> MapPair:
+    """Render two segments of a log as two robots' maps, each in its own random frame.
+
+    Parameters
+    ----------
+    scans : the whole log (see :func:`pgvd.io.read_carmen`).
+    seg_a, seg_b : segments, as for :func:`pgvd.integrate.select_segment`.
+    seed : makes the frames and the odometry noise; same seed, same pair.
+    resolution : metres per cell of both maps.
+    odom_noise : optional extra odometry noise (see :func:`pgvd.integrate.perturb_odometry`);
+        the truth stays the relation of the two segments' first poses.
+    model : inverse sensor model.
+    name : label of the pair.
+    """
+    rng = np.random.default_rng(seed)
+    grids, frames = [], []
+    for k, segment in enumerate((seg_a, seg_b)):
+        part = select_segment(scans, segment)
+        if not part:
+            raise ValueError(f"segment {segment} of a {len(scans)}-scan log is empty")
+        transform = random_frame(rng)
+        frame = frame_for(part, resolution, transform, model=model)
+        grids.append(integrate(part, frame, model, odom_noise, seed=seed * 2 + k))
+        frames.append(transform)
+    truth = true_matrix(grids[0], frames[0], grids[1], frames[1])
+    info = {
+        "seg_a": _segment_json(seg_a),
+        "seg_b": _segment_json(seg_b),
+        "seed": seed,
+        "resolution": resolution,
+        "odom_noise": list(odom_noise) if odom_noise else None,
+    }
+    return MapPair(
+        grids[0], grids[1], truth, overlap_fraction(grids[0], grids[1], truth), name, info
+    )
+
+
+def _segment_json(segment: tuple[float, float] | slice) -> list:
+    if isinstance(segment, slice):
+        return ["scans", segment.start, segment.stop]
+    return ["fraction", float(segment[0]), float(segment[1])]
+
+
+def _draw_segment(rng: np.random.Generator, lengths: tuple[float, float]) -> tuple[float, float]:
+    length = rng.uniform(*lengths)
+    start = rng.uniform(0.0, 1.0 - length)
+    return (round(start, 4), round(start + length, 4))
+
+
+class _Footprints:
+    """Coarse known-cell masks of segments in the log's world frame, to screen disjoint pairs."""
+
+    def __init__(self, scans: list[LaserScan], model: InverseSensorModel) -> None:
+        self.scans = scans
+        self.model = model
+        self.frame = frame_for(scans, FOOTPRINT_RESOLUTION, model=model)
+
+    def disjoint(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> bool:
+        masks = [
+            integrate(select_segment(self.scans, s), self.frame, self.model).logodds != 0
+            for s in (seg_a, seg_b)
+        ]
+        # One coarse cell of slack: a full-resolution overlap can sit across a coarse border.
+        return not np.any(ndimage.binary_dilation(masks[0]) & masks[1])
+
+
+def make_pairs(
+    scans: list[LaserScan],
+    n_overlap: int,
+    n_disjoint: int,
+    seed: int,
+    name: str,
+    resolution: float = 0.05,
+    odom_noise: tuple[float, float] | None = None,
+    model: InverseSensorModel = DEFAULT_MODEL,
+) -> list[MapPair]:
+    """Overlapping pairs (overlap >= MIN_OVERLAP) then disjoint pairs (overlap exactly 0).
+
+    Segments are drawn from the seed: overlapping ones with lengths in
+    :data:`OVERLAP_LENGTHS`, disjoint ones in :data:`DISJOINT_LENGTHS`, screened
+    on coarse footprints and then verified at full resolution (``overlap == 0``).
+    Disjoint pairs keep their true matrix: it is the transform nothing should find.
+
+    Raises
+    ------
+    RuntimeError
+        If the log does not yield enough pairs of a kind within MAX_DRAWS draws.
+    """
+    rng = np.random.default_rng(seed)
+    overlapping: list[MapPair] = []
+    draws = 0
+    while len(overlapping) < n_overlap and draws < MAX_DRAWS:
+        seg_a, seg_b = _draw_segment(rng, OVERLAP_LENGTHS), _draw_segment(rng, OVERLAP_LENGTHS)
+        label = f"{name}-ov{len(overlapping):02d}"
+        pair = make_pair(
+            scans, seg_a, seg_b, seed * 1000 + draws, resolution, odom_noise, model, label
+        )
+        draws += 1
+        if pair.overlap >= MIN_OVERLAP:
+            overlapping.append(pair)
+    if len(overlapping) < n_overlap:
+        raise RuntimeError(f"{name}: only {len(overlapping)} of {n_overlap} overlapping pairs")
+    disjoint: list[MapPair] = []
+    footprints = _Footprints(scans, model) if n_disjoint else None
+    draws = 0
+    while len(disjoint) < n_disjoint and draws < MAX_DRAWS:
+        seg_a, seg_b = _draw_segment(rng, DISJOINT_LENGTHS), _draw_segment(rng, DISJOINT_LENGTHS)
+        draws += 1
+        if not footprints.disjoint(seg_a, seg_b):
+            continue
+        label = f"{name}-dj{len(disjoint):02d}"
+        pair = make_pair(
+            scans, seg_a, seg_b, seed * 1000 + 500 + draws, resolution, odom_noise, model, label
+        )
+        if pair.overlap == 0.0:
+            disjoint.append(pair)
+    if len(disjoint) < n_disjoint:
+        raise RuntimeError(f"{name}: only {len(disjoint)} of {n_disjoint} disjoint pairs")
+    return overlapping + disjoint
+
+
+def write_pair(pair: MapPair, directory: str | Path, stem: str) -> dict[str, Path]:
+    """Write ``<stem>_a.yaml/.pgm``, ``<stem>_b.yaml/.pgm`` and ``<stem>_truth.json``.
+
+    The JSON holds the B-pixel -> A-pixel ``matrix``, ``rotation_deg``,
+    ``overlap`` and how the pair was made.
+    """
+    directory = Path(directory)
+    paths = {
+        "a": directory / f"{stem}_a.yaml",
+        "b": directory / f"{stem}_b.yaml",
+        "truth": directory / f"{stem}_truth.json",
+    }
+    write_map(paths["a"], pair.a)
+    write_map(paths["b"], pair.b)
+    doc = {
+        "matrix": None if pair.truth is None else np.round(pair.truth, 9).tolist(),
+        "rotation_deg": None
+        if pair.truth is None
+        else float(np.degrees(np.arctan2(pair.truth[0, 1], pair.truth[0, 0]))),
+        "overlap": pair.overlap,
+        "name": pair.name,
+        **pair.info,
+    }
+    paths["truth"].write_text(json.dumps(doc, indent=2) + "\n")
+    return paths
