@@ -1,1 +1,72 @@
-"""The wire format, sans-I/O: typed messages to bytes and back, strictly validated."""
+"""The wire format, sans-I/O: typed messages to bytes and back, strictly validated.
+
+Nothing here opens a socket, touches Zenoh or reads a clock; every rule is a
+pure function of bytes and state you pass in (h11 / hyper-h2 style).
+
+Messages (:mod:`protocol.messages`, frozen dataclasses)
+    ``Geometry(shape, resolution, origin, tile_size=128)``,
+    ``Tile(index, checksum, cells: int8 ndarray, base_checksum=None)``,
+    ``MapTiles(fleet, robot, version, geometry, tiles, base_version=None)``,
+    ``Manifest(fleet, robot, version, geometry, checksums: {tile index: crc32})``,
+    ``Link(fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted,
+    matrix 3x3, covariance 3x3, score)``,
+    ``Heartbeat(fleet, robot, seq, map_version=None)``,
+    ``Status(fleet, robot, seq, counters: {str: int | float})``.
+
+Bytes (:mod:`protocol.codec`)
+    ``encode(msg, key=None) -> bytes`` and
+    ``decode(data, key=None, limits=Limits()) -> Message``; ``decode`` raises
+    :class:`ProtocolError` and nothing else.  With a fleet ``key`` every
+    message carries an HMAC-SHA256 and unkeyed or wrongly keyed ones are
+    refused; without one, a CRC-32 catches corruption.
+
+Maps (:mod:`protocol.mapsync`)
+    ``encode_map(fleet, robot, version, grid, key=None, since=None,
+    base_version=None, max_message_bytes=60_000, tile_size=128, indices=None)
+    -> (tile_messages: list[bytes], manifest: bytes)``: log-odds quantised to
+    int8 (:mod:`protocol.quantize`), cut into tiles, only tiles holding
+    knowledge sent; with ``since`` (the grid of an earlier version) only
+    changed tiles, as differences; with ``indices`` exactly those tiles in full
+    (a queryable's answer).  Each tile message is under ``max_message_bytes``
+    (pass a small value, e.g. 20_000, for one tile per message).
+
+    ``MapReassembler(robot, fleet=None, limits=Limits())``, one per peer robot:
+    ``feed(msg) -> Grid | None`` returns the complete grid when every tile of
+    the newest manifest is held; ``missing() -> list[int]`` names the tile
+    indices to fetch; ``version`` and ``quantised`` hold the last complete one.
+
+Replays (:mod:`protocol.auth`)
+    ``ReplayGuard().admit(msg)`` raises ProtocolError unless the message's
+    version moves forward for its (robot, kind) (per tile for MapTiles).
+"""
+
+from protocol.auth import ReplayGuard
+from protocol.codec import SCHEMA_VERSION, decode, encode
+from protocol.errors import ProtocolError
+from protocol.limits import Limits
+from protocol.mapsync import MapReassembler, encode_map, quantise_grid
+from protocol.messages import Geometry, Heartbeat, Link, Manifest, MapTiles, Message, Status, Tile
+from protocol.quantize import SCALE, dequantise, quantise
+
+__all__ = [
+    "SCALE",
+    "SCHEMA_VERSION",
+    "Geometry",
+    "Heartbeat",
+    "Limits",
+    "Link",
+    "Manifest",
+    "MapReassembler",
+    "MapTiles",
+    "Message",
+    "ProtocolError",
+    "ReplayGuard",
+    "Status",
+    "Tile",
+    "decode",
+    "dequantise",
+    "encode",
+    "encode_map",
+    "quantise",
+    "quantise_grid",
+]

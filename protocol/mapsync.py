@@ -1,0 +1,237 @@
+"""Publishing a map as tile messages plus a manifest, and rebuilding it on the other side.
+
+The agent publishes each tile message on its own Zenoh key (for example
+``pgvd/<fleet>/tiles/<robot>/<version>/<first tile>``) and the manifest on
+``pgvd/<fleet>/manifest/<robot>``; a receiver feeds whatever arrives, in any
+order, to a :class:`MapReassembler` and asks a queryable for the tile indices
+:meth:`MapReassembler.missing` names.  Nothing here touches the network.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+
+import numpy as np
+
+from pgvd.grid import Grid
+from protocol.codec import encode, encode_tiles
+from protocol.errors import ProtocolError
+from protocol.limits import Limits
+from protocol.messages import DEFAULT_TILE_SIZE, Geometry, Manifest, MapTiles, Message, check_id
+from protocol.quantize import dequantise, quantise
+from protocol.tiles import (
+    TileAssembler,
+    changed_tiles,
+    check_quantised,
+    delta_tile,
+    full_tile,
+    manifest_checksums,
+)
+
+
+def quantise_grid(grid: Grid) -> np.ndarray:
+    """The int8 cells of ``grid`` exactly as they travel (see :mod:`protocol.quantize`)."""
+    try:
+        return quantise(grid.logodds)
+    except ValueError as exc:
+        raise ProtocolError(str(exc)) from None
+
+
+def _as_quantised(since: Grid | np.ndarray) -> np.ndarray:
+    if isinstance(since, Grid):
+        return quantise_grid(since)
+    arr = np.asarray(since)
+    if arr.dtype == np.int8:
+        return arr
+    try:
+        return quantise(arr)
+    except ValueError as exc:
+        raise ProtocolError(str(exc)) from None
+
+
+def encode_map(
+    fleet: str,
+    robot: str,
+    version: int,
+    grid: Grid,
+    key: bytes | None = None,
+    since: Grid | np.ndarray | None = None,
+    base_version: int | None = None,
+    max_message_bytes: int = 60_000,
+    tile_size: int = DEFAULT_TILE_SIZE,
+    indices: Collection[int] | None = None,
+) -> tuple[list[bytes], bytes]:
+    """Encode one version of a robot's own map as tile messages and a manifest.
+
+    Parameters
+    ----------
+    fleet, robot : ids (``[A-Za-z0-9_-]``, up to 64 characters).
+    version : this map version, > every earlier version of ``robot``.
+    grid : the local map; its log-odds (eq. (9)) are quantised to int8.
+    key : fleet key; every message then carries an HMAC-SHA256.
+    since : the map (Grid, int8 quantised array, or float log-odds) of an
+        earlier version the receivers hold; only tiles changed since then are
+        sent, as differences.  Ignored when its shape differs (a full update).
+    base_version : the version ``since`` was; informational.
+    max_message_bytes : every tile message is smaller than this.
+    tile_size : tile side, one of :data:`protocol.messages.TILE_SIZES`.
+    indices : send exactly these tiles, full (a queryable's answer to
+        :meth:`MapReassembler.missing`); overrides ``since``.
+
+    Returns
+    -------
+    tile_messages : list of bytes, each one MapTiles message (may be empty
+        when nothing changed since ``since``).
+    manifest : bytes of the Manifest listing every tile that holds knowledge.
+    """
+    q = quantise_grid(grid)
+    geometry = Geometry(grid.shape, grid.resolution, tuple(grid.origin), tile_size)
+    checksums = manifest_checksums(q, geometry)
+    manifest = Manifest(fleet, robot, version, geometry, checksums)
+    base = None if since is None else _as_quantised(since)
+    if base is not None and base.shape != q.shape:
+        base, base_version = None, None
+    if indices is not None:
+        unknown = sorted(set(indices) - set(checksums))
+        if unknown:
+            raise ProtocolError(f"tiles {unknown[:8]} hold no knowledge in version {version}")
+        tiles = [full_tile(q, geometry, i) for i in sorted(set(indices))]
+        base_version = None
+    elif base is None:
+        tiles = [full_tile(q, geometry, i) for i in checksums]
+        base_version = None
+    else:
+        check_quantised(base, geometry)
+        tiles = [delta_tile(q, base, geometry, i) for i in changed_tiles(q, base, geometry)]
+    manifest_bytes = encode(manifest, key)
+    if not tiles:
+        return [], manifest_bytes
+    msg = MapTiles(fleet, robot, version, geometry, tuple(tiles), base_version)
+    return encode_tiles(msg, key, max_message_bytes), manifest_bytes
+
+
+class MapReassembler:
+    """Rebuilds one peer robot's map from its tile and manifest messages, in any order.
+
+    Keeps, per robot, the tiles of the last complete version so that deltas
+    apply and unchanged tiles need no transfer.  Stale versions are ignored;
+    tiles that arrive before their manifest are buffered (bounded).
+
+    Parameters
+    ----------
+    robot : the peer whose messages this reassembler accepts.
+    fleet : if given, messages of another fleet are refused.
+    limits : bounds on buffered tiles.
+    """
+
+    def __init__(self, robot: str, fleet: str | None = None, limits: Limits = Limits()) -> None:  # noqa: B008
+        self.robot = check_id(robot, "robot")
+        self.fleet = None if fleet is None else check_id(fleet, "fleet")
+        self.limits = limits
+        #: Version of the last complete map, or None.
+        self.version: int | None = None
+        #: Its int8 cells (what the sender quantised), or None.
+        self.quantised: np.ndarray | None = None
+        self._manifest: Manifest | None = None
+        self._assembler: TileAssembler | None = None
+        self._buffer: dict[int, list[MapTiles]] = {}
+
+    @property
+    def pending_version(self) -> int | None:
+        """Version of the manifest being assembled, or None."""
+        return None if self._manifest is None else self._manifest.version
+
+    def missing(self) -> list[int]:
+        """Tile indices the pending manifest needs and that are not held (empty if none pending)."""
+        if self._manifest is None or self._assembler is None:
+            return []
+        return self._assembler.missing(self._manifest)
+
+    def feed(self, msg: Message) -> Grid | None:
+        """Take one decoded message; return the complete grid when a version completes.
+
+        Raises
+        ------
+        ProtocolError
+            If ``msg`` is not a map message of this robot and fleet, contradicts
+            the manifest of its version, or a delta fails its checksum.
+        """
+        if not isinstance(msg, (MapTiles, Manifest)):
+            raise ProtocolError(f"a {type(msg).__name__} is not a map message")
+        if msg.robot != self.robot:
+            raise ProtocolError(f"message of robot {msg.robot!r}, expected {self.robot!r}")
+        if self.fleet is not None and msg.fleet != self.fleet:
+            raise ProtocolError(f"message of fleet {msg.fleet!r}, expected {self.fleet!r}")
+        if self.version is not None and msg.version <= self.version:
+            return None
+        if isinstance(msg, Manifest):
+            return self._take_manifest(msg)
+        pending = self.pending_version
+        if pending is None or msg.version > pending:
+            self._hold(msg)
+            return None
+        if msg.version < pending:
+            return None
+        self._apply(msg)
+        return self._complete()
+
+    def _take_manifest(self, manifest: Manifest) -> Grid | None:
+        current = self._manifest
+        if current is not None:
+            if manifest.version < current.version:
+                return None
+            if manifest.version == current.version:
+                if manifest != current:
+                    raise ProtocolError(f"two different manifests for version {manifest.version}")
+                return self._complete()
+        g = manifest.geometry
+        if self._assembler is None or (
+            (self._assembler.geometry.shape, self._assembler.geometry.tile_size)
+            != (g.shape, g.tile_size)
+        ):
+            self._assembler = TileAssembler(g)
+        self._manifest = manifest
+        for version in [v for v in self._buffer if v <= manifest.version]:
+            held = self._buffer.pop(version)
+            if version == manifest.version:
+                for msg in held:
+                    self._apply(msg)
+        return self._complete()
+
+    def _hold(self, msg: MapTiles) -> None:
+        """Buffer tiles of a version whose manifest has not arrived; oldest are dropped first."""
+        self._buffer.setdefault(msg.version, []).append(msg)
+        while sum(len(m.tiles) for ms in self._buffer.values() for m in ms) > (
+            self.limits.max_buffered_tiles
+        ):
+            oldest = min(self._buffer)
+            self._buffer[oldest].pop(0)
+            if not self._buffer[oldest]:
+                del self._buffer[oldest]
+
+    def _apply(self, msg: MapTiles) -> None:
+        manifest, assembler = self._manifest, self._assembler
+        assert manifest is not None and assembler is not None
+        g = msg.geometry
+        if (g.shape, g.tile_size) != (manifest.geometry.shape, manifest.geometry.tile_size):
+            raise ProtocolError(f"version {msg.version} tiles do not fit the manifest's shape")
+        for tile in msg.tiles:
+            if manifest.checksums.get(tile.index) != tile.checksum:
+                raise ProtocolError(
+                    f"tile {tile.index} of version {msg.version} is not the manifest's"
+                )
+        for tile in msg.tiles:
+            # A delta whose base we lack stays missing; the agent fetches it in full.
+            if not assembler.holds(tile.index, tile.checksum) and assembler.can_apply(tile):
+                assembler.add(tile)
+
+    def _complete(self) -> Grid | None:
+        manifest, assembler = self._manifest, self._assembler
+        if manifest is None or assembler is None or assembler.missing(manifest):
+            return None
+        q = assembler.assemble(manifest)
+        assembler.forget(manifest.checksums)
+        q.flags.writeable = False
+        self.version, self.quantised, self._manifest = manifest.version, q, None
+        g = manifest.geometry
+        return Grid(dequantise(q), g.resolution, g.origin)

@@ -1,0 +1,397 @@
+"""The typed messages of the wire format: immutable, validated on construction.
+
+Every message names its ``fleet`` and the robot that sent it.  Versions and
+sequence numbers are non-negative and only move forward per robot, which is
+what :class:`protocol.auth.ReplayGuard` enforces.  Constructors raise
+:class:`~protocol.errors.ProtocolError`, so a decoder that builds a message
+from untrusted fields needs no second validation pass.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Union
+
+import numpy as np
+
+from protocol.errors import ProtocolError
+
+#: Ids travel inside Zenoh key expressions, so they exclude ``/ * $ # ?`` and spaces.
+ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+#: Hard cap on id length; :class:`protocol.limits.Limits` may lower it.
+MAX_ID_LENGTH = 64
+#: Versions fit a signed 64-bit integer (msgpack int64, numpy int64).
+MAX_VERSION = 2**63 - 1
+#: Tile sides allowed: small enough that one encoded tile stays well under 64 KB.
+TILE_SIZES = (16, 32, 64, 128, 256)
+#: The default tile side: 128 x 128 int8 = 16 KiB before compression.
+DEFAULT_TILE_SIZE = 128
+
+
+def check_id(value: object, what: str) -> str:
+    """Return ``value`` if it is a valid fleet/robot id, else raise ProtocolError."""
+    if not isinstance(value, str):
+        raise ProtocolError(f"{what} must be a string, got {type(value).__name__}")
+    if not 0 < len(value) <= MAX_ID_LENGTH:
+        raise ProtocolError(f"{what} must have 1..{MAX_ID_LENGTH} characters, got {len(value)}")
+    if not ID_PATTERN.fullmatch(value):
+        raise ProtocolError(f"{what} {value!r} has characters outside [A-Za-z0-9_-]")
+    return value
+
+
+def check_version(value: object, what: str) -> int:
+    """Return ``value`` if it is an int in ``[0, 2**63)`` (bools refused), else raise."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ProtocolError(f"{what} must be an integer, got {type(value).__name__}")
+    if not 0 <= value <= MAX_VERSION:
+        raise ProtocolError(f"{what} must be in [0, 2**63), got {value}")
+    return int(value)
+
+
+def check_float(value: object, what: str) -> float:
+    """Return ``value`` as a finite float (ints accepted, bools and NaN/inf refused)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ProtocolError(f"{what} must be a number, got {type(value).__name__}")
+    out = float(value)
+    if not math.isfinite(out):
+        raise ProtocolError(f"{what} must be finite, got {out}")
+    return out
+
+
+def check_matrix(value: object, what: str) -> tuple[tuple[float, float, float], ...]:
+    """Return a 3x3 matrix of finite floats as a tuple of row tuples."""
+    try:
+        arr = np.asarray(value, dtype=object)
+    except Exception as exc:  # ragged input makes numpy raise ValueError
+        raise ProtocolError(f"{what} must be a 3x3 matrix") from exc
+    if arr.shape != (3, 3):
+        raise ProtocolError(f"{what} must be 3x3, got shape {arr.shape}")
+    return tuple(
+        tuple(check_float(arr[i, j], f"{what}[{i}][{j}]") for j in range(3)) for i in range(3)
+    )  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Where a grid lives and how it is cut into tiles.
+
+    Attributes
+    ----------
+    shape : ``(H, W)`` cells, row 0 at the top of the image (pgvd.grid).
+    resolution : metres per cell, finite and > 0.
+    origin : ``(x, y, yaw)`` of the lower-left cell corner, ROS convention.
+    tile_size : side of the square tiles, one of :data:`TILE_SIZES`; tiles of
+        the last row/column are cropped to the grid.
+    """
+
+    shape: tuple[int, int]
+    resolution: float
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tile_size: int = DEFAULT_TILE_SIZE
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.shape, (tuple, list)) or len(self.shape) != 2:
+            raise ProtocolError(f"shape must be (H, W), got {self.shape!r}")
+        h = check_version(self.shape[0], "shape[0]")
+        w = check_version(self.shape[1], "shape[1]")
+        if h == 0 or w == 0:
+            raise ProtocolError(f"shape must be positive, got ({h}, {w})")
+        res = check_float(self.resolution, "resolution")
+        if res <= 0:
+            raise ProtocolError(f"resolution must be > 0, got {res}")
+        if not isinstance(self.origin, (tuple, list)) or len(self.origin) != 3:
+            raise ProtocolError(f"origin must be (x, y, yaw), got {self.origin!r}")
+        origin = tuple(check_float(v, f"origin[{i}]") for i, v in enumerate(self.origin))
+        if isinstance(self.tile_size, bool) or self.tile_size not in TILE_SIZES:
+            raise ProtocolError(f"tile_size must be one of {TILE_SIZES}, got {self.tile_size!r}")
+        object.__setattr__(self, "shape", (h, w))
+        object.__setattr__(self, "resolution", res)
+        object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "tile_size", int(self.tile_size))
+
+    @property
+    def tile_grid(self) -> tuple[int, int]:
+        """Tiles per column and per row: ``(ceil(H / t), ceil(W / t))``."""
+        t = self.tile_size
+        return -(-self.shape[0] // t), -(-self.shape[1] // t)
+
+    @property
+    def n_tiles(self) -> int:
+        """Number of tiles; tile indices run row-major over :attr:`tile_grid`."""
+        rows, cols = self.tile_grid
+        return rows * cols
+
+    def tile_window(self, index: int) -> tuple[slice, slice]:
+        """Row and column slices of tile ``index`` in the full grid."""
+        if not 0 <= index < self.n_tiles:
+            raise ProtocolError(f"tile index {index} outside [0, {self.n_tiles})")
+        t = self.tile_size
+        r, c = divmod(index, self.tile_grid[1])
+        return slice(r * t, min((r + 1) * t, self.shape[0])), slice(
+            c * t, min((c + 1) * t, self.shape[1])
+        )
+
+    def tile_shape(self, index: int) -> tuple[int, int]:
+        """``(rows, cols)`` of tile ``index``: full tiles except at the bottom/right edge."""
+        rs, cs = self.tile_window(index)
+        return rs.stop - rs.start, cs.stop - cs.start
+
+
+@dataclass(frozen=True, eq=False)
+class Tile:
+    """One tile of a quantised grid (int8 steps of :data:`protocol.quantize.SCALE`).
+
+    Attributes
+    ----------
+    index : row-major tile index in the geometry's :attr:`Geometry.tile_grid`.
+    checksum : CRC-32 of the tile's full int8 content once applied (row-major bytes).
+    cells : int8 array of the tile's shape; the full content when
+        ``base_checksum`` is None, else the wrapping int8 difference to the base.
+    base_checksum : CRC-32 of the content ``cells`` is a difference against,
+        or None for a self-contained tile.
+    """
+
+    index: int
+    checksum: int
+    cells: np.ndarray
+    base_checksum: int | None = None
+
+    def __post_init__(self) -> None:
+        check_version(self.index, "tile index")
+        check_crc(self.checksum, "tile checksum")
+        if self.base_checksum is not None:
+            check_crc(self.base_checksum, "tile base checksum")
+        if not isinstance(self.cells, np.ndarray) or self.cells.dtype != np.int8:
+            raise ProtocolError(f"tile {self.index} cells must be an int8 array")
+        if self.cells.ndim != 2:
+            raise ProtocolError(f"tile {self.index} cells must be 2-D, got {self.cells.shape}")
+        cells = np.ascontiguousarray(self.cells)
+        cells.flags.writeable = False
+        object.__setattr__(self, "cells", cells)
+
+    @property
+    def is_delta(self) -> bool:
+        """True when :attr:`cells` is a difference against :attr:`base_checksum`."""
+        return self.base_checksum is not None
+
+
+def check_crc(value: object, what: str) -> int:
+    """Return ``value`` if it is an unsigned 32-bit integer, else raise ProtocolError."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ProtocolError(f"{what} must be an integer, got {type(value).__name__}")
+    if not 0 <= value < 2**32:
+        raise ProtocolError(f"{what} must be a 32-bit unsigned integer, got {value}")
+    return int(value)
+
+
+@dataclass(frozen=True, eq=False)
+class MapTiles:
+    """Some tiles of one version of a robot's own local map.
+
+    ``base_version`` names the version a delta was computed against (None for a
+    full update); it is informational, because each delta tile names the exact
+    content it applies to by :attr:`Tile.base_checksum`.
+    """
+
+    fleet: str
+    robot: str
+    version: int
+    geometry: Geometry
+    tiles: tuple[Tile, ...]
+    base_version: int | None = None
+
+    def __post_init__(self) -> None:
+        check_id(self.fleet, "fleet")
+        check_id(self.robot, "robot")
+        check_version(self.version, "version")
+        if not isinstance(self.geometry, Geometry):
+            raise ProtocolError("geometry must be a Geometry")
+        if self.base_version is not None:
+            check_version(self.base_version, "base_version")
+            if self.base_version >= self.version:
+                raise ProtocolError(
+                    f"base_version {self.base_version} must be older than version {self.version}"
+                )
+        tiles = tuple(self.tiles)
+        if not tiles:
+            raise ProtocolError("a MapTiles message must carry at least one tile")
+        seen: set[int] = set()
+        for tile in tiles:
+            if not isinstance(tile, Tile):
+                raise ProtocolError("tiles must be Tile objects")
+            if tile.index in seen:
+                raise ProtocolError(f"tile {tile.index} appears twice")
+            seen.add(tile.index)
+            expected = self.geometry.tile_shape(tile.index)
+            if tile.cells.shape != expected:
+                raise ProtocolError(
+                    f"tile {tile.index} has shape {tile.cells.shape}, geometry says {expected}"
+                )
+        object.__setattr__(self, "tiles", tiles)
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """What one version of a robot's map consists of: one checksum per tile that holds knowledge.
+
+    Tiles not listed are entirely unknown (all zero).  A receiver compares these
+    checksums with the tiles it holds to know exactly which ones it lacks.
+    """
+
+    fleet: str
+    robot: str
+    version: int
+    geometry: Geometry
+    checksums: Mapping[int, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_id(self.fleet, "fleet")
+        check_id(self.robot, "robot")
+        check_version(self.version, "version")
+        if not isinstance(self.geometry, Geometry):
+            raise ProtocolError("geometry must be a Geometry")
+        if not isinstance(self.checksums, Mapping):
+            raise ProtocolError("checksums must map tile index -> checksum")
+        n = self.geometry.n_tiles
+        clean: dict[int, int] = {}
+        for index in sorted(self.checksums):
+            i = check_version(index, "manifest tile index")
+            if i >= n:
+                raise ProtocolError(f"manifest tile index {i} outside [0, {n})")
+            clean[i] = check_crc(self.checksums[index], f"checksum of tile {i}")
+        object.__setattr__(self, "checksums", MappingProxyType(clean))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Manifest):
+            return NotImplemented
+        return (self.fleet, self.robot, self.version, self.geometry, dict(self.checksums)) == (
+            other.fleet,
+            other.robot,
+            other.version,
+            other.geometry,
+            dict(other.checksums),
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True)
+class Link:
+    """A pairwise transform between two robots' map versions, accepted or rejected.
+
+    Attributes
+    ----------
+    decided_by : the robot whose agent ran the match.
+    robot_a, robot_b : the pair; ``matrix`` maps B pixels to A pixels (design.md).
+    version_a, version_b : the map versions the decision was made on.
+    accepted : outcome of the existence test (32) and the global check.
+    matrix : 3x3 homogeneous rigid transform, eqs. (1)-(2).
+    covariance : 3x3 covariance of (x px, y px, psi rad), eqs. (4)-(8).
+    score : agreement / (agreement + disagreement) of the overlaid maps.
+    """
+
+    fleet: str
+    decided_by: str
+    robot_a: str
+    robot_b: str
+    version_a: int
+    version_b: int
+    accepted: bool
+    matrix: tuple[tuple[float, float, float], ...]
+    covariance: tuple[tuple[float, float, float], ...]
+    score: float
+
+    def __post_init__(self) -> None:
+        check_id(self.fleet, "fleet")
+        check_id(self.decided_by, "decided_by")
+        check_id(self.robot_a, "robot_a")
+        check_id(self.robot_b, "robot_b")
+        if self.robot_a == self.robot_b:
+            raise ProtocolError(f"a link needs two different robots, got {self.robot_a!r} twice")
+        check_version(self.version_a, "version_a")
+        check_version(self.version_b, "version_b")
+        if not isinstance(self.accepted, bool):
+            raise ProtocolError("accepted must be a bool")
+        object.__setattr__(self, "matrix", check_matrix(self.matrix, "matrix"))
+        object.__setattr__(self, "covariance", check_matrix(self.covariance, "covariance"))
+        object.__setattr__(self, "score", check_float(self.score, "score"))
+
+    @property
+    def robot(self) -> str:
+        """The sender, for code that treats every message alike."""
+        return self.decided_by
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """I am alive; ``map_version`` is my latest local map version (None before the first)."""
+
+    fleet: str
+    robot: str
+    seq: int
+    map_version: int | None = None
+
+    def __post_init__(self) -> None:
+        check_id(self.fleet, "fleet")
+        check_id(self.robot, "robot")
+        check_version(self.seq, "seq")
+        if self.map_version is not None:
+            check_version(self.map_version, "map_version")
+
+
+@dataclass(frozen=True)
+class Status:
+    """Free-form counters (messages dropped, merges done, ...) as a flat str -> number map."""
+
+    fleet: str
+    robot: str
+    seq: int
+    counters: Mapping[str, int | float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_id(self.fleet, "fleet")
+        check_id(self.robot, "robot")
+        check_version(self.seq, "seq")
+        if not isinstance(self.counters, Mapping):
+            raise ProtocolError("counters must be a mapping")
+        clean: dict[str, int | float] = {}
+        for name in sorted(self.counters, key=str):
+            check_counter_name(name)
+            value = self.counters[name]
+            if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+                if not -(2**63) <= value < 2**63:
+                    raise ProtocolError(f"counter {name!r} does not fit 64 bits")
+                clean[name] = int(value)
+            else:
+                clean[name] = check_float(value, f"counter {name!r}")
+        object.__setattr__(self, "counters", MappingProxyType(clean))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Status):
+            return NotImplemented
+        return (self.fleet, self.robot, self.seq, dict(self.counters)) == (
+            other.fleet,
+            other.robot,
+            other.seq,
+            dict(other.counters),
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+COUNTER_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+
+
+def check_counter_name(name: object) -> str:
+    """Return ``name`` if it is a valid counter name (1..64 of ``[A-Za-z0-9_.-]``)."""
+    if not isinstance(name, str) or not COUNTER_PATTERN.fullmatch(name):
+        raise ProtocolError(f"counter name {name!r} must be 1..64 characters of [A-Za-z0-9_.-]")
+    return name
+
+
+#: Any message of the wire format.
+Message = Union[MapTiles, Manifest, Link, Heartbeat, Status]  # noqa: UP007
