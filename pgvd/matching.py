@@ -212,15 +212,20 @@ class Agreement:
 
 
 class MapView:
-    """One map prepared for overlay checks: wall cells, near-wall and clear-free masks."""
+    """One map prepared for overlay checks: wall cells, near-wall and clear-free masks.
+
+    ``near`` is the walls dilated by ``tolerance`` cells; ``clear`` is free
+    space farther than ``2 tolerance`` cells from any wall, so that a wall
+    that is off by the tolerance never counts as a disagreement.
+    """
 
     def __init__(self, prob: np.ndarray, occupied: float, free: float, tolerance: int) -> None:
         prob = np.asarray(prob)
-        occ = prob > occupied
+        self.occ = prob > occupied
         struct = np.ones((2 * tolerance + 1, 2 * tolerance + 1), bool)
-        self.near = ndi.binary_dilation(occ, struct) if tolerance else occ
-        self.clear = (prob < free) & ~ndi.binary_dilation(occ, struct, iterations=2)
-        r, c = np.nonzero(occ)
+        self.near = ndi.binary_dilation(self.occ, struct) if tolerance else self.occ
+        self.clear = (prob < free) & ~ndi.binary_dilation(self.occ, struct, iterations=2)
+        r, c = np.nonzero(self.occ)
         self.walls = np.column_stack([c, r]).astype(float)
         self.shape = prob.shape
 
@@ -231,6 +236,52 @@ class MapView:
         ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
         x, y = ij[ok, 0], ij[ok, 1]
         return int(self.near[y, x].sum()), int(self.clear[y, x].sum())
+
+
+class OverlayScores:
+    """Agreement and disagreement of two maps for *every* integer translation, by FFT.
+
+    ``agree(t)`` counts B's walls on A's near-wall cells plus A's walls on
+    B's, ``disagree(t)`` the walls on the other map's clear free space: the
+    dense form of :func:`map_agreement` for translations only.  A's spectra
+    are computed once and reused for every rotated B of the same shape.
+    """
+
+    def __init__(self, a: MapView, shape_b: tuple[int, int]) -> None:
+        ha, wa = a.shape
+        hb, wb = shape_b
+        self.size = (sfft.next_fast_len(ha + hb), sfft.next_fast_len(wa + wb))
+        self.shape_a, self.shape_b = a.shape, shape_b
+        f = {
+            k: sfft.rfft2(getattr(a, k).astype(np.float32), s=self.size)
+            for k in ("near", "clear", "occ")
+        }
+        self._fa = f
+
+    def maps(self, b: MapView) -> tuple[np.ndarray, np.ndarray]:
+        """(agree, disagree) arrays indexed by ``t mod size`` with ``t = (ty, tx)``."""
+        if b.shape != self.shape_b:
+            raise ValueError(f"B view has shape {b.shape}, expected {self.shape_b}")
+        fb = {
+            k: np.conj(sfft.rfft2(getattr(b, k).astype(np.float32), s=self.size))
+            for k in ("near", "clear", "occ")
+        }
+        fa = self._fa
+        agree = sfft.irfft2(fa["near"] * fb["occ"] + fa["occ"] * fb["near"], s=self.size)
+        disagree = sfft.irfft2(fa["clear"] * fb["occ"] + fa["occ"] * fb["clear"], s=self.size)
+        return np.rint(agree), np.rint(disagree)
+
+    def best_near(self, net: np.ndarray, t: tuple[int, int], radius: int) -> tuple[int, int]:
+        """The translation ``(tx, ty)`` of largest ``net`` within ``radius`` cells of ``t``."""
+        ha, wa = self.shape_a
+        hb, wb = self.shape_b
+        ty = np.arange(max(t[1] - radius, 1 - hb), min(t[1] + radius, ha - 1) + 1)
+        tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
+        if ty.size == 0 or tx.size == 0:
+            return t
+        window = net[np.ix_(ty % self.size[0], tx % self.size[1])]
+        i, j = np.unravel_index(int(np.argmax(window)), window.shape)
+        return int(tx[j]), int(ty[i])
 
 
 def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:

@@ -45,6 +45,7 @@ from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
 from pgvd.matching import (
     MapView,
+    OverlayScores,
     PairSupport,
     alignment_covariance,
     map_agreement,
@@ -72,6 +73,7 @@ class MergeParams:
     min_edge_length : edges shorter than this (m) are dropped (Sec. IV-E).
     max_edges : longest edges kept per map, bounding Gamma's size.
     max_hypotheses : translations proposed per heading (best Gamma first).
+    search_radius : each proposal slides (m) to the best whole-map agreement within this.
     min_pairs : edge pairs that must pass (32) at an accepted translation.
     min_agreement : minimum agreement / (agreement + disagreement) of the overlay.
     min_overlap : minimum length (m) of agreeing walls, so a sliver of overlap is no match.
@@ -86,6 +88,7 @@ class MergeParams:
     min_edge_length: float = 1.6
     max_edges: int = 80
     max_hypotheses: int = 40
+    search_radius: float = 2.4
     min_pairs: int = 2
     min_agreement: float = 0.75
     min_overlap: float = 15.0
@@ -237,10 +240,9 @@ def _search_heading(
     heading: HeadingCandidate,
     cb: np.ndarray,
     graph_a: EdgeGraph,
-    support: PairSupport | None,
-    view_a: MapView,
+    overlay: OverlayScores,
     params: MergeParams,
-    min_len: int,
+    cells: dict[str, int],
     clock: _Clock,
 ) -> list[_Hypothesis]:
     """All verified translations for one candidate heading (coarse scale)."""
@@ -250,35 +252,40 @@ def _search_heading(
     rb = rotation_blur(rb, float(np.sqrt(heading.variance)), centre)
     s_b, sp_b = pgvd(rb, params.free)
     clock.lap("pgvd")
-    graph_b = _keep_edges(build_graph(s_b, sp_b, min_len), params.max_edges)
+    graph_b = _keep_edges(build_graph(s_b, sp_b, cells["min_len"]), params.max_edges)
     clock.lap("graph")
     sim = similarity(graph_a.edges, graph_b.edges, params.edge_tolerance)
     passing = rho_test(sim.gamma, graph_a.edges, graph_b.edges, params.rho)
     ia, ib = np.nonzero(passing)
     order = np.argsort(-sim.gamma[ia, ib], kind="stable")
-    shifts: list[tuple[int, int]] = []
-    for i, j in zip(ia[order], ib[order], strict=True):
-        t = (int(sim.shift[i, j, 0]), int(sim.shift[i, j, 1]))
-        if t not in shifts:
-            shifts.append(t)
-        if len(shifts) >= params.max_hypotheses:
-            break
+    proposals = list(
+        dict.fromkeys(
+            (int(sim.shift[i, j, 0]), int(sim.shift[i, j, 1]))
+            for i, j in zip(ia[order], ib[order], strict=True)
+        )
+    )[: params.max_hypotheses]
     clock.lap("gamma")
     out: list[_Hypothesis] = []
-    if not shifts:
+    if not proposals:
         return out
     view_b = MapView(rb, params.occupied, params.free, 1)
-    pairs = PairSupport(view_a.shape, graph_a.edges, graph_b.edges, params.edge_tolerance)
+    agree, disagree = overlay.maps(view_b)
+    net = agree - disagree
+    pairs = PairSupport(overlay.shape_a, graph_a.edges, graph_b.edges, params.edge_tolerance)
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
-    for t in shifts:
-        ok = pairs.correlation(t) > thresh
-        agreement = map_agreement(view_a, view_b, _translation(*t))
+    # A straight edge pair fixes the translation only across the corridor:
+    # slide each proposal to the best whole-map agreement nearby.
+    refined = dict.fromkeys(overlay.best_near(net, t, cells["radius"]) for t in proposals)
+    for tx, ty in refined:
+        ok = pairs.correlation((tx, ty)) > thresh
+        idx = (ty % overlay.size[0], tx % overlay.size[1])
+        n_agree, n_disagree = int(agree[idx]), int(disagree[idx])
         out.append(
             _Hypothesis(
                 heading=heading,
-                coarse_matrix=_translation(*t) @ rot,
-                net=agreement.agree - agreement.disagree,
-                ratio=agreement.ratio,
+                coarse_matrix=_translation(tx, ty) @ rot,
+                net=n_agree - n_disagree,
+                ratio=n_agree / max(1, n_agree + n_disagree),
                 support=pair_support(ok),
                 passing=ok,
                 graph_b=graph_b,
@@ -388,11 +395,15 @@ def merge(
     s_a, sp_a = pgvd(ca, params.free)
     clock.lap("pgvd")
     graph_a = _keep_edges(build_graph(s_a, sp_a, min_len), params.max_edges)
-    view_a = MapView(ca, params.occupied, params.free, 1)
     clock.lap("graph")
+    overlay = OverlayScores(
+        MapView(ca, params.occupied, params.free, 1), _rotation_about_centre(0.0, cb.shape)[1]
+    )
+    cells = {"min_len": min_len, "radius": max(1, round(params.search_radius / coarse_res))}
+    clock.lap("verify")
     hyps: list[_Hypothesis] = []
     for heading in headings:
-        hyps += _search_heading(heading, cb, graph_a, None, view_a, params, min_len, clock)
+        hyps += _search_heading(heading, cb, graph_a, overlay, params, cells, clock)
     good = [h for h in hyps if h.support >= params.min_pairs]
     if not good:
         why = (
