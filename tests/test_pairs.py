@@ -1,0 +1,83 @@
+"""pgvd.pairs: two robots' maps from two segments of a real log, with their true matrix."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from pgvd.grid import rigid_matrix
+from pgvd.io import read_carmen, read_map
+from pgvd.pairs import MIN_OVERLAP, make_pair, make_pairs, overlap_fraction, write_pair
+
+
+@pytest.fixture(scope="module")
+def intel(shared):
+    return read_carmen(shared / "logs" / "intel-corrected.log.gz")
+
+
+@pytest.fixture(scope="module")
+def split(intel):
+    return make_pair(intel, (0.0, 0.55), (0.45, 1.0), seed=3, name="intel-split")
+
+
+def _walls_on_walls(a, b, m):
+    """Fraction of B's wall cells that land within 1.5 cells of A's walls, where A has seen."""
+    rows, cols = np.nonzero(b.logodds > 0)
+    x, y = np.rint((m @ np.vstack([cols, rows, np.ones_like(cols)]))[:2]).astype(int)
+    inside = (x >= 0) & (x < a.shape[1]) & (y >= 0) & (y < a.shape[0])
+    x, y = x[inside], y[inside]
+    seen = a.logodds[y, x] != 0
+    dist = ndimage.distance_transform_edt(a.logodds <= 0)[y[seen], x[seen]]
+    return np.mean(dist <= 1.5)
+
+
+def test_truth_lays_b_walls_on_a_walls(split):
+    assert split.a.shape != split.b.shape or not np.array_equal(split.a.logodds, split.b.logodds)
+    assert np.isclose(np.linalg.det(split.truth[:2, :2]), 1.0)  # rigid, eqs. (1)-(2)
+    assert _walls_on_walls(split.a, split.b, split.truth) > 0.9
+    # A one-degree or three-cell error is clearly visible: the truth is sharp.
+    assert _walls_on_walls(split.a, split.b, rigid_matrix(0.0, 3.0, 0.0) @ split.truth) < 0.75
+    turned = split.truth @ rigid_matrix(np.radians(1.0), 0.0, 0.0)
+    assert _walls_on_walls(split.a, split.b, turned) < 0.5
+    assert 0.5 < split.overlap < 1.0
+
+
+def test_deterministic_from_seed(intel, split):
+    again = make_pair(intel, (0.0, 0.55), (0.45, 1.0), seed=3)
+    np.testing.assert_array_equal(again.a.logodds, split.a.logodds)
+    np.testing.assert_array_equal(again.truth, split.truth)
+    other = make_pair(intel, (0.0, 0.55), (0.45, 1.0), seed=4)
+    assert not np.allclose(other.truth, split.truth)
+    # A different frame changes the pixels, not the overlap of what was seen.
+    assert other.overlap == pytest.approx(split.overlap, abs=0.03)
+
+
+def test_overlap_fraction_bounds(split):
+    assert overlap_fraction(split.a, split.a, np.eye(3)) == 1.0
+    far = rigid_matrix(0.0, 10_000.0, 0.0) @ split.truth
+    assert overlap_fraction(split.a, split.b, far) == 0.0
+
+
+def test_make_pairs_overlapping_and_disjoint(intel):
+    pairs = make_pairs(intel, n_overlap=1, n_disjoint=1, seed=7, name="intel")
+    assert [p.name for p in pairs] == ["intel-ov00", "intel-dj00"]
+    overlapping, disjoint = pairs
+    assert overlapping.overlap >= MIN_OVERLAP
+    assert disjoint.overlap == 0.0
+    assert (disjoint.a.logodds != 0).sum() > 10_000 and (disjoint.b.logodds != 0).sum() > 10_000
+    assert _walls_on_walls(overlapping.a, overlapping.b, overlapping.truth) > 0.85
+    again = make_pairs(intel, n_overlap=1, n_disjoint=0, seed=7, name="intel")
+    np.testing.assert_array_equal(again[0].truth, overlapping.truth)
+
+
+def test_write_pair_round_trip(split, tmp_path):
+    paths = write_pair(split, tmp_path, "intel")
+    a = read_map(paths["a"])
+    assert a.shape == split.a.shape and a.origin == pytest.approx(split.a.origin)
+    assert np.array_equal(a.logodds > 0, split.a.probability() > 0.65)
+    doc = json.loads(paths["truth"].read_text())
+    np.testing.assert_allclose(doc["matrix"], split.truth, atol=1e-8)
+    assert doc["overlap"] == split.overlap and doc["seg_a"] == ["fraction", 0.0, 0.55]
