@@ -1,0 +1,130 @@
+"""Eqs. (4)-(8): covariance against the numerical Jacobian of (1), and the blurs' real spread."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pgvd.grid import rigid_matrix
+from pgvd.uncertainty import propagate, rotation_blur, transform_covariance, translation_blur
+
+
+def _f(params: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """Eq. (1): P2 = R_psi P1 + T, with params = (x_t, y_t, psi) in the order of eq. (3)."""
+    tx, ty, psi = params
+    r = np.array([[np.cos(psi), np.sin(psi)], [-np.sin(psi), np.cos(psi)]])  # eq. (2)
+    return r @ p1 + np.array([tx, ty])
+
+
+def _random_cov(rng: np.random.Generator) -> np.ndarray:
+    a = rng.normal(size=(3, 3)) * np.array([2.0, 2.0, 0.02])[:, None]
+    return a @ a.T
+
+
+def test_transform_covariance_matches_numerical_jacobian() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        psi = rng.uniform(-np.pi, np.pi)
+        cov = _random_cov(rng)
+        pts = rng.uniform(-500, 500, (20, 2))
+        got = transform_covariance(pts, psi, cov)
+        params = np.array([*rng.uniform(-100, 100, 2), psi])
+        h = 1e-6
+        for p1, sigma in zip(pts, got, strict=True):
+            jac = np.column_stack(
+                [(_f(params + h * e, p1) - _f(params - h * e, p1)) / (2 * h) for e in np.eye(3)]
+            )
+            np.testing.assert_allclose(sigma, jac @ cov @ jac.T, rtol=1e-5, atol=1e-6)
+
+
+def test_printed_eq6_off_diagonal_differs_from_the_jacobian() -> None:
+    """Eq. (6) as printed pairs s_xpsi with r1 in Sigma12; F Sigma F^T pairs it with r2."""
+    cov = np.array([[1.0, 0.0, 0.01], [0.0, 1.0, 0.0], [0.01, 0.0, 1e-4]])
+    x, y, psi = 100.0, 0.0, 0.0
+    r1, r2 = -x * np.sin(psi) + y * np.cos(psi), -x * np.cos(psi) - y * np.sin(psi)
+    printed = cov[0, 1] + cov[0, 2] * r1 + cov[1, 2] * r2 + cov[2, 2] * r1 * r2
+    ours = transform_covariance([[x, y]], psi, cov)[0, 0, 1]
+    assert printed == pytest.approx(0.0) and ours == pytest.approx(0.01 * r2)
+
+
+def _moments(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ys, xs = np.mgrid[: img.shape[0], : img.shape[1]]
+    w = img / img.sum()
+    mean = np.array([(w * xs).sum(), (w * ys).sum()])
+    d = np.stack([xs - mean[0], ys - mean[1]])
+    cov = np.einsum("iyx,jyx,yx->ij", d, d, w)
+    return mean, cov
+
+
+@pytest.mark.parametrize(("r", "sigma_psi"), [(60, 0.03), (200, 0.01), (330, 0.02)])
+def test_rotation_blur_spreads_r_sigma_along_the_tangent(r: float, sigma_psi: float) -> None:
+    img = np.zeros((701, 701), np.float32)
+    rng = np.random.default_rng(int(r))
+    ang = rng.uniform(0, 2 * np.pi)
+    x, y = round(350 + r * np.cos(ang)), round(350 + r * np.sin(ang))
+    img[y, x] = 1.0
+    out = rotation_blur(img, sigma_psi, (350.0, 350.0))
+    assert out.sum() == pytest.approx(1.0, rel=0.05)
+    mean, cov = _moments(out)
+    radial = np.array([x - 350.0, y - 350.0])
+    radius = np.linalg.norm(radial)
+    u = radial / radius
+    t = np.array([-u[1], u[0]])
+    tangential_std = np.sqrt(t @ cov @ t)
+    radial_std = np.sqrt(u @ cov @ u)
+    assert tangential_std == pytest.approx(radius * sigma_psi, rel=0.08)
+    assert radial_std < 0.35  # half-pixel rings, bilinear splat and read
+    # centre quantised to the angle bins (sigma_psi / 3 wide) and the arc's sagitta
+    along = abs(t @ (mean - [x, y]))
+    assert (
+        along < radius * sigma_psi / 6 + 0.05
+        and abs(u @ (mean - [x, y])) < 0.1 + radius * sigma_psi**2
+    )
+
+
+def test_rotation_blur_keeps_constants_and_zero_sigma_is_identity() -> None:
+    img = np.full((120, 90), 0.3, np.float32)
+    np.testing.assert_allclose(rotation_blur(img, 0.05), img, atol=1e-5)
+    rnd = np.random.default_rng(1).random((50, 40)).astype(np.float32)
+    np.testing.assert_array_equal(rotation_blur(rnd, 0.0), rnd)
+    with pytest.raises(ValueError, match="sigma_psi"):
+        rotation_blur(rnd, -1.0)
+
+
+def test_translation_blur_has_the_requested_covariance() -> None:
+    img = np.zeros((121, 121), np.float32)
+    img[60, 60] = 1.0
+    cov = np.array([[9.0, 4.0], [4.0, 4.0]])
+    out = translation_blur(img, cov)
+    mean, got = _moments(out)
+    np.testing.assert_allclose(mean, [60, 60], atol=1e-3)
+    np.testing.assert_allclose(got, cov, atol=0.05)
+    with pytest.raises(ValueError, match="semi-definite"):
+        translation_blur(img, np.array([[1.0, 2.0], [2.0, 1.0]]))
+
+
+def test_propagate_spreads_each_cell_by_eq4() -> None:
+    """Warp + blur puts a point of B at M P1 with covariance F Sigma_tr F^T (eqs. (4)-(8)),
+    including correlated heading/translation errors."""
+    rng = np.random.default_rng(7)
+    h, w = 301, 301
+    c = np.array([150.0, 150.0])
+    for _ in range(3):
+        psi = rng.uniform(-np.pi, np.pi)
+        m = rigid_matrix(psi, 0.0, 0.0)
+        m[:2, 2] = np.array([200.0, 200.0]) - m[:2, :2] @ c  # rotate B about its centre
+        p1 = c + rng.uniform(-100, 100, 2).round()
+        cov = np.diag([1.5, 2.5, 0.012**2])
+        cov[0, 2] = cov[2, 0] = 0.6 * np.sqrt(1.5) * 0.012
+        cov[1, 2] = cov[2, 1] = -0.4 * np.sqrt(2.5) * 0.012
+        img = np.zeros((h, w), np.float32)
+        img[int(p1[1]), int(p1[0])] = 1.0
+        out = propagate(img, m, cov, (400, 400))
+        mean, got = _moments(out)
+        np.testing.assert_allclose(mean, (m @ [*p1, 1.0])[:2], atol=0.15)
+        expect = transform_covariance([p1 - c], psi, cov)[0]
+        # bilinear warp of a single cell adds up to 1/6 px^2 per axis; the rings +-1/12
+        np.testing.assert_allclose(got, expect, atol=0.35)
+    # propagate with cval: the canvas outside B stays exactly cval
+    out = propagate(np.full((50, 50), 0.5, np.float32), np.eye(3), cov, (80, 80), cval=0.5)
+    assert np.allclose(out[60:, 60:], 0.5)
