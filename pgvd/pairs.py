@@ -231,20 +231,16 @@ def make_pairs(
     return overlapping + disjoint
 
 
-def write_pair(pair: MapPair, directory: str | Path, stem: str) -> dict[str, Path]:
-    """Write ``<stem>_a.yaml/.pgm``, ``<stem>_b.yaml/.pgm`` and ``<stem>_truth.json``.
+def write_pair(
+    pair: MapPair, a_path: str | Path, b_path: str | Path, truth_path: str | Path
+) -> None:
+    """Write both maps as map_server YAML + PGM and the truth as JSON.
 
     The JSON holds the B-pixel -> A-pixel ``matrix``, ``rotation_deg``,
-    ``overlap`` and how the pair was made.
+    ``overlap`` and how the pair was made (segments, seed, resolution).
     """
-    directory = Path(directory)
-    paths = {
-        "a": directory / f"{stem}_a.yaml",
-        "b": directory / f"{stem}_b.yaml",
-        "truth": directory / f"{stem}_truth.json",
-    }
-    write_map(paths["a"], pair.a)
-    write_map(paths["b"], pair.b)
+    write_map(a_path, pair.a)
+    write_map(b_path, pair.b)
     doc = {
         "matrix": None if pair.truth is None else np.round(pair.truth, 9).tolist(),
         "rotation_deg": None
@@ -254,5 +250,4 @@ def write_pair(pair: MapPair, directory: str | Path, stem: str) -> dict[str, Pat
         "name": pair.name,
         **pair.info,
     }
-    paths["truth"].write_text(json.dumps(doc, indent=2) + "\n")
-    return paths
+    Path(truth_path).write_text(json.dumps(doc, indent=2) + "\n")

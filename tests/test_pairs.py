@@ -74,10 +74,27 @@ def test_make_pairs_overlapping_and_disjoint(intel):
 
 
 def test_write_pair_round_trip(split, tmp_path):
-    paths = write_pair(split, tmp_path, "intel")
-    a = read_map(paths["a"])
+    paths = {k: tmp_path / f"intel_{k}" for k in ("a.yaml", "b.yaml", "truth.json")}
+    write_pair(split, *paths.values())
+    a = read_map(paths["a.yaml"])
     assert a.shape == split.a.shape and a.origin == pytest.approx(split.a.origin)
     assert np.array_equal(a.logodds > 0, split.a.probability() > 0.65)
-    doc = json.loads(paths["truth"].read_text())
+    assert read_map(paths["b.yaml"]).shape == split.b.shape
+    doc = json.loads(paths["truth.json"].read_text())
     np.testing.assert_allclose(doc["matrix"], split.truth, atol=1e-8)
     assert doc["overlap"] == split.overlap and doc["seg_a"] == ["fraction", 0.0, 0.55]
+
+
+def test_bundled_examples_reproduce(tmp_path):
+    """examples/ is what ``python3 -m bench.make_examples`` writes (up to float round-off)."""
+    from bench.make_examples import ROOT, main
+
+    assert main(["--out", str(tmp_path)]) == 0
+    shipped = ROOT / "examples"
+    for name in ("intel_a.yaml", "intel_b.yaml"):
+        fresh, old = read_map(tmp_path / name), read_map(shipped / name)
+        assert fresh.shape == old.shape and fresh.origin == pytest.approx(old.origin)
+        assert np.mean(fresh.logodds != old.logodds) < 1e-4, name
+    fresh, old = (json.loads((d / "truth.json").read_text()) for d in (tmp_path, shipped))
+    np.testing.assert_allclose(fresh["matrix"], old["matrix"], atol=1e-6)
+    assert fresh["overlap"] == pytest.approx(old["overlap"], abs=1e-4)
