@@ -1,0 +1,89 @@
+"""What one agent knows about its fleet: the latest local map of each robot and the links.
+
+Shared between the thread that receives messages and the fusion worker, behind one lock;
+readers take cheap snapshots (grids are immutable once stored).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+from agent.links import LinkCache, LinkKey, LinkRecord, needed_keys, select_links
+from pgvd.grid import Grid
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A consistent view: ``maps`` ``{robot: (version, grid)}``, the links to use, settled."""
+
+    maps: dict[str, tuple[int, Grid]]
+    links: list[LinkRecord]
+    settled: bool
+    needed: list[LinkKey]
+    first_needed: dict[LinkKey, float]
+
+
+class FleetBook:
+    """Latest maps and link cache; :attr:`changed` is set whenever either moves forward."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._maps: dict[str, tuple[int, Grid]] = {}
+        self._links = LinkCache()
+        self._first_needed: dict[LinkKey, float] = {}
+        self.changed = threading.Event()
+
+    def version(self, robot: str) -> int | None:
+        with self._lock:
+            held = self._maps.get(robot)
+            return None if held is None else held[0]
+
+    def versions(self) -> dict[str, int]:
+        with self._lock:
+            return {r: v for r, (v, _) in self._maps.items()}
+
+    def map_of(self, robot: str) -> tuple[int, Grid] | None:
+        with self._lock:
+            return self._maps.get(robot)
+
+    def put_map(self, robot: str, version: int, grid: Grid) -> bool:
+        """Store ``grid`` if ``version`` is newer than what is held; True if stored."""
+        with self._lock:
+            held = self._maps.get(robot)
+            if held is not None and held[0] >= version:
+                return False
+            self._maps[robot] = (version, grid)
+            self._links.prune({r: v for r, (v, _) in self._maps.items()})
+        self.changed.set()
+        return True
+
+    def add_link(self, rec: LinkRecord) -> bool:
+        """Cache ``rec`` unless a link of the same versions is known; True if new."""
+        with self._lock:
+            held = self._maps
+            if (
+                rec.version_a < held.get(rec.a, (-1, None))[0]
+                or rec.version_b < held.get(rec.b, (-1, None))[0]
+            ):
+                return False  # superseded already: useless, and must not be re-chosen
+            new = self._links.add(rec)
+        if new:
+            self.changed.set()
+        return new
+
+    def links(self) -> list[LinkRecord]:
+        with self._lock:
+            return self._links.records()
+
+    def snapshot(self, now: float | None = None) -> Snapshot:
+        """The maps, chosen links and the pairs still lacking a link of the latest versions."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            maps = dict(self._maps)
+            versions = {r: v for r, (v, _) in maps.items()}
+            chosen, settled = select_links(versions, self._links)
+            needed = needed_keys(versions, self._links)
+            self._first_needed = {k: self._first_needed.get(k, now) for k in needed}
+            return Snapshot(maps, chosen, settled, needed, dict(self._first_needed))

@@ -1,0 +1,149 @@
+"""``pgvd agent``: run one robot's daemon until SIGINT or SIGTERM."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from agent.cli import EXIT_OK, CliError
+from agent.keys import check_name
+from agent.sources import parse_frame, parse_source
+from agent.zenoh_config import MODES, ZenohOptions, build_config
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "agent",
+        help="run one robot's map-fusion daemon (peer to peer over Zenoh)",
+        description=__doc__,
+    )
+    p.add_argument("--robot", required=True, help="this robot's id ([A-Za-z0-9_-])")
+    p.add_argument(
+        "--source", required=True, help="carmen:LOG[@FROM-TO] (fractions) or map:FILE.yaml"
+    )
+    p.add_argument("--state-dir", required=True, type=Path, help="persistent state directory")
+    p.add_argument("--fleet", default="default", help="fleet name (key prefix pgvd/<fleet>/)")
+    p.add_argument("--out", type=Path, help="where global.yaml/.pgm/.png go (default: state dir)")
+    p.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config the options extend")
+    p.add_argument("--key-file", type=Path, help="fleet key file: messages carry an HMAC")
+    p.add_argument("--listen", action="append", default=[], metavar="EP", help="listen endpoint")
+    p.add_argument("--connect", action="append", default=[], metavar="EP", help="seed endpoint")
+    p.add_argument("--mode", choices=MODES, default="peer", help="Zenoh mode (default peer)")
+    p.add_argument("--multicast", action="store_true", help="multicast scouting (LAN)")
+    p.add_argument(
+        "--shm", choices=("on", "off"), help="Zenoh shared memory (default: Zenoh's own)"
+    )
+    p.add_argument("--lease-ms", type=int, help="Zenoh transport lease (ms)")
+    p.add_argument(
+        "--best-effort-tiles",
+        action="store_true",
+        help="publish tiles best-effort (lost ones are fetched from the queryable)",
+    )
+    p.add_argument("--frame", help="own frame x,y,theta_deg (default: drawn from the robot id)")
+    p.add_argument("--resolution", type=float, default=0.1, help="carmen map cell size (m)")
+    p.add_argument("--speed", type=float, default=50.0, help="carmen replay speed x real time")
+    p.add_argument(
+        "--link-timeout", type=float, default=4.0, help="s to wait for the lower id's link"
+    )
+    p.add_argument("--announce", type=float, default=2.0, help="manifest re-announce period (s)")
+    p.add_argument(
+        "--min-change",
+        type=float,
+        default=0.05,
+        help="fraction of known cells changing class that makes a new map version",
+    )
+    p.add_argument("--min-interval", type=float, default=1.0, help="s between own versions")
+    p.add_argument("-v", "--verbose", action="store_true", help="log every event")
+    p.set_defaults(func=run)
+
+
+def options_from_args(args: argparse.Namespace):
+    """Validate the arguments into :class:`agent.daemon.AgentOptions` (CliError if bad)."""
+    from agent.daemon import AgentOptions
+
+    try:
+        robot = check_name(args.robot, "robot id")
+        fleet = check_name(args.fleet, "fleet name")
+        source = parse_source(args.source)
+        frame = parse_frame(args.frame) if args.frame else None
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    if not source.path.is_file():
+        raise CliError(f"source file not found: {source.path}")
+    for name in ("resolution", "speed", "link_timeout", "announce", "min_interval"):
+        if not getattr(args, name) > 0:
+            raise CliError(f"--{name.replace('_', '-')} must be > 0")
+    if not 0 <= args.min_change <= 1:
+        raise CliError("--min-change must be in [0, 1]")
+    key = None
+    if args.key_file is not None:
+        try:
+            key = args.key_file.read_bytes().strip()
+        except OSError as exc:
+            raise CliError(f"cannot read key file: {exc.strerror}: {args.key_file}") from None
+        if not key:
+            raise CliError(f"key file is empty: {args.key_file}")
+    zopts = ZenohOptions(
+        mode=args.mode,
+        listen=tuple(args.listen),
+        connect=tuple(args.connect),
+        multicast=args.multicast,
+        shared_memory=None if args.shm is None else args.shm == "on",
+        lease_ms=args.lease_ms,
+        config_file=args.zenoh_config,
+    )
+    try:
+        build_config(zopts)  # fail now, with one line, rather than inside the daemon
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    try:
+        args.state_dir.mkdir(parents=True, exist_ok=True)
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CliError(f"cannot create directory: {exc}") from None
+    return AgentOptions(
+        robot=robot,
+        source=source,
+        state_dir=args.state_dir,
+        fleet=fleet,
+        out_dir=args.out,
+        zenoh=zopts,
+        key=key,
+        frame=frame,
+        resolution=args.resolution,
+        speed=args.speed,
+        link_timeout=args.link_timeout,
+        announce_period=args.announce,
+        best_effort_tiles=args.best_effort_tiles,
+        min_change=args.min_change,
+        min_interval=args.min_interval,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    opts = options_from_args(args)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format=f"%(asctime)s {opts.robot} %(levelname)s %(message)s",
+        stream=sys.stderr,
+    )
+    from agent.daemon import Agent
+
+    try:
+        agent = Agent(opts)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    agent.run(stop)
+    return EXIT_OK

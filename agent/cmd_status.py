@@ -1,0 +1,118 @@
+"""``pgvd status``: ask every agent of a fleet for its status over Zenoh and print it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import zenoh
+
+from agent.cli import EXIT_OK, CliError
+from agent.keys import FleetKeys
+from agent.zenoh_config import ZenohOptions, build_config
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "status", help="robots, versions, links and traffic of a running fleet"
+    )
+    p.add_argument("--fleet", default="default", help="fleet name")
+    p.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="EP",
+        help="an agent's endpoint, e.g. tcp/127.0.0.1:7447 (none: multicast scouting)",
+    )
+    p.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file")
+    p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers")
+    p.add_argument("--json", action="store_true", help="print one JSON object {robot: status}")
+    p.set_defaults(func=run)
+
+
+def collect(
+    keys: FleetKeys, opts: ZenohOptions, timeout: float, settle: float = 0.5
+) -> dict[str, dict]:
+    """Status of every agent that answers within ``timeout``, by robot id."""
+    out: dict[str, dict] = {}
+    with zenoh.open(build_config(opts)) as session:
+        # open() returns before links are up (zenoh-notes): wait for a peer, then
+        # give gossip a moment to link the rest.
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not _neighbours(session):
+            time.sleep(0.02)
+        time.sleep(settle)
+        replies = session.get(
+            keys.status(), consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout
+        )
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            robot = keys.robot_of(str(reply.ok.key_expr), "status")
+            try:
+                status = json.loads(reply.ok.payload.to_bytes())
+            except ValueError:
+                continue
+            if robot is not None and isinstance(status, dict):
+                out[robot] = status
+    return out
+
+
+def _neighbours(session: zenoh.Session) -> bool:
+    info = session.info
+    return bool(list(info.peers_zid()) or list(info.routers_zid()))
+
+
+def format_table(statuses: dict[str, dict]) -> str:
+    """Human-readable summary: one block per agent."""
+    if not statuses:
+        return "no agent answered"
+    lines = []
+    for robot in sorted(statuses):
+        s = statuses[robot]
+        glob = s.get("global") or {}
+        lines.append(
+            f"{robot}: own v{s.get('own_version')}  global {str(glob.get('digest', '-'))[:12]} "
+            f"anchor {glob.get('anchor', '-')} members {','.join(glob.get('members', []))}  "
+            f"{'settled' if s.get('settled') else 'converging'}"
+        )
+        robots = s.get("robots", {})
+        seen = " ".join(
+            f"{r}:v{v.get('version')}{'' if v.get('alive') else '(gone)'}"
+            for r, v in sorted(robots.items())
+        )
+        lines.append(f"  robots  {seen}")
+        for ln in s.get("links", []):
+            lines.append(
+                f"  link    {ln['a']} v{ln['version_a']} - {ln['b']} v{ln['version_b']}: "
+                f"{'accepted' if ln['accepted'] else 'rejected'} score {ln['score']:.3f} "
+                f"rot {ln['rotation_deg']:.1f} deg (by {ln['decided_by']})"
+            )
+        drops = s.get("drops", {})
+        lines.append(
+            f"  traffic sent {s.get('bytes_sent', 0)} B, received {s.get('bytes_received', 0)} B"
+            f", merges {s.get('merges', 0)}, drops "
+            + (", ".join(f"{k}={v}" for k, v in sorted(drops.items())) or "none")
+        )
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        keys = FleetKeys(args.fleet)
+        opts = ZenohOptions(
+            connect=tuple(args.connect),
+            multicast=not args.connect and args.zenoh_config is None,
+            config_file=args.zenoh_config,
+        )
+        build_config(opts)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    statuses = collect(keys, opts, args.timeout)
+    if args.json:
+        print(json.dumps(statuses, indent=1, sort_keys=True))
+    else:
+        print(format_table(statuses))
+    return EXIT_OK

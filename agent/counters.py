@@ -1,0 +1,44 @@
+"""Traffic and drop counters of one agent, safe to bump from Zenoh callback threads.
+
+Fleet invariant 5: a bad message is dropped, logged once (per reason and sender) and
+counted; the counts by reason are part of the status.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import Counter
+
+log = logging.getLogger("pgvd.agent")
+
+
+class Counters:
+    """Named counters plus drops by reason; :meth:`snapshot` is what status shows."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._counts: Counter[str] = Counter()
+        self._drops: Counter[str] = Counter()
+        self._logged: set[tuple[str, str]] = set()
+
+    def add(self, name: str, n: int = 1) -> None:
+        with self._lock:
+            self._counts[name] += n
+
+    def drop(self, reason: str, sender: str, detail: str) -> None:
+        """Count a dropped message; log the first one of each ``(reason, sender)``."""
+        with self._lock:
+            self._drops[reason] += 1
+            first = (reason, sender) not in self._logged
+            self._logged.add((reason, sender))
+        if first:
+            log.warning("dropped message (%s) from %s: %s", reason, sender, detail)
+
+    def get(self, name: str) -> int:
+        with self._lock:
+            return self._counts[name]
+
+    def snapshot(self) -> dict[str, dict[str, int]]:
+        with self._lock:
+            return {"counts": dict(self._counts), "drops": dict(self._drops)}

@@ -1,0 +1,506 @@
+"""The agent daemon: one Zenoh session, the robot's own source, and the fleet's maps.
+
+Threads (zenoh-notes.md: callbacks run one at a time per subscriber, a slow one stalls it):
+
+- Zenoh callback threads only count bytes and enqueue raw payloads; queryables answer
+  from bytes prepared in advance;
+- the main thread (:meth:`Agent.run`) decodes and reassembles what arrived, steps the
+  source, publishes new versions of the own map, re-announces its manifest, fetches what
+  is missing from the ``latest`` queryables, and persists;
+- the fusion worker (:mod:`agent.worker`) registers pairs and rebuilds the global maps.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from agent import wire
+from agent.book import FleetBook
+from agent.counters import Counters
+from agent.globalmap import Component, FuseFn, component_of
+from agent.keys import FleetKeys
+from agent.links import LinkRecord
+from agent.sources import ChangeGate, SourceSpec, make_source
+from agent.state import StateDir, StoredMap, atomic_write_bytes
+from agent.worker import FusionWorker, GlobalState, RegisterFn, merge_registration
+from agent.zenoh_config import ZenohOptions, build_config
+from protocol.errors import ProtocolError
+
+log = logging.getLogger("pgvd.agent")
+
+#: Inbound payloads queued beyond this are dropped (counted): memory stays bounded.
+INBOX_LIMIT = 20_000
+
+
+@dataclass(frozen=True)
+class AgentOptions:
+    """Everything ``pgvd agent`` configures; see :mod:`agent.cmd_agent` for the meaning."""
+
+    robot: str
+    source: SourceSpec
+    state_dir: Path
+    fleet: str = "default"
+    out_dir: Path | None = None
+    zenoh: ZenohOptions = field(default_factory=ZenohOptions)
+    key: bytes | None = None
+    frame: tuple[float, float, float] | None = None
+    resolution: float = 0.1
+    speed: float = 50.0
+    link_timeout: float = 4.0
+    announce_period: float = 2.0
+    status_period: float = 1.0
+    best_effort_tiles: bool = False
+    min_change: float = 0.05
+    min_interval: float = 1.0
+
+
+class Agent:
+    """One robot's daemon; :meth:`run` blocks until ``stop`` is set."""
+
+    def __init__(
+        self,
+        opts: AgentOptions,
+        register: RegisterFn | None = None,
+        fuse: FuseFn | None = None,
+    ) -> None:
+        self.opts = opts
+        self.me = opts.robot
+        self.keys = FleetKeys(opts.fleet)
+        self.counters = Counters()
+        self.book = FleetBook()
+        self.state = StateDir(opts.state_dir)
+        self.out_dir = Path(opts.out_dir or opts.state_dir)
+        self.inbox: queue.Queue[tuple[str, str, bytes]] = queue.Queue(INBOX_LIMIT)
+        self.inbound = wire.Inbound(opts.fleet, opts.key)
+        self.outbound = wire.Outbound(opts.fleet, self.me, opts.key)
+        self.alive: dict[str, bool] = {}
+        self.started = time.time()
+        self._fetch_after: dict[str, float] = {}
+        self._fetched_at: dict[str, float] = {}
+        self._links_dirty = False
+        self._global: GlobalState | None = None
+        self._global_lock = threading.Lock()
+        self._own_digest: str | None = None
+        self._status_bytes = b"{}"
+        self._last_update: float | None = None
+        self._settled_at: float | None = None
+        self._source_pending = False
+        self._load_state()
+        self.source = make_source(
+            opts.source, self.me, opts.frame, opts.resolution, opts.speed, self._own_resume()
+        )
+        self.gate = ChangeGate(opts.min_change, opts.min_interval)
+        own = self.book.map_of(self.me)
+        self.gate.reset(own[1] if own else None, time.monotonic())
+        self.worker = FusionWorker(
+            self.me,
+            self.book,
+            register or merge_registration(),
+            self._on_link,
+            self._on_global,
+            opts.link_timeout,
+            fuse,
+        )
+
+    # ------------------------------------------------------------------ state
+
+    def _load_state(self) -> None:
+        maps, errors = self.state.load_maps()
+        links, link_errors = self.state.load_links()
+        for line in errors + link_errors:
+            log.warning("state: skipped %s", line)
+        self._resume: StoredMap | None = maps.get(self.me)
+        for robot, stored in maps.items():
+            # Own maps are persisted as the source holds them (to resume integrating).
+            grid = wire.on_the_wire(stored.grid) if robot == self.me else stored.grid
+            self.book.put_map(robot, stored.version, grid)
+        for rec in links:
+            self.book.add_link(rec)
+        if maps:
+            log.info("state: loaded %d maps and %d links", len(maps), len(links))
+
+    def _own_resume(self) -> StoredMap | None:
+        return self._resume
+
+    # --------------------------------------------------------------- callbacks
+
+    def _enqueue(self, kind: str) -> Callable[[zenoh.Sample], None]:
+        def callback(sample: zenoh.Sample) -> None:
+            data = sample.payload.to_bytes()
+            self.counters.add("bytes_received", len(data))
+            self.counters.add("messages_received")
+            try:
+                self.inbox.put_nowait((kind, str(sample.key_expr), data))
+            except queue.Full:
+                self.counters.drop("inbox_full", str(sample.key_expr), "receive queue full")
+
+        return callback
+
+    def _on_reply(self, reply: zenoh.Reply) -> None:
+        if reply.ok is None:
+            return
+        sample = reply.ok
+        data = sample.payload.to_bytes()
+        self.counters.add("bytes_received", len(data))
+        try:
+            self.inbox.put_nowait(("reply", str(sample.key_expr), data))
+        except queue.Full:
+            self.counters.drop("inbox_full", str(sample.key_expr), "receive queue full")
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        robot = self.keys.robot_of(str(sample.key_expr), "alive")
+        if robot is None or robot == self.me:
+            return
+        joined = sample.kind == zenoh.SampleKind.PUT
+        with contextlib.suppress(queue.Full):
+            self.inbox.put_nowait(("alive", robot, b"1" if joined else b"0"))
+
+    def _answer_latest(self, query: zenoh.Query) -> None:
+        for key, data in self.outbound.latest_replies(self.keys):
+            query.reply(key, data)
+            self.counters.add("bytes_sent", len(data))
+
+    def _answer_links(self, query: zenoh.Query) -> None:
+        for i, rec in enumerate(self.book.links()):
+            data = wire.encode_link(self.opts.fleet, rec, self.opts.key)
+            query.reply(self.keys.links_reply(self.me, i), data)
+            self.counters.add("bytes_sent", len(data))
+
+    def _answer_status(self, query: zenoh.Query) -> None:
+        query.reply(self.keys.status(self.me), self._status_bytes)
+
+    # ---------------------------------------------------------- worker hooks
+
+    def _on_link(self, rec: LinkRecord) -> None:
+        data = wire.encode_link(self.opts.fleet, rec, self.opts.key)
+        self.session.put(
+            self.keys.link(rec.a, rec.b), data, congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        self.counters.add("bytes_sent", len(data))
+        self.counters.add("links_published")
+        self._links_dirty = True
+
+    def _on_global(self, state: GlobalState) -> None:
+        with self._global_lock:
+            self._global = state
+        own = component_of(state.components, self.me)
+        if own is not None and own.digest != self._own_digest:
+            self._write_global(own)
+            self._own_digest = own.digest
+        if state.settled and self._settled_at is None:
+            self._settled_at = time.time()
+        elif not state.settled:
+            self._settled_at = None
+
+    def _write_global(self, comp: Component) -> None:
+        from pgvd.render import grid_image
+
+        from pgvd.io import write_map, write_png
+
+        try:
+            write_map(self.out_dir / "global.yaml", comp.grid)
+            write_png(self.out_dir / "global.png", grid_image(comp.grid))
+        except OSError as exc:
+            log.error("cannot write the global map to %s: %s", self.out_dir, exc)
+
+    # ------------------------------------------------------------------- run
+
+    def run(self, stop: threading.Event) -> int:
+        """Serve until ``stop`` is set; returns 0 after a clean shutdown."""
+        cfg = build_config(self.opts.zenoh)
+        k = self.keys
+        remote = zenoh.Locality.REMOTE
+        reliability = (
+            zenoh.Reliability.BEST_EFFORT
+            if self.opts.best_effort_tiles
+            else zenoh.Reliability.RELIABLE
+        )
+        congestion = (
+            zenoh.CongestionControl.DROP
+            if self.opts.best_effort_tiles
+            else zenoh.CongestionControl.BLOCK
+        )
+        with zenoh.open(cfg) as session, contextlib.ExitStack() as stack:
+            self.session = session
+            self.tiles_pub = stack.enter_context(
+                session.declare_publisher(
+                    k.tiles(self.me), congestion_control=congestion, reliability=reliability
+                )
+            )
+            self.manifest_pub = stack.enter_context(
+                session.declare_publisher(
+                    k.manifest(self.me), congestion_control=zenoh.CongestionControl.BLOCK
+                )
+            )
+            for key, kind in ((k.tiles(), "tiles"), (k.manifest(), "manifest"), (k.link(), "link")):
+                stack.enter_context(
+                    session.declare_subscriber(key, self._enqueue(kind), allowed_origin=remote)
+                )
+            stack.enter_context(session.declare_queryable(k.latest(self.me), self._answer_latest))
+            stack.enter_context(session.declare_queryable(k.links(self.me), self._answer_links))
+            stack.enter_context(session.declare_queryable(k.status(self.me), self._answer_status))
+            stack.enter_context(session.liveliness().declare_token(k.alive(self.me)))
+            stack.enter_context(
+                session.liveliness().declare_subscriber(k.alive(), self._on_alive, history=True)
+            )
+            log.info("agent %s up in fleet %s (pid %d)", self.me, self.opts.fleet, os.getpid())
+            self._republish_persisted()
+            self.worker.start()
+            try:
+                self._loop(stop)
+            finally:
+                self.worker.stop(timeout=0.5)
+                self._persist_links()
+                self._refresh_status()
+        return 0
+
+    def _loop(self, stop: threading.Event) -> None:
+        next_announce = next_status = 0.0
+        while not stop.is_set():
+            self._drain_inbox(deadline=time.monotonic() + 0.05)
+            now = time.monotonic()
+            self._step_source(now)
+            self._fetch_due(now)
+            if now >= next_announce:
+                self._announce()
+                next_announce = now + self.opts.announce_period
+            if now >= next_status:
+                self._persist_links()
+                self._refresh_status()
+                next_status = now + self.opts.status_period
+
+    # ------------------------------------------------------------- receiving
+
+    def _drain_inbox(self, deadline: float) -> None:
+        while time.monotonic() < deadline:
+            try:
+                kind, key, data = self.inbox.get(timeout=0.01)
+            except queue.Empty:
+                return
+            if kind == "alive":
+                self._membership(key, data == b"1")
+            else:
+                self._receive(kind, key, data)
+
+    def _membership(self, robot: str, joined: bool) -> None:
+        was = self.alive.get(robot)
+        self.alive[robot] = joined
+        if joined and not was:
+            log.info("robot %s joined", robot)
+            self._fetch(robot, links=True)
+        elif not joined and was:
+            log.info("robot %s left", robot)
+
+    def _receive(self, kind: str, key: str, data: bytes) -> None:
+        sender = key.split("/")[3] if key.count("/") >= 3 else key
+        try:
+            msg = self.inbound.decode(data, self.opts.key)
+        except ProtocolError as exc:
+            self.counters.drop("bad_message", sender, str(exc))
+            return
+        if msg.fleet != self.opts.fleet:
+            self.counters.drop("foreign_fleet", sender, f"fleet {msg.fleet!r}")
+            return
+        if isinstance(msg, wire.Link):
+            self._receive_link(msg, sender)
+            return
+        if not isinstance(msg, wire.MAP_MESSAGES):
+            self.counters.drop("unexpected_kind", sender, type(msg).__name__)
+            return
+        if msg.robot == self.me:
+            self.counters.drop("own_robot_id", sender, "a peer publishes under this robot's id")
+            return
+        if sender != msg.robot:
+            self.counters.drop("key_mismatch", sender, f"key {key} carries robot {msg.robot}")
+            return
+        held = self.book.version(msg.robot)
+        if held is not None and msg.version < held:
+            self.counters.drop("stale_version", msg.robot, f"v{msg.version} < held v{held}")
+            return
+        if held is not None and msg.version == held:
+            return  # a re-announce or a duplicate reply: nothing new
+        try:
+            done = self.inbound.feed(msg)
+        except ProtocolError as exc:
+            self.counters.drop("bad_tiles", msg.robot, str(exc))
+            self._fetch_later(msg.robot)
+            return
+        if done is None:
+            if self.inbound.incomplete(msg.robot):
+                self._fetch_later(msg.robot)
+            return
+        version, grid = done
+        if self.book.put_map(msg.robot, version, grid):
+            self.counters.add("maps_received")
+            self.state.save_map(msg.robot, StoredMap(version, grid))
+            self._fetch_after.pop(msg.robot, None)
+            log.info("map %s v%d received (%dx%d)", msg.robot, version, *grid.shape)
+
+    def _receive_link(self, msg: wire.Link, sender: str) -> None:
+        try:
+            rec = wire.link_record(msg)
+        except ValueError as exc:
+            self.counters.drop("bad_link", sender, str(exc))
+            return
+        if self.book.add_link(rec):
+            self.counters.add("links_received")
+            self._links_dirty = True
+
+    def _fetch_later(self, robot: str, delay: float = 0.3) -> None:
+        """Tiles may still be in flight: fetch the full latest map if they do not come."""
+        self._fetch_after.setdefault(robot, time.monotonic() + delay)
+
+    def _fetch_due(self, now: float) -> None:
+        for robot, when in list(self._fetch_after.items()):
+            if now >= when:
+                del self._fetch_after[robot]
+                self._fetch(robot, links=False)
+
+    def _fetch(self, robot: str, links: bool) -> None:
+        last = self._fetched_at.get(robot, -1e9)
+        if time.monotonic() - last < 1.0 and not links:
+            self._fetch_later(robot, 1.0)
+            return
+        self._fetched_at[robot] = time.monotonic()
+        self.counters.add("fetches")
+        consolidation = zenoh.ConsolidationMode.NONE
+        self.session.get(
+            self.keys.latest(robot), self._on_reply, consolidation=consolidation, timeout=5.0
+        )
+        if links:
+            self.session.get(
+                self.keys.links(robot), self._on_reply, consolidation=consolidation, timeout=5.0
+            )
+
+    # ------------------------------------------------------------ publishing
+
+    def _republish_persisted(self) -> None:
+        own = self.book.map_of(self.me)
+        if own is not None:
+            self.outbound.prepare(own[0], own[1], previous=None)
+
+    def _step_source(self, now: float) -> None:
+        if self.source.step(now):
+            self._source_pending = True
+        if not self._source_pending:
+            return
+        grid = self.source.grid()
+        if not self.gate.due(grid, now, final=self.source.done):
+            return
+        self._source_pending = False
+        held = self.book.version(self.me)
+        version = 1 if held is None else held + 1
+        previous = self.book.map_of(self.me)
+        self.state.save_map(self.me, StoredMap(version, grid, self.source.resume_state()))
+        grid = wire.on_the_wire(grid)
+        self.book.put_map(self.me, version, grid)
+        self._last_update = time.time()
+        tiles, manifest = self.outbound.prepare(version, grid, previous)
+        for data in tiles:
+            self.tiles_pub.put(data)
+            self.counters.add("bytes_sent", len(data))
+        self.manifest_pub.put(manifest)
+        self.counters.add("bytes_sent", len(manifest))
+        self.counters.add("versions_published")
+        log.info("published own map v%d (%d tile messages)", version, len(tiles))
+
+    def _announce(self) -> None:
+        manifest = self.outbound.manifest()
+        if manifest is not None:
+            self.manifest_pub.put(manifest)
+            self.counters.add("bytes_sent", len(manifest))
+
+    def _persist_links(self) -> None:
+        if self._links_dirty:
+            self._links_dirty = False
+            self.state.save_links(self.book.links())
+
+    # ---------------------------------------------------------------- status
+
+    def status(self) -> dict[str, object]:
+        """The JSON status: robots, versions, links, components, traffic, drops."""
+        with self._global_lock:
+            glob = self._global
+        versions = self.book.versions()
+        robots = {
+            r: {"version": v, "alive": r == self.me or self.alive.get(r, False)}
+            for r, v in sorted(versions.items())
+        }
+        for r, up in self.alive.items():
+            robots.setdefault(r, {"version": None, "alive": up})
+        counters = self.counters.snapshot()
+        comps = [] if glob is None else glob.components
+        own = component_of(comps, self.me)
+        return {
+            "robot": self.me,
+            "fleet": self.opts.fleet,
+            "pid": os.getpid(),
+            "time": time.time(),
+            "started": self.started,
+            "source": self.source.describe(),
+            "own_version": versions.get(self.me),
+            "last_update": self._last_update,
+            "robots": robots,
+            "links": [_link_json(rec) for rec in self.book.links()],
+            "components": [
+                {
+                    "anchor": c.anchor,
+                    "members": list(c.members),
+                    "versions": c.versions,
+                    "tree": [list(p) for p in c.tree],
+                    "digest": c.digest,
+                    "shape": list(c.grid.shape),
+                }
+                for c in comps
+            ],
+            "global": None
+            if own is None
+            else {"anchor": own.anchor, "digest": own.digest, "members": list(own.members)},
+            "settled": bool(glob and glob.settled and _versions_of(comps) == versions),
+            "settled_at": self._settled_at,
+            "merges": self.worker.merges,
+            "merge_seconds": round(self.worker.merge_seconds, 3),
+            "bytes_sent": counters["counts"].get("bytes_sent", 0),
+            "bytes_received": counters["counts"].get("bytes_received", 0),
+            "counts": counters["counts"],
+            "drops": counters["drops"],
+        }
+
+    def _refresh_status(self) -> None:
+        status = self.status()
+        self._status_bytes = json.dumps(status).encode()
+        try:
+            atomic_write_bytes(self.state.root / "status.json", self._status_bytes)
+        except OSError as exc:
+            log.error("cannot write status: %s", exc)
+
+
+def _link_json(rec: LinkRecord) -> dict[str, object]:
+    psi = float(np.degrees(np.arctan2(rec.matrix[0, 1], rec.matrix[0, 0])))
+    return {
+        "a": rec.a,
+        "version_a": rec.version_a,
+        "b": rec.b,
+        "version_b": rec.version_b,
+        "accepted": rec.accepted,
+        "score": round(rec.score, 4),
+        "rotation_deg": round(psi, 3),
+        "matrix": rec.matrix.tolist(),
+        "decided_by": rec.decided_by,
+    }
+
+
+def _versions_of(components: list[Component]) -> dict[str, int]:
+    return {r: v for c in components for r, v in c.versions.items()}

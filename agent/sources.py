@@ -1,0 +1,327 @@
+"""Where a robot's own map comes from: a replayed CARMEN log or a map_server file.
+
+``carmen:LOG[@FROM-TO]``
+    Replays the fraction ``FROM``-``TO`` of a laser log, ``speed`` times faster than it
+    was recorded, integrating each scan by ray casting (:mod:`pgvd.integrate`) into a map
+    in a frame of the robot's own: a rigid transform of the log's world frame, drawn
+    deterministically from the robot id unless given.  The frame is reported so that a
+    demo or a test can compute the true relative transforms.
+``map:FILE.yaml``
+    Follows a map_server file that an external SLAM rewrites: a new map is read only when
+    the YAML and image have been unchanged for one poll (a writer may be half-way), and a
+    file that fails to parse is retried on the next poll.
+
+A source bumps its *version* only through :class:`ChangeGate`, when the map changed
+enough, so every version is worth registering again (:mod:`agent.links`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pgvd.grid import Grid, world_pose_to_pixel_matrix
+
+_CARMEN = re.compile(r"^carmen:(?P<path>.+?)(?:@(?P<lo>[0-9.]+)-(?P<hi>[0-9.]+))?$")
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A parsed ``--source``: ``kind`` is "carmen" or "map"."""
+
+    kind: str
+    path: Path
+    segment: tuple[float, float] = (0.0, 1.0)
+
+
+def parse_source(spec: str) -> SourceSpec:
+    """Parse ``carmen:LOG[@FROM-TO]`` or ``map:FILE.yaml``; ``ValueError`` (one line) if bad."""
+    if spec.startswith("map:"):
+        path = Path(spec[4:])
+        if not spec[4:]:
+            raise ValueError("map source needs a file: map:FILE.yaml")
+        return SourceSpec("map", path)
+    m = _CARMEN.match(spec)
+    if m is None:
+        raise ValueError(f"source must be carmen:LOG[@FROM-TO] or map:FILE.yaml, got {spec!r}")
+    lo = float(m["lo"]) if m["lo"] is not None else 0.0
+    hi = float(m["hi"]) if m["hi"] is not None else 1.0
+    if not 0.0 <= lo < hi <= 1.0:
+        raise ValueError(f"segment must satisfy 0 <= FROM < TO <= 1, got {lo}-{hi}")
+    return SourceSpec("carmen", Path(m["path"]), (lo, hi))
+
+
+def frame_for_robot(robot: str, span_m: float = 20.0) -> tuple[float, float, float]:
+    """A deterministic "random" rigid frame ``(x m, y m, theta rad)`` for a robot id.
+
+    Different robots get unrelated frames, so nothing in the fleet can rely on maps
+    sharing one; the same robot gets the same frame after a restart.
+    """
+    seed = int.from_bytes(hashlib.sha256(f"pgvd-frame:{robot}".encode()).digest()[:8], "big")
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(-span_m, span_m, size=2)
+    return (float(x), float(y), float(rng.uniform(0.0, 2.0 * np.pi)))
+
+
+def parse_frame(text: str) -> tuple[float, float, float]:
+    """``"x,y,theta_deg"`` -> ``(x, y, theta rad)``; ``ValueError`` (one line) if bad."""
+    parts = text.split(",")
+    try:
+        x, y, deg = (float(p) for p in parts)
+    except ValueError:
+        raise ValueError(f"frame must be x,y,theta_deg, got {text!r}") from None
+    if not np.isfinite([x, y, deg]).all():
+        raise ValueError(f"frame must be finite, got {text!r}")
+    return (x, y, float(np.deg2rad(deg)))
+
+
+class ChangeGate:
+    """Decides when a changing map deserves a new version.
+
+    A new version is due when at least ``min_fraction`` of the known cells changed
+    their occupancy class (free/unknown/occupied) since the last version and
+    ``min_interval`` seconds passed, or when the source finished (the final map).
+    """
+
+    def __init__(self, min_fraction: float = 0.05, min_interval: float = 1.0) -> None:
+        self.min_fraction = min_fraction
+        self.min_interval = min_interval
+        self._last: np.ndarray | None = None
+        self._last_time = -np.inf
+
+    def reset(self, grid: Grid | None, now: float) -> None:
+        self._last = None if grid is None else _classes(grid.logodds)
+        self._last_time = now
+
+    def due(self, grid: Grid, now: float, final: bool = False) -> bool:
+        cls = _classes(grid.logodds)
+        if self._last is not None and self._last.shape == cls.shape:
+            changed = int(np.count_nonzero(cls != self._last))
+            if changed == 0:
+                return False
+            known = max(int(np.count_nonzero(cls)), 1)
+            if not final and (
+                changed < self.min_fraction * known or now - self._last_time < self.min_interval
+            ):
+                return False
+        elif not final and now - self._last_time < self.min_interval:
+            return False
+        self._last = cls
+        self._last_time = now
+        return True
+
+
+def _classes(logodds: np.ndarray) -> np.ndarray:
+    """-1 free, 0 unknown, 1 occupied: what registration sees of a map."""
+    return np.sign(logodds).astype(np.int8)
+
+
+class CarmenSource:
+    """Replays a CARMEN log segment into a growing local map, in the robot's own frame.
+
+    Parameters
+    ----------
+    spec : a ``carmen:`` :class:`SourceSpec`.
+    frame : ``(x, y, theta)`` rigid transform from the log's world frame to the robot's.
+    resolution : metres per cell.
+    speed : replay speed, times real time (log timestamps); ``inf`` integrates at once.
+    resume : ``(logodds, cursor)`` persisted by an earlier run, to continue where it stopped.
+    """
+
+    kind = "carmen"
+
+    def __init__(
+        self,
+        spec: SourceSpec,
+        frame: tuple[float, float, float],
+        resolution: float,
+        speed: float,
+        resume: tuple[np.ndarray, int] | None = None,
+    ) -> None:
+        from pgvd.integrate import frame_for, se2, select_segment
+        from pgvd.io import read_carmen
+
+        scans = read_carmen(spec.path)
+        self.scans = select_segment(scans, spec.segment)
+        if not self.scans:
+            raise ValueError(f"{spec.path}: segment {spec.segment} holds no scans")
+        self.spec = spec
+        self.frame = frame
+        self.speed = speed
+        self.map_frame = frame_for(self.scans, resolution, se2(*frame))
+        self.cursor = 0
+        self.logodds = np.zeros(self.map_frame.shape, dtype=np.float32)
+        if resume is not None and resume[0].shape == self.logodds.shape:
+            self.logodds = resume[0].astype(np.float32, copy=True)
+            self.cursor = min(int(resume[1]), len(self.scans))
+        self._t0: float | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.cursor >= len(self.scans)
+
+    def step(self, now: float) -> bool:
+        """Integrate the scans due by ``now`` (monotonic seconds); True if any was."""
+        from pgvd.integrate import integrate_scan
+
+        if self.done:
+            return False
+        stamps = self._stamps()
+        if self._t0 is None:
+            # Resume mid-log: the replay clock starts at the next scan.
+            self._t0 = now - (stamps[self.cursor] - stamps[0]) / self.speed
+        horizon = stamps[0] + (now - self._t0) * self.speed
+        start = self.cursor
+        while self.cursor < len(self.scans) and stamps[self.cursor] <= horizon:
+            integrate_scan(self.logodds, self.scans[self.cursor], self.map_frame)
+            self.cursor += 1
+        return self.cursor > start
+
+    def _stamps(self) -> np.ndarray:
+        if not hasattr(self, "_stamp_cache"):
+            self._stamp_cache = np.array([s.timestamp for s in self.scans], dtype=np.float64)
+        return self._stamp_cache
+
+    def grid(self) -> Grid:
+        return self.map_frame.grid(self.logodds.copy())
+
+    def resume_state(self) -> dict[str, object]:
+        return {"cursor": self.cursor}
+
+    def describe(self) -> dict[str, object]:
+        """Status entry; ``world_to_pixel`` (log world metres -> map pixels) gives the truth."""
+        to_pixel = world_pose_to_pixel_matrix(self.map_frame.grid(self.logodds))
+        return {
+            "kind": self.kind,
+            "path": str(self.spec.path),
+            "segment": list(self.spec.segment),
+            "frame": list(self.frame),
+            "world_to_pixel": (to_pixel @ self.map_frame.world_to_map).tolist(),
+            "progress": [self.cursor, len(self.scans)],
+            "done": self.done,
+        }
+
+
+class MapFileSource:
+    """Follows a map_server YAML that another process rewrites.
+
+    A changed file is read once its YAML and image stat (size, mtime) are the same on two
+    consecutive polls, so a writer caught half-way is simply read later; a file that
+    still fails to parse is counted in :attr:`errors` and retried.
+    """
+
+    kind = "map"
+
+    def __init__(self, spec: SourceSpec, poll: float = 0.5) -> None:
+        self.spec = spec
+        self.poll = poll
+        self.errors = 0
+        self.last_error: str | None = None
+        self._grid: Grid | None = None
+        self._seen: tuple[object, ...] | None = None
+        self._stable: tuple[object, ...] | None = None
+        self._next = 0.0
+
+    done = False
+
+    def step(self, now: float) -> bool:
+        from pgvd.io import MapFormatError, read_map
+
+        if now < self._next:
+            return False
+        self._next = now + self.poll
+        stamp = self._stat()
+        if stamp is None or stamp == self._seen:
+            return False
+        if stamp != self._stable:
+            self._stable = stamp  # changed since last poll: may be mid-write, wait one poll
+            return False
+        try:
+            grid = read_map(self.spec.path)
+        except (MapFormatError, OSError, ValueError) as exc:
+            self.errors += 1
+            self.last_error = str(exc).splitlines()[0]
+            return False
+        self._seen = stamp
+        if self._grid is not None and _same_grid(grid, self._grid):
+            return False
+        self._grid = grid
+        return True
+
+    def _stat(self) -> tuple[object, ...] | None:
+        from pgvd.io import parse_map_yaml
+
+        try:
+            yaml_stat = self.spec.path.stat()
+            meta = parse_map_yaml(self.spec.path.read_text(), self.spec.path)
+            image = self.spec.path.parent / str(meta.get("image", ""))
+            image_stat = image.stat()
+        except (OSError, ValueError):
+            return None
+        return (
+            yaml_stat.st_size,
+            yaml_stat.st_mtime_ns,
+            image_stat.st_size,
+            image_stat.st_mtime_ns,
+        )
+
+    def grid(self) -> Grid:
+        if self._grid is None:
+            raise RuntimeError("no map read yet")
+        return self._grid
+
+    def resume_state(self) -> dict[str, object]:
+        return {}
+
+    def describe(self) -> dict[str, object]:
+        return {
+            "kind": self.kind,
+            "path": str(self.spec.path),
+            "done": False,
+            "read_errors": self.errors,
+            "last_error": self.last_error,
+        }
+
+
+def _same_grid(a: Grid, b: Grid) -> bool:
+    return (
+        a.shape == b.shape
+        and a.resolution == b.resolution
+        and tuple(a.origin) == tuple(b.origin)
+        and np.array_equal(a.logodds, b.logodds)
+    )
+
+
+Source = CarmenSource | MapFileSource
+
+
+def make_source(
+    spec: SourceSpec,
+    robot: str,
+    frame: tuple[float, float, float] | None,
+    resolution: float,
+    speed: float,
+    resume: object | None = None,
+) -> Source:
+    """The source of ``spec``; ``resume`` is the robot's persisted :class:`StoredMap`.
+
+    Raises
+    ------
+    ValueError
+        A missing or unreadable log/map (one line).
+    """
+    if not spec.path.exists():
+        raise ValueError(f"source file not found: {spec.path}")
+    if spec.kind == "map":
+        return MapFileSource(spec)
+    state = None
+    if resume is not None:
+        extra = getattr(resume, "extra", {}) or {}
+        grid = getattr(resume, "grid", None)
+        if grid is not None and "cursor" in extra:
+            state = (grid.logodds, int(extra["cursor"]))
+    return CarmenSource(spec, frame or frame_for_robot(robot), resolution, speed, state)

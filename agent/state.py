@@ -1,0 +1,118 @@
+"""The agent's state directory: own and peers' latest maps and the links, written atomically.
+
+Layout of ``--state-dir``::
+
+    maps/<robot>.npz   latest map of a robot: log-odds, resolution, origin, version, extra JSON
+    links.json         the cached links (:mod:`agent.links`)
+    status.json        the last status snapshot (for people and for ``pgvd demo``)
+
+Every file is written to a temporary name in the same directory, fsynced, then renamed
+over the old one, so ``kill -9`` leaves either the old or the new file, never half of one.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from agent.keys import check_name
+from agent.links import LinkRecord, dumps, loads
+from pgvd.grid import Grid
+
+
+@dataclass(frozen=True)
+class StoredMap:
+    """One robot's latest map as persisted; ``extra`` holds source progress for own maps."""
+
+    version: int
+    grid: Grid
+    extra: dict[str, object] = field(default_factory=dict)
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that a crash leaves the old or the new file whole."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)  # the rename itself must survive a crash too
+    finally:
+        os.close(dir_fd)
+
+
+def atomic_write_json(path: Path, obj: object) -> None:
+    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True).encode())
+
+
+class StateDir:
+    """Load and save an agent's persisted state under one directory."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.maps_dir = self.root / "maps"
+        self.maps_dir.mkdir(parents=True, exist_ok=True)
+
+    def save_map(self, robot: str, stored: StoredMap) -> None:
+        buf = io.BytesIO()
+        g = stored.grid
+        np.savez(
+            buf,
+            logodds=np.ascontiguousarray(g.logodds, dtype=np.float32),
+            resolution=np.float64(g.resolution),
+            origin=np.asarray(g.origin, dtype=np.float64),
+            version=np.int64(stored.version),
+            extra=np.frombuffer(json.dumps(stored.extra).encode(), dtype=np.uint8),
+        )
+        atomic_write_bytes(self.maps_dir / f"{check_name(robot, 'robot id')}.npz", buf.getvalue())
+
+    def load_maps(self) -> tuple[dict[str, StoredMap], list[str]]:
+        """All persisted maps, and one line per file that could not be read (skipped)."""
+        maps: dict[str, StoredMap] = {}
+        errors: list[str] = []
+        for path in sorted(self.maps_dir.glob("*.npz")):
+            try:
+                maps[check_name(path.stem, "robot id")] = _read_map(path)
+            except (OSError, ValueError, KeyError) as exc:
+                errors.append(f"{path.name}: {exc}")
+        return maps, errors
+
+    def save_links(self, records: list[LinkRecord]) -> None:
+        atomic_write_bytes(self.root / "links.json", dumps(records).encode())
+
+    def load_links(self) -> tuple[list[LinkRecord], list[str]]:
+        path = self.root / "links.json"
+        if not path.exists():
+            return [], []
+        try:
+            return loads(path.read_text()), []
+        except (OSError, ValueError) as exc:
+            return [], [f"links.json: {exc}"]
+
+    def save_status(self, status: dict[str, object]) -> None:
+        atomic_write_json(self.root / "status.json", status)
+
+
+def _read_map(path: Path) -> StoredMap:
+    with np.load(path, allow_pickle=False) as z:
+        logodds = np.asarray(z["logodds"], dtype=np.float32)
+        origin = tuple(float(v) for v in z["origin"])
+        if len(origin) != 3 or not np.isfinite(logodds).all():
+            raise ValueError("corrupt map arrays")
+        extra = json.loads(bytes(z["extra"]).decode() or "{}")
+        grid = Grid(logodds, float(z["resolution"]), origin)  # type: ignore[arg-type]
+        return StoredMap(int(z["version"]), grid, extra)

@@ -1,0 +1,143 @@
+"""The agent's thin adapter over :mod:`protocol`: own versions out, peers' maps and links in.
+
+What the agent stores as its own map is what its peers will decode: the log-odds after
+the int8 round trip (:func:`on_the_wire`).  Otherwise the agent and its peers would fuse
+slightly different inputs and their global maps would differ (fleet invariant 2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agent.keys import FleetKeys
+from agent.links import LinkRecord
+from pgvd.grid import Grid
+from protocol import (
+    Limits,
+    Link,
+    Manifest,
+    MapReassembler,
+    MapTiles,
+    Message,
+    ProtocolError,
+    decode,
+    dequantise,
+    encode,
+    encode_map,
+    quantise_grid,
+)
+
+MAP_MESSAGES = (MapTiles, Manifest)
+#: Peers tracked at most: a flood of invented robot ids cannot exhaust memory.
+MAX_PEERS = 256
+
+__all__ = ["MAP_MESSAGES", "Inbound", "Link", "Outbound", "encode_link", "link_record"]
+
+
+def on_the_wire(grid: Grid) -> Grid:
+    """``grid`` as a peer decodes it: log-odds quantised to int8 and back."""
+    return Grid(dequantise(quantise_grid(grid)), grid.resolution, tuple(grid.origin))
+
+
+class Outbound:
+    """Encodes the own map's versions: deltas to publish, and the full latest for queries."""
+
+    def __init__(self, fleet: str, robot: str, key: bytes | None) -> None:
+        self.fleet, self.robot, self.key = fleet, robot, key
+        self._latest: tuple[int, list[bytes], bytes] | None = None
+
+    def prepare(
+        self, version: int, grid: Grid, previous: tuple[int, Grid] | None
+    ) -> tuple[list[bytes], bytes]:
+        """Tile messages (a delta against ``previous`` if given) and the manifest of ``version``."""
+        full = encode_map(self.fleet, self.robot, version, grid, self.key)
+        self._latest = (version, full[0], full[1])
+        if previous is None:
+            return full
+        return encode_map(
+            self.fleet,
+            self.robot,
+            version,
+            grid,
+            self.key,
+            since=previous[1],
+            base_version=previous[0],
+        )
+
+    def manifest(self) -> bytes | None:
+        return None if self._latest is None else self._latest[2]
+
+    def latest_replies(self, keys: FleetKeys) -> list[tuple[str, bytes]]:
+        """The full latest version, each message under its own concrete key, manifest last."""
+        if self._latest is None:
+            return []
+        version, tiles, manifest = self._latest
+        out = [(keys.latest_reply(self.robot, version, f"t{i}"), t) for i, t in enumerate(tiles)]
+        out.append((keys.latest_reply(self.robot, version, "m"), manifest))
+        return out
+
+
+class Inbound:
+    """Decodes payloads and reassembles each peer's map (one reassembler per peer)."""
+
+    def __init__(self, fleet: str, key: bytes | None, limits: Limits | None = None) -> None:
+        self.fleet, self.key = fleet, key
+        self.limits = limits or Limits()
+        self._reassemblers: dict[str, MapReassembler] = {}
+
+    def decode(self, data: bytes, key: bytes | None) -> Message:
+        return decode(data, key, self.limits)
+
+    def feed(self, msg: MapTiles | Manifest) -> tuple[int, Grid] | None:
+        """Feed a map message; ``(version, grid)`` when a version completes."""
+        reasm = self._reassemblers.get(msg.robot)
+        if reasm is None:
+            if len(self._reassemblers) >= MAX_PEERS:
+                raise ProtocolError(f"more than {MAX_PEERS} robots in the fleet")
+            reasm = self._reassemblers[msg.robot] = MapReassembler(
+                msg.robot, self.fleet, self.limits
+            )
+        grid = reasm.feed(msg)
+        if grid is None:
+            return None
+        assert reasm.version is not None
+        return reasm.version, grid
+
+    def incomplete(self, robot: str) -> bool:
+        """True if a manifest of ``robot`` waits for tiles that are not held."""
+        reasm = self._reassemblers.get(robot)
+        return reasm is not None and bool(reasm.missing())
+
+
+def encode_link(fleet: str, rec: LinkRecord, key: bytes | None) -> bytes:
+    msg = Link(
+        fleet,
+        rec.decided_by,
+        rec.a,
+        rec.b,
+        rec.version_a,
+        rec.version_b,
+        rec.accepted,
+        rec.matrix.tolist(),
+        rec.covariance.tolist(),
+        rec.score,
+    )
+    return encode(msg, key)
+
+
+def link_record(msg: Link) -> LinkRecord:
+    """The cached form of a received link; ``ValueError`` if it breaks the agent's rules."""
+    m = np.asarray(msg.matrix, dtype=np.float64)
+    if abs(abs(np.linalg.det(m[:2, :2])) - 1.0) > 1e-3 or np.any(m[2] != (0.0, 0.0, 1.0)):
+        raise ValueError("link matrix is not rigid")
+    return LinkRecord(
+        msg.robot_a,
+        msg.version_a,
+        msg.robot_b,
+        msg.version_b,
+        msg.accepted,
+        m,
+        np.asarray(msg.covariance, dtype=np.float64),
+        msg.score,
+        msg.decided_by,
+    )

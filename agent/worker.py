@@ -1,0 +1,167 @@
+"""The fusion worker: pairwise registration and global-map rebuilds on a thread of their own.
+
+Zenoh callbacks only enqueue (zenoh-notes: a slow callback stalls its subscriber), and the
+receiving thread only reassembles and stores maps; everything that takes CPU time, the
+merge (Sec. IV) and the fusion (33)-(37), runs here, one job at a time:
+
+1. if some pair lacks a link of its latest versions and it is this agent's turn
+   (:func:`agent.links.due_keys`), register it, cache and publish the link, loop;
+2. otherwise, if the maps or the chosen links changed, rebuild the global maps.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from agent.book import FleetBook, Snapshot
+from agent.globalmap import Component, FuseFn, build_components
+from agent.links import LinkKey, LinkRecord, due_keys
+from pgvd.grid import Grid
+
+log = logging.getLogger("pgvd.agent")
+
+
+@dataclass(frozen=True)
+class Registration:
+    """What a pairwise registration decided; ``matrix`` maps B pixels to A pixels."""
+
+    accepted: bool
+    matrix: np.ndarray
+    covariance: np.ndarray
+    score: float
+
+
+RegisterFn = Callable[[Grid, Grid], Registration]
+
+
+def merge_registration(params: object | None = None) -> RegisterFn:
+    """:func:`pgvd.merge.merge` as a :data:`RegisterFn` (rho test (32) plus global check)."""
+    from pgvd.merge import merge
+
+    def register(a: Grid, b: Grid) -> Registration:
+        res = merge(a, b, params)
+        matrix = np.asarray(res.matrix, dtype=np.float64)
+        cov = np.asarray(res.covariance, dtype=np.float64)
+        score = float(res.score) if np.isfinite(res.score) else 0.0
+        if not (res.accepted and np.isfinite(matrix).all() and np.isfinite(cov).all()):
+            # A rejection's transform means nothing; keep the record finite for the wire.
+            return Registration(False, np.eye(3), np.zeros((3, 3)), score)
+        return Registration(True, matrix, cov, score)
+
+    return register
+
+
+@dataclass(frozen=True)
+class GlobalState:
+    """The last rebuild: its components, and whether every pair had its latest link."""
+
+    components: list[Component]
+    settled: bool
+    built_at: float
+
+
+class FusionWorker:
+    """Runs registrations and rebuilds until :meth:`stop`.
+
+    Parameters
+    ----------
+    me : this agent's robot id (decides whose turn a pair is).
+    book : the shared :class:`FleetBook`.
+    register : pairwise registration, deterministic in its inputs.
+    on_link : called with each link this worker decided (to publish and persist it).
+    on_global : called with each new :class:`GlobalState`.
+    link_timeout : seconds to wait for the lower robot's agent before registering.
+    fuse : fusion function for :func:`agent.globalmap.build_components`.
+    """
+
+    def __init__(
+        self,
+        me: str,
+        book: FleetBook,
+        register: RegisterFn,
+        on_link: Callable[[LinkRecord], None],
+        on_global: Callable[[GlobalState], None],
+        link_timeout: float = 4.0,
+        fuse: FuseFn | None = None,
+    ) -> None:
+        self.me = me
+        self.book = book
+        self.register = register
+        self.on_link = on_link
+        self.on_global = on_global
+        self.link_timeout = link_timeout
+        self.fuse = fuse
+        self.merges = 0
+        self.merge_seconds = 0.0
+        self.busy = False
+        self._stop = threading.Event()
+        self._built: tuple[object, ...] | None = None
+        self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout: float = 1.0) -> None:
+        self._stop.set()
+        self.book.changed.set()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.book.changed.wait(0.2)
+            self.book.changed.clear()
+            try:
+                while not self._stop.is_set() and self.step():
+                    pass
+            except Exception:  # a bug here must not kill the agent silently
+                log.exception("fusion worker step failed")
+                time.sleep(0.5)
+
+    def step(self, now: float | None = None) -> bool:
+        """Do one job; True if there may be more to do right away."""
+        now = time.monotonic() if now is None else now
+        snap = self.book.snapshot(now)
+        due = due_keys(self.me, snap.needed, snap.first_needed, now, self.link_timeout)
+        if due:
+            self._register(snap, due[0])
+            return True
+        signature = (
+            tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
+            tuple(ln.key for ln in snap.links),
+        )
+        if snap.maps and signature != self._built:
+            self._built = signature  # a failing rebuild is not retried until inputs change
+            self._rebuild(snap)
+        return False
+
+    def _register(self, snap: Snapshot, key: LinkKey) -> None:
+        a, va, b, vb = key
+        t0 = time.monotonic()
+        self.busy = True
+        try:
+            res = self.register(snap.maps[a][1], snap.maps[b][1])
+        except Exception as exc:  # bad maps are an outcome (rejected), not a crash
+            log.warning("registration of %s v%d / %s v%d failed: %s", a, va, b, vb, exc)
+            res = Registration(False, np.eye(3), np.zeros((3, 3)), 0.0)
+        finally:
+            self.busy = False
+        self.merges += 1
+        self.merge_seconds += time.monotonic() - t0
+        rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)
+        log.info(
+            "link %s v%d - %s v%d: %s score %.3f (%.2f s)",
+            a, va, b, vb, "accepted" if res.accepted else "rejected", res.score,
+            time.monotonic() - t0,
+        )  # fmt: skip
+        if self.book.add_link(rec):
+            self.on_link(rec)
+
+    def _rebuild(self, snap: Snapshot) -> None:
+        components = build_components(snap.maps, snap.links, self.fuse)
+        self.on_global(GlobalState(components, snap.settled, time.time()))

@@ -1,0 +1,117 @@
+"""The Zenoh configuration of an agent: peer mode on explicit endpoints, overridable by a file.
+
+Why these defaults (see ``shared/zenoh-notes.md``): multicast scouting finds nobody on
+loopback, so peers listen on ``tcp/127.0.0.1:PORT`` and connect to seeds, and gossip
+links the rest; ``scouting/delay`` 0 keeps ``open()`` from waiting 500 ms.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import zenoh
+
+MODES = ("peer", "client", "router")
+
+
+@dataclass(frozen=True)
+class ZenohOptions:
+    """What the command line may set; ``config_file`` is applied first, the rest on top.
+
+    Attributes
+    ----------
+    mode : "peer" (default), "client" or "router".
+    listen : endpoints to listen on, e.g. ``tcp/127.0.0.1:7447``.
+    connect : seed endpoints to connect to.
+    multicast : enable multicast scouting (LANs; useless on loopback).
+    shared_memory : None keeps Zenoh's default (on); False disables it (loss/bandwidth tests).
+    lease_ms : transport lease: how fast a frozen peer is declared gone.
+    config_file : a Zenoh JSON5 config file that the options above extend.
+    """
+
+    mode: str = "peer"
+    listen: Sequence[str] = ()
+    connect: Sequence[str] = ()
+    multicast: bool = False
+    shared_memory: bool | None = None
+    lease_ms: int | None = None
+    config_file: Path | None = None
+    extra: dict[str, object] = field(default_factory=dict)
+
+
+def build_config(opts: ZenohOptions) -> zenoh.Config:
+    """A :class:`zenoh.Config` for ``opts``.
+
+    A config file is loaded as-is; the built-in defaults (peer mode, no multicast,
+    gossip on, scouting delay 0) are then applied only where the file is silent, and
+    explicit options (listen, connect, mode...) always win.
+
+    Raises
+    ------
+    ValueError
+        For an unknown mode or a config file Zenoh rejects (one line).
+    """
+    if opts.mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {opts.mode!r}")
+    file_keys: set[str] = set()
+    if opts.config_file is not None:
+        try:
+            cfg = zenoh.Config.from_file(str(opts.config_file))
+        except Exception as exc:  # zenoh raises its own ZError with a multi-line text
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ValueError(f"bad Zenoh config {opts.config_file}: {first}") from None
+        file_keys = _set_keys(cfg)
+    else:
+        cfg = zenoh.Config()
+    defaults: dict[str, object] = {
+        "mode": opts.mode,
+        "scouting/delay": 0,
+        "scouting/multicast/enabled": opts.multicast,
+        "scouting/gossip/enabled": True,
+    }
+    for key, value in defaults.items():
+        if key not in file_keys:
+            _insert(cfg, key, value)
+    explicit: dict[str, object] = dict(opts.extra)
+    if opts.mode != "peer" or opts.config_file is None:
+        explicit["mode"] = opts.mode
+    if opts.multicast:
+        explicit["scouting/multicast/enabled"] = True
+    if opts.listen:
+        explicit["listen/endpoints"] = list(opts.listen)
+    if opts.connect:
+        explicit["connect/endpoints"] = list(opts.connect)
+        # Seeds may start after us: keep retrying quickly instead of giving up.
+        explicit["connect/timeout_ms"] = -1
+        explicit["connect/exit_on_failure"] = False
+    if opts.shared_memory is not None:
+        explicit["transport/shared_memory/enabled"] = opts.shared_memory
+    if opts.lease_ms is not None:
+        explicit["transport/link/tx/lease"] = int(opts.lease_ms)
+    for key, value in explicit.items():
+        _insert(cfg, key, value)
+    return cfg
+
+
+def _insert(cfg: zenoh.Config, key: str, value: object) -> None:
+    """``insert_json5`` takes JSON text (zenoh-notes.md), hence ``json.dumps``."""
+    try:
+        cfg.insert_json5(key, json.dumps(value))
+    except Exception as exc:
+        raise ValueError(f"bad Zenoh setting {key}={value!r}: {exc}") from None
+
+
+def _set_keys(cfg: zenoh.Config) -> set[str]:
+    """The few keys this module sets whose value a config file already fixed."""
+    keys = set()
+    for key in ("mode", "scouting/delay", "scouting/multicast/enabled", "scouting/gossip/enabled"):
+        try:
+            value = cfg.get_json(key)
+        except Exception:
+            continue
+        if value not in ("null", None):
+            keys.add(key)
+    return keys
