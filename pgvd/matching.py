@@ -212,7 +212,7 @@ class Agreement:
 
 
 class MapView:
-    """One map prepared for overlay checks: wall cells, near-wall and clear-free masks.
+    """A coarse map prepared for :class:`OverlayScores`: wall, near-wall and clear-free masks.
 
     ``near`` is the walls dilated by ``tolerance`` cells; ``clear`` is free
     space farther than ``2 tolerance`` cells from any wall, so that a wall
@@ -225,17 +225,7 @@ class MapView:
         struct = np.ones((2 * tolerance + 1, 2 * tolerance + 1), bool)
         self.near = ndi.binary_dilation(self.occ, struct) if tolerance else self.occ
         self.clear = (prob < free) & ~ndi.binary_dilation(self.occ, struct, iterations=2)
-        r, c = np.nonzero(self.occ)
-        self.walls = np.column_stack([c, r]).astype(float)
         self.shape = prob.shape
-
-    def count(self, points: np.ndarray) -> tuple[int, int]:
-        """(agree, disagree) of wall points ``(N, 2)`` (x, y) of the other map in this frame."""
-        ij = np.rint(points).astype(np.int64)
-        h, w = self.shape
-        ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
-        x, y = ij[ok, 0], ij[ok, 1]
-        return int(self.near[y, x].sum()), int(self.clear[y, x].sum())
 
 
 class OverlayScores:
@@ -288,10 +278,34 @@ def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ m[:2, :2].T + m[:2, 2]
 
 
-def map_agreement(a: MapView, b: MapView, matrix: np.ndarray) -> Agreement:
+class WallMap:
+    """A full-resolution map for overlay checks: its probabilities and a k-d tree of its walls."""
+
+    def __init__(self, prob: np.ndarray, occupied: float, free: float) -> None:
+        self.free = np.asarray(prob) < free
+        r, c = np.nonzero(np.asarray(prob) > occupied)
+        self.walls = np.column_stack([c, r]).astype(float)
+        self.tree = cKDTree(self.walls)
+
+    def count(self, points: np.ndarray, tolerance: float) -> tuple[int, int]:
+        """(agree, disagree) of another map's wall points ``(N, 2)`` (x, y) in this frame.
+
+        A point agrees within ``tolerance`` of a wall here and disagrees on a
+        free cell farther than ``2 tolerance`` from every wall.
+        """
+        dist, _ = self.tree.query(points, distance_upper_bound=2 * tolerance + 1e-9)
+        ij = np.rint(points).astype(np.int64)
+        h, w = self.free.shape
+        inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        free = np.zeros(len(points), bool)
+        free[inside] = self.free[ij[inside, 1], ij[inside, 0]]
+        return int(np.sum(dist <= tolerance)), int(np.sum(free & ~np.isfinite(dist)))
+
+
+def map_agreement(a: WallMap, b: WallMap, matrix: np.ndarray, tolerance: float = 2.0) -> Agreement:
     """Overlay B on A with the B->A pixel ``matrix`` and count agreement both ways."""
-    ag1, dis1 = a.count(_apply(matrix, b.walls))
-    ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), a.walls))
+    ag1, dis1 = a.count(_apply(matrix, b.walls), tolerance)
+    ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), a.walls), tolerance)
     return Agreement(ag1 + ag2, dis1 + dis2)
 
 
@@ -312,21 +326,28 @@ def refine(
     matrix: np.ndarray,
     radii: tuple[float, ...] = (12.0, 8.0, 5.0, 3.0, 2.0),
     iterations: int = 4,
+    max_points: int = 3000,
 ) -> np.ndarray:
     """Trimmed point-to-point ICP of B's wall cells onto A's, from ``matrix`` (B->A pixels).
 
     Correspondences farther than the current radius are dropped; the radius
     shrinks over ``radii`` so the coarse estimate is pulled in, then tightened.
+    All but the last radius use an even subsample of ``max_points`` cells.
     """
     m = matrix.copy()
-    for radius in radii:
+    sub = walls_b[:: -(-len(walls_b) // max_points)]
+    for k, radius in enumerate(radii):
+        pts = walls_b if k == len(radii) - 1 else sub
         for _ in range(iterations):
-            moved = _apply(m, walls_b)
-            dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+            dist, idx = walls_a.query(_apply(m, pts), distance_upper_bound=radius)
             ok = np.isfinite(dist)
             if ok.sum() < 10:
                 return m
-            m = _fit_rigid(walls_b[ok], walls_a.data[idx[ok]])
+            new = _fit_rigid(pts[ok], walls_a.data[idx[ok]])
+            step = np.abs(new - m).max()
+            m = new
+            if step < 1e-3:
+                break
     return m
 
 

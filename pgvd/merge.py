@@ -38,7 +38,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from pgvd.graph import EdgeGraph, build_graph
 from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
@@ -47,6 +46,7 @@ from pgvd.matching import (
     MapView,
     OverlayScores,
     PairSupport,
+    WallMap,
     alignment_covariance,
     map_agreement,
     pair_support,
@@ -90,7 +90,7 @@ class MergeParams:
     max_hypotheses: int = 40
     search_radius: float = 2.4
     min_pairs: int = 2
-    min_agreement: float = 0.75
+    min_agreement: float = 0.85
     min_overlap: float = 15.0
     occupied: float = OCCUPIED
     free: float = 0.3
@@ -221,18 +221,18 @@ class _Clock:
         return self.timings
 
 
-def _check_inputs(a: Grid, b: Grid, params: MergeParams) -> None:
+def _check_inputs(a: Grid, b: Grid, pa: np.ndarray, pb: np.ndarray, params: MergeParams) -> None:
     if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
         raise ValueError(
             f"maps have different resolutions ({a.resolution} vs {b.resolution} m/cell); "
             "resample B first (pgvd.transform.resample)"
         )
-    for name, g in (("A", a), ("B", b)):
+    for name, g, p in (("A", a, pa), ("B", b, pb)):
         if g.logodds.size == 0:
             raise ValueError(f"map {name} is empty")
         if not np.isfinite(g.logodds).all():
             raise ValueError(f"map {name} contains NaN or infinite values")
-        if not (g.probability() > params.occupied).any():
+        if not (p > params.occupied).any():
             raise ValueError(f"map {name} has no occupied cells")
 
 
@@ -258,12 +258,9 @@ def _search_heading(
     passing = rho_test(sim.gamma, graph_a.edges, graph_b.edges, params.rho)
     ia, ib = np.nonzero(passing)
     order = np.argsort(-sim.gamma[ia, ib], kind="stable")
-    proposals = list(
-        dict.fromkeys(
-            (int(sim.shift[i, j, 0]), int(sim.shift[i, j, 1]))
-            for i, j in zip(ia[order], ib[order], strict=True)
-        )
-    )[: params.max_hypotheses]
+    shifts = sim.shift[ia[order], ib[order]].astype(np.int64)
+    _, first = np.unique(shifts, axis=0, return_index=True)
+    proposals = [(int(x), int(y)) for x, y in shifts[np.sort(first)[: params.max_hypotheses]]]
     clock.lap("gamma")
     out: list[_Hypothesis] = []
     if not proposals:
@@ -306,8 +303,23 @@ def _edge_mask(graph: EdgeGraph, idx: np.ndarray) -> np.ndarray:
     return mask
 
 
-def _upsample(coarse: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
-    return np.kron(coarse, np.ones((k, k), coarse.dtype))[: shape[0], : shape[1]]
+def _paint(coarse: np.ndarray, matrix: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
+    """Draw the nonzero coarse cells as ``k x k`` blocks into a full-resolution frame.
+
+    ``matrix`` maps full-resolution pixels of the coarse array's frame to the target frame.
+    """
+    r, c = np.nonzero(coarse)
+    m = matrix @ _scale(k)
+    centres = np.column_stack([c, r]).astype(float) @ m[:2, :2].T + m[:2, 2]
+    out = np.zeros(shape, coarse.dtype)
+    offsets = np.arange(k) - (k - 1) / 2.0
+    for dy in offsets:
+        for dx in offsets:
+            x = np.rint(centres[:, 0] + dx).astype(np.int64)
+            y = np.rint(centres[:, 1] + dy).astype(np.int64)
+            ok = (x >= 0) & (x < shape[1]) & (y >= 0) & (y < shape[0])
+            out[y[ok], x[ok]] = coarse[r[ok], c[ok]]
+    return out
 
 
 def _diagnostics(
@@ -315,27 +327,13 @@ def _diagnostics(
 ) -> MergeDiagnostics:
     ia, ib = np.nonzero(best.passing)
     to_fine = _scale(k)
-    # B's PGVD lives in the rotated coarse frame: pull it back to B's pixels (nearest cell).
+    # B's PGVD lives in the rotated coarse frame: draw it back in B's pixels.
     back = np.linalg.inv(to_fine @ best.rotation @ np.linalg.inv(to_fine))
-    sp_b = warp(
-        _upsample(best.sp_b, k, (best.sp_b.shape[0] * k,) * 2),
-        np.linalg.inv(back),
-        b.shape,
-        order=0,
-    )
-    edges_b = warp(
-        _upsample(
-            _edge_mask(best.graph_b, ib).astype(np.float32), k, (best.sp_b.shape[0] * k,) * 2
-        ),
-        np.linalg.inv(back),
-        b.shape,
-        order=0,
-    )
     return MergeDiagnostics(
-        pgvd_a=_upsample(sp_a, k, a.shape),
-        pgvd_b=sp_b,
-        edges_a=_upsample(_edge_mask(graph_a, ia), k, a.shape),
-        edges_b=edges_b > 0.5,
+        pgvd_a=_paint(sp_a, np.eye(3), k, a.shape),
+        pgvd_b=_paint(best.sp_b, back, k, b.shape),
+        edges_a=_paint(_edge_mask(graph_a, ia), np.eye(3), k, a.shape),
+        edges_b=_paint(_edge_mask(best.graph_b, ib), back, k, b.shape),
         gamma=best.gamma,
     )
 
@@ -383,8 +381,8 @@ def merge(
     """
     params = params or MergeParams()
     clock = _Clock(progress)
-    _check_inputs(a, b, params)
     pa, pb = a.probability(), b.probability()
+    _check_inputs(a, b, pa, pb, params)
     headings = estimate_headings(pa, pb, params.max_candidates)
     clock.lap("rotation")
     k = max(1, round(params.coarse_resolution / a.resolution))
@@ -415,13 +413,10 @@ def merge(
     best = max(good, key=lambda h: (h.net, h.ratio))
     to_fine = _scale(k)
     matrix = to_fine @ best.coarse_matrix @ np.linalg.inv(to_fine)
-    walls_a = np.column_stack(np.nonzero(pa > params.occupied)[::-1]).astype(float)
-    walls_b = np.column_stack(np.nonzero(pb > params.occupied)[::-1]).astype(float)
-    tree_a = cKDTree(walls_a)
-    matrix = refine(tree_a, walls_b, matrix)
+    fine_a = WallMap(pa, params.occupied, params.free)
+    fine_b = WallMap(pb, params.occupied, params.free)
+    matrix = refine(fine_a.tree, fine_b.walls, matrix)
     clock.lap("refine")
-    fine_a = MapView(pa, params.occupied, params.free, 2)
-    fine_b = MapView(pb, params.occupied, params.free, 2)
     agreement = map_agreement(fine_a, fine_b, matrix)
     overlap_m = 0.5 * agreement.agree * a.resolution
     clock.lap("verify")
@@ -439,7 +434,7 @@ def merge(
             matrix,
             agreement.ratio,
         )
-    cov = alignment_covariance(tree_a, walls_b, matrix)
+    cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix)
     clock.lap("covariance")
     diag = _diagnostics(best, graph_a, sp_a, k, a, b) if params.diagnostics else None
     if diag is not None:
