@@ -22,7 +22,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from scipy import fft, ndimage
+from scipy import ndimage, signal
 
 from pgvd.transform import warp
 
@@ -30,7 +30,9 @@ from pgvd.transform import warp
 _BINS_PER_SIGMA = 3.0
 #: Ring spacing of the polar grid, pixels: bilinear splat + read smooths radially by ~this / 2.
 _RING_PX = 0.5
-#: Below this tangential sigma (pixels) at the far corner the rotation blur is skipped.
+#: Variance (pixels^2) added to a translation covariance so a degenerate one is invertible.
+_DELTA_VARIANCE = 1e-2
+#: Below this sigma (pixels; tangential at the far corner for rotation) a blur is skipped.
 _MIN_SIGMA_PX = 0.25
 
 _J = np.array([[0.0, 1.0], [-1.0, 0.0]])  # dR_psi/dpsi = R_psi @ _J, eq. (2)
@@ -180,9 +182,11 @@ def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
     """Anisotropic Gaussian blur with a constant 2x2 covariance (pixels^2), eq. (8).
 
     This is the translation part of eq. (8) (``sigma_psi = 0``, Sec. IV-F).
-    The kernel is applied exactly in the Fourier domain, where it is
-    ``exp(-2 pi^2 f^T Sigma f)``; the image is padded by reflection by
-    4 sigma first so that nothing wraps around.
+    The 2-D kernel ``exp(-d^T Sigma^-1 d / 2)`` is sampled out to 4 sigma
+    and normalised, and applied by FFT convolution on the image padded by
+    reflection.  (The kernel is sampled in space, not its transfer function
+    in frequency: for sigma below a pixel the latter rings across the whole
+    map.)
 
     Parameters
     ----------
@@ -202,21 +206,17 @@ def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
     eig = np.linalg.eigvalsh(cov)
     if eig.min() < -1e-9 * max(1.0, eig.max()):
         raise ValueError(f"cov_xy must be positive semi-definite, got {cov.tolist()}")
-    if eig.max() < 1e-4:
+    if eig.max() < _MIN_SIGMA_PX**2:
         return img.copy()
-    pad = math.ceil(4.0 * math.sqrt(eig.max()))
+    half = math.ceil(4.0 * math.sqrt(eig.max()))
+    ys, xs = np.mgrid[-half : half + 1, -half : half + 1].astype(np.float64)
+    # a degenerate direction (e.g. translation fully explained by the heading) is a delta
+    inv = np.linalg.inv(cov + _DELTA_VARIANCE * np.eye(2))
+    kernel = np.exp(-0.5 * (inv[0, 0] * xs**2 + 2 * inv[0, 1] * xs * ys + inv[1, 1] * ys**2))
+    kernel /= kernel.sum()
     h, w = img.shape
-    padded = np.pad(img, pad, mode="reflect" if min(h, w) > pad else "edge")
-    shape = (
-        fft.next_fast_len(padded.shape[0], real=True),
-        fft.next_fast_len(padded.shape[1], real=True),
-    )
-    fy = fft.fftfreq(shape[0])[:, None]
-    fx = fft.rfftfreq(shape[1])[None, :]
-    q = cov[0, 0] * fx**2 + 2 * cov[0, 1] * fx * fy + cov[1, 1] * fy**2
-    spectrum = fft.rfft2(padded, s=shape) * np.exp(-2.0 * np.pi**2 * q).astype(np.float32)
-    out = fft.irfft2(spectrum, s=shape)
-    return out[pad : pad + h, pad : pad + w].astype(np.float32)
+    padded = np.pad(img.astype(np.float64), half, mode="reflect" if min(h, w) > half else "edge")
+    return signal.fftconvolve(padded, kernel, mode="valid").astype(np.float32)
 
 
 def propagate(

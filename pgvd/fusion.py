@@ -1,0 +1,116 @@
+"""Map fusion: log-odds addition (33)-(34) and the entropy filter (35)-(37), Sec. IV-G."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from pgvd.grid import LOGODDS_LIMIT, Grid, pixel_to_world, probability_to_logodds
+from pgvd.io import OCCUPIED_THRESH
+from pgvd.transform import union_canvas
+from pgvd.uncertainty import propagate
+
+
+def entropy(p: np.ndarray) -> np.ndarray:
+    """Eq. (35): ``H = -p log p - (1 - p) log(1 - p)`` in nats, with ``0 log 0 = 0``."""
+    p = np.asarray(p, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = -(np.where(p > 0, p * np.log(p), 0.0) + np.where(p < 1, (1 - p) * np.log1p(-p), 0.0))
+    return h
+
+
+def fuse(base_logodds: np.ndarray, other_logodds: np.ndarray) -> np.ndarray:
+    """Fuse ``other`` into ``base``: eq. (33), then the entropy filter (35)-(37).
+
+    ``l_fused = l_base + l_other`` (33); a cell keeps ``l_fused`` where the
+    information ``I = H(base) - H(fused)`` (36) is >= 0, else ``l_base`` (37).
+    The entropy of a binary cell falls strictly with ``|l|``, so ``I >= 0``
+    is evaluated as ``|l_fused| >= |l_base|``: the same test without the
+    rounding of (35) near p = 0 or 1.  An unknown ``other`` cell (0) leaves
+    ``base`` as it was.
+
+    Parameters
+    ----------
+    base_logodds, other_logodds : same-shape log-odds arrays, both in base's frame.
+
+    Returns
+    -------
+    float32 log-odds, the final map of eq. (37).
+    """
+    base = np.asarray(base_logodds, dtype=np.float32)
+    other = np.asarray(other_logodds, dtype=np.float32)
+    if base.shape != other.shape:
+        raise ValueError(f"maps must have the same shape, got {base.shape} and {other.shape}")
+    fused = np.clip(base + other, -LOGODDS_LIMIT, LOGODDS_LIMIT)  # as eq. (9) clips
+    return np.where(np.abs(fused) >= np.abs(base), fused, base).astype(np.float32)
+
+
+def fuse_many(base: np.ndarray, others: Iterable[np.ndarray]) -> np.ndarray:
+    """Fuse several maps into ``base`` one after another, in the order given.
+
+    The entropy filter (37) judges each update against the map so far, so
+    the result depends on the order; callers pass a fixed order (e.g. by
+    robot id) so that every agent computes the same map.
+    """
+    out = np.asarray(base, dtype=np.float32)
+    for other in others:
+        out = fuse(out, other)
+    return out
+
+
+def wall_centroid(grid: Grid) -> tuple[float, float]:
+    """Mean pixel ``(x, y)`` of the occupied cells: the centre about which
+    :func:`pgvd.matching.alignment_covariance` expresses the heading error."""
+    rows, cols = np.nonzero(grid.probability() > OCCUPIED_THRESH)
+    if rows.size == 0:
+        h, w = grid.shape
+        return (w - 1) / 2.0, (h - 1) / 2.0
+    return float(cols.mean()), float(rows.mean())
+
+
+def fuse_maps(
+    a: Grid,
+    b: Grid,
+    matrix: np.ndarray,
+    covariance: np.ndarray,
+    center: tuple[float, float] | None = None,
+) -> Grid:
+    """Fuse map B into map A on a canvas that holds both whole (Fig. 1, last blocks).
+
+    B is moved by ``matrix`` with its uncertainty propagated, eq. (8)
+    (:func:`pgvd.uncertainty.propagate` on B's probabilities, unknown
+    outside B), then fused into A by (33)-(37).  The result keeps A's world
+    frame: its origin is the metric pose of the canvas's lower-left corner,
+    so that A's cells sit at the same metric positions as before.
+
+    Parameters
+    ----------
+    a, b : the maps, equal resolutions.
+    matrix : 3x3, B pixel -> A pixel.
+    covariance : 3x3 over ``(x px, y px, psi rad)``; NaN entries are read as 0.
+    center : B pixel about which the heading error acts; default B's wall centroid.
+
+    Returns
+    -------
+    Grid in A's frame, shifted by whole cells to hold both maps.
+    """
+    if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
+        raise ValueError(f"resolutions differ ({a.resolution} vs {b.resolution}); resample B")
+    shape, offset = union_canvas(a.shape, b.shape, matrix)
+    dx, dy = int(offset[0, 2]), int(offset[1, 2])
+    base = np.zeros(shape, dtype=np.float32)
+    base[dy : dy + a.shape[0], dx : dx + a.shape[1]] = a.logodds
+    cov = np.nan_to_num(np.asarray(covariance, dtype=np.float64), nan=0.0)
+    moved = propagate(
+        b.probability(),
+        offset @ np.asarray(matrix, dtype=np.float64),
+        cov,
+        shape,
+        center=wall_centroid(b) if center is None else center,
+        cval=0.5,
+    )
+    fused = fuse(base, probability_to_logodds(np.clip(moved, 0.0, 1.0)))
+    # canvas pixel (0, H-1) is A pixel (-dx, H-1-dy); its lower-left corner is the new origin
+    corner = pixel_to_world(a, [[-dx - 0.5, shape[0] - 1 - dy + 0.5]])[0]
+    return Grid(fused, a.resolution, (float(corner[0]), float(corner[1]), a.origin[2]))
