@@ -7,14 +7,15 @@ Wire layout of every message::
 ``flags`` bit 0 says the trailer is an HMAC-SHA256 (32 bytes, fleet key set)
 rather than a CRC-32 (4 bytes).  The body is a msgpack map whose ``"k"``
 entry names the kind; every other entry is checked for type, range and
-finiteness before a message object is built.  Tiles are raw deflate streams
-of their int8 cells, inflated with a hard bound of the tile's own size, so a
-small message can never expand into a large allocation.
+finiteness before a message object is built.  Tiles are deflate streams
+(:mod:`protocol.compress`) inflated with a hard bound derived from the tile's
+own shape, so a small message can never expand into a large allocation.
+A manifest's checksums travel as a bitmap of the tiles it lists followed by
+one little-endian CRC-32 per listed tile.
 """
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Callable
 from typing import Any
 
@@ -22,6 +23,7 @@ import msgpack
 import numpy as np
 
 from protocol.auth import check_key, seal, unseal
+from protocol.compress import pack_cells, unpack_cells
 from protocol.errors import ProtocolError
 from protocol.limits import Limits
 from protocol.messages import (
@@ -42,10 +44,6 @@ MAGIC = b"PG"
 SCHEMA_VERSION = 1
 FLAG_MAC = 0x01
 HEADER_BYTES = 4
-#: Tile encodings; 0 = raw deflate (zlib, wbits=-15) of the row-major int8 cells.
-ENCODING_DEFLATE = 0
-#: zlib level 6: on real maps level 9 saves ~6% more bytes at 5-8x the time.
-DEFLATE_LEVEL = 6
 
 KIND_TILES = "tiles"
 KIND_MANIFEST = "manifest"
@@ -76,9 +74,15 @@ def _geometry(g: Geometry) -> list[Any]:
 
 
 def _tile(t: Tile) -> list[Any]:
-    data = zlib.compressobj(DEFLATE_LEVEL, zlib.DEFLATED, -15)
-    packed = data.compress(t.cells.data) + data.flush()
-    return [t.index, t.checksum, t.base_checksum, ENCODING_DEFLATE, packed]
+    encoding, packed = pack_cells(t.cells)
+    return [t.index, t.checksum, t.base_checksum, encoding, packed]
+
+
+def _manifest_checksums(msg: Manifest) -> bytes:
+    listed = np.zeros(msg.geometry.n_tiles, bool)
+    listed[list(msg.checksums)] = True
+    crcs = np.array(list(msg.checksums.values()), dtype="<u4")
+    return np.packbits(listed).tobytes() + crcs.tobytes()
 
 
 def _body(msg: Message) -> dict[str, Any]:
@@ -93,14 +97,13 @@ def _body(msg: Message) -> dict[str, Any]:
             "t": [_tile(t) for t in msg.tiles],
         }
     if isinstance(msg, Manifest):
-        pairs = np.array(list(msg.checksums.items()), dtype="<u4").reshape(-1, 2)
         return {
             "k": KIND_MANIFEST,
             "f": msg.fleet,
             "r": msg.robot,
             "v": msg.version,
             "g": _geometry(msg.geometry),
-            "c": pairs.tobytes(),
+            "c": _manifest_checksums(msg),
         }
     if isinstance(msg, Link):
         return {
@@ -234,22 +237,6 @@ def _parse_geometry(fields: _Fields, limits: Limits) -> Geometry:
     return geometry
 
 
-def _inflate(packed: bytes, size: int, index: int) -> bytes:
-    """Raw-inflate ``packed`` to exactly ``size`` bytes, never producing more."""
-    inflater = zlib.decompressobj(-15)
-    try:
-        out = inflater.decompress(packed, size)
-    except zlib.error as exc:
-        raise ProtocolError(f"tile {index}: corrupted deflate stream ({exc})") from None
-    if inflater.unconsumed_tail:
-        raise ProtocolError(f"tile {index}: expands past its bound of {size} bytes")
-    if len(out) != size or not inflater.eof:
-        raise ProtocolError(f"tile {index}: inflates to {len(out)} bytes, expected {size}")
-    if inflater.unused_data:
-        raise ProtocolError(f"tile {index}: trailing bytes after the deflate stream")
-    return out
-
-
 def _parse_tile(raw: Any, geometry: Geometry) -> Tile:
     if not isinstance(raw, list) or len(raw) != 5:
         raise ProtocolError("a tile must be [index, checksum, base_checksum, encoding, data]")
@@ -257,12 +244,11 @@ def _parse_tile(raw: Any, geometry: Geometry) -> Tile:
     if isinstance(index, bool) or not isinstance(index, int):
         raise ProtocolError("tile index must be an integer")
     shape = geometry.tile_shape(index)
-    if encoding != ENCODING_DEFLATE or isinstance(encoding, bool):
-        raise ProtocolError(f"tile {index}: unknown encoding {encoding!r}")
+    if isinstance(encoding, bool) or not isinstance(encoding, int):
+        raise ProtocolError(f"tile {index}: encoding must be an integer")
     if not isinstance(packed, bytes):
         raise ProtocolError(f"tile {index}: data must be bytes")
-    cells = np.frombuffer(_inflate(packed, shape[0] * shape[1], index), dtype=np.int8)
-    tile = Tile(index, crc, cells.reshape(shape), base)
+    tile = Tile(index, crc, unpack_cells(encoding, packed, shape, index), base)
     if not tile.is_delta:
         apply_tile(tile, None)  # a delta's checksum can only be checked against its base
     return tile
@@ -292,14 +278,20 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
     geometry = _parse_geometry(fields, limits)
     packed = fields.take("c", bytes)
     fields.done()
-    if len(packed) % 8:
-        raise ProtocolError(f"manifest checksums of {len(packed)} bytes are not index/crc pairs")
-    pairs = np.frombuffer(packed, dtype="<u4").reshape(-1, 2)
-    if len(pairs) > geometry.n_tiles:
-        raise ProtocolError(f"manifest lists {len(pairs)} tiles, the map has {geometry.n_tiles}")
-    if len(pairs) > 1 and not (np.diff(pairs[:, 0].astype(np.int64)) > 0).all():
-        raise ProtocolError("manifest tile indices must be strictly increasing")
-    checksums = {int(i): int(c) for i, c in pairs}
+    n = geometry.n_tiles
+    bitmap = -(-n // 8)
+    if len(packed) < bitmap:
+        raise ProtocolError(f"manifest checksums of {len(packed)} bytes miss the {n}-tile bitmap")
+    bits = np.unpackbits(np.frombuffer(packed, np.uint8, bitmap))
+    if bits[n:].any():
+        raise ProtocolError("manifest bitmap has bits beyond the last tile")
+    listed = np.flatnonzero(bits[:n])
+    if len(packed) != bitmap + 4 * len(listed):
+        raise ProtocolError(
+            f"manifest lists {len(listed)} tiles but carries {len(packed) - bitmap} checksum bytes"
+        )
+    crcs = np.frombuffer(packed, "<u4", offset=bitmap)
+    checksums = {int(i): int(c) for i, c in zip(listed, crcs, strict=True)}
     return Manifest(fleet, robot, version, geometry, checksums)
 
 

@@ -209,10 +209,14 @@ def test_tile_shape_mismatch():
         body = tile_body(np.ones((16, 16), np.int8))
         body["t"][0][0] = 6
         decode(raw(body))
-    with pytest.raises(ProtocolError, match="manifest tile index 9 outside"):
-        g = [20, 30, 0.05, 0.0, 0.0, 0.0, 16]
-        packed = np.array([[9, 1]], "<u4").tobytes()
-        decode(raw({"k": "manifest", "f": "f", "r": "r", "v": 1, "g": g, "c": packed}))
+    g = [20, 30, 0.05, 0.0, 0.0, 0.0, 16]  # 2x2 tiles
+    manifest = {"k": "manifest", "f": "f", "r": "r", "v": 1, "g": g}
+    beyond = np.packbits([0, 0, 0, 0, 1, 0, 0, 0]).tobytes() + bytes(4)
+    with pytest.raises(ProtocolError, match="bits beyond the last tile"):
+        decode(raw({**manifest, "c": beyond}))
+    short = np.packbits([1, 1, 0, 0, 0, 0, 0, 0]).tobytes() + bytes(4)
+    with pytest.raises(ProtocolError, match="lists 2 tiles but carries 4 checksum bytes"):
+        decode(raw({**manifest, "c": short}))
 
 
 def test_too_many_cells():

@@ -182,7 +182,7 @@ def test_buffer_of_early_tiles_is_bounded():
     rng = np.random.default_rng(0)
     reasm = MapReassembler("r1", limits=Limits(max_buffered_tiles=4))
     for v in range(1, 4):
-        q = random_quantised(rng, (64, 64), 0.3)
+        q = random_quantised(rng, (64, 64), 0.9)
         tiles, manifest = encode_map("f", "r1", v, as_grid(q), tile_size=16, max_message_bytes=400)
         assert len(tiles) == 16
         deliver(reasm, tiles)
