@@ -28,6 +28,9 @@ class _Parser(argparse.ArgumentParser):
 def _subcommands() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Each sub-command module exposes ``register(subparsers)`` setting ``func``."""
     registrars: list[Callable[[argparse._SubParsersAction], None]] = []
+    from agent import cmd_agent, cmd_demo, cmd_status
+
+    registrars += [cmd_agent.register, cmd_status.register, cmd_demo.register]
     return registrars
 
 
@@ -51,4 +54,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Run as ``python -m agent.cli``: dispatch through the importable module, so that the
+    # CliError the sub-commands raise (agent.cli.CliError) is the one caught here.
+    from agent.cli import main as _main
+
+    sys.exit(_main())

@@ -205,13 +205,12 @@ class Agent:
             self._settled_at = None
 
     def _write_global(self, comp: Component) -> None:
-        from pgvd.render import grid_image
-
         from pgvd.io import write_map, write_png
+        from pgvd.render import grid_image
 
         try:
             write_map(self.out_dir / "global.yaml", comp.grid)
-            write_png(self.out_dir / "global.png", grid_image(comp.grid))
+            write_png(self.out_dir / "global.png", grid_image(comp.grid.probability()))
         except OSError as exc:
             log.error("cannot write the global map to %s: %s", self.out_dir, exc)
 
@@ -453,7 +452,7 @@ class Agent:
             "own_version": versions.get(self.me),
             "last_update": self._last_update,
             "robots": robots,
-            "links": [_link_json(rec) for rec in self.book.links()],
+            "links": [_link_json(rec, versions) for rec in self.book.links()],
             "components": [
                 {
                     "anchor": c.anchor,
@@ -487,7 +486,7 @@ class Agent:
             log.error("cannot write status: %s", exc)
 
 
-def _link_json(rec: LinkRecord) -> dict[str, object]:
+def _link_json(rec: LinkRecord, versions: dict[str, int]) -> dict[str, object]:
     psi = float(np.degrees(np.arctan2(rec.matrix[0, 1], rec.matrix[0, 0])))
     return {
         "a": rec.a,
@@ -499,6 +498,8 @@ def _link_json(rec: LinkRecord) -> dict[str, object]:
         "rotation_deg": round(psi, 3),
         "matrix": rec.matrix.tolist(),
         "decided_by": rec.decided_by,
+        # False for a superseded link that stands in while the latest is computed.
+        "current": versions.get(rec.a) == rec.version_a and versions.get(rec.b) == rec.version_b,
     }
 
 
