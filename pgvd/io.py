@@ -25,12 +25,13 @@ from __future__ import annotations
 import math
 import os
 import re
+import secrets
 import struct
-import tempfile
 import zlib
 from collections.abc import Callable
 from io import BytesIO
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -460,10 +461,15 @@ def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
 # ----------------------------------------------------------------------------- write
 
 
-def _atomic_write(path: Path, write: Callable[[object], None]) -> None:
-    """Write via a temporary file in the same directory, then ``os.replace``."""
+def _atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
+    """Write via a temporary file in the same directory, then ``os.replace``.
+
+    The temporary file is created with mode 0666 minus the umask, like any
+    ``open()`` (``tempfile.mkstemp`` would leave the map readable by its owner only).
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)
@@ -471,7 +477,7 @@ def _atomic_write(path: Path, write: Callable[[object], None]) -> None:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 

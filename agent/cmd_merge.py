@@ -1,0 +1,155 @@
+"""``pgvd merge A B``: find the B->A transform of two map files, and fuse them (design.md).
+
+Exit 0 when the maps merge (``-o`` and ``--plot`` are written), 3 when they do
+not overlap (``--plot`` still shows why), 2 on bad input with one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from agent.cli import EXIT_NO_OVERLAP, EXIT_OK, CliError
+from pgvd.grid import Grid, matrix_to_pose
+from pgvd.io import MAX_CELLS, MapFormatError, read_map, write_map, write_png
+
+if TYPE_CHECKING:
+    from pgvd.merge import MergeResult
+
+_MAP_SUFFIXES = (".yaml", ".yml", ".npy")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "merge",
+        help="merge two occupancy-grid maps (ROS map_server .yaml or .npy)",
+        description=(
+            "Find the transform from map B's pixels to map A's pixels with the PGVD method "
+            "and fuse B into A. Exit 0: merged; 3: no overlap; 2: bad input."
+        ),
+    )
+    p.add_argument("a", type=Path, help="map A (.yaml map_server file or .npy probabilities)")
+    p.add_argument("b", type=Path, help="map B, resampled to A's resolution if it differs")
+    p.add_argument(
+        "-o", "--output", type=Path, metavar="FUSED", help="write the fused map (.yaml or .npy)"
+    )
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object (matrix, covariance, ...)"
+    )
+    p.add_argument("--plot", type=Path, metavar="OUT.png", help="write a PNG of the merge")
+    p.add_argument(
+        "--max-cells",
+        type=int,
+        default=MAX_CELLS,
+        metavar="N",
+        help=f"refuse maps with more cells than N (default {MAX_CELLS})",
+    )
+    p.add_argument("-v", "--verbose", action="store_true", help="print stages on stderr")
+    p.set_defaults(func=run)
+
+
+def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
+    if args.json and not args.verbose:
+        return None
+    if not (args.verbose or sys.stderr.isatty()):
+        return None
+    return lambda line: print(f"pgvd merge: {line}", file=sys.stderr, flush=True)
+
+
+def _read(path: Path, max_cells: int) -> Grid:
+    try:
+        return read_map(path, max_cells)
+    except MapFormatError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _finite_or_none(value: object) -> object:
+    """JSON has no NaN: a rejected merge's covariance is reported as nulls."""
+    if isinstance(value, list):
+        return [_finite_or_none(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def report(result: MergeResult, b_scale: np.ndarray | None) -> dict:
+    """The ``--json`` object of design.md; ``matrix`` maps the pixels of B *as read from
+    its file*, so it includes the scale when B was resampled."""
+    doc = result.to_json()
+    if b_scale is not None:
+        m = np.asarray(result.matrix, dtype=np.float64) @ b_scale
+        doc["matrix"] = [[float(v) for v in row] for row in m]
+        doc["translation_px"] = [float(m[0, 2]), float(m[1, 2])]
+        doc["b_scale"] = float(b_scale[0, 0])
+    return {k: _finite_or_none(v) for k, v in doc.items()}
+
+
+def _summary(result: MergeResult, doc: dict) -> str:
+    total = doc["timings_ms"].get("total", float("nan"))
+    if not result.accepted:
+        return f"no overlap: {result.reason} ({total:.0f} ms)"
+    psi, tx, ty = matrix_to_pose(np.asarray(result.matrix))
+    sd = np.sqrt(np.clip(np.diag(np.asarray(result.covariance, dtype=float)), 0, None))
+    return (
+        f"merged: rotation {math.degrees(psi):.2f} deg (+-{math.degrees(sd[2]):.2f}), "
+        f"translation ({tx:.1f}, {ty:.1f}) px (+-{sd[0]:.1f}, {sd[1]:.1f}), "
+        f"score {result.score:.3f}, {total:.0f} ms"
+    )
+
+
+def _write(what: str, path: Path, write: Callable[[], None]) -> None:
+    try:
+        write()
+    except OSError as exc:
+        raise CliError(f"cannot write {what} {path}: {exc.strerror or exc}") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from pgvd.fusion import fuse_maps
+    from pgvd.merge import merge
+    from pgvd.render import merge_figure
+    from pgvd.transform import resample, scale_matrix
+
+    if args.output is not None and args.output.suffix.lower() not in _MAP_SUFFIXES:
+        raise CliError(f"-o {args.output}: the fused map must end in .yaml, .yml or .npy")
+    if args.max_cells <= 0:
+        raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
+    progress = _progress(args)
+    say = progress or (lambda line: None)
+    say(f"reading {args.a} and {args.b}")
+    a = _read(args.a, args.max_cells)
+    b = _read(args.b, args.max_cells)
+    b_scale = None
+    if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
+        say(f"resampling B from {b.resolution} to {a.resolution} m/cell")
+        resampled = resample(b, a.resolution)
+        b_scale = scale_matrix(b.resolution, a.resolution, b.shape[0], resampled.shape[0])
+        b = resampled
+        if b.logodds.size > args.max_cells:
+            raise CliError(f"{args.b}: resampled to {b.shape} cells, over --max-cells")
+    try:
+        result = merge(a, b, progress=progress)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    doc = report(result, b_scale)
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+    else:
+        print(_summary(result, doc))
+    if args.plot is not None:
+        say(f"drawing {args.plot}")
+        _write("plot", args.plot, lambda: write_png(args.plot, merge_figure(a, b, result)))
+    if not result.accepted:
+        return EXIT_NO_OVERLAP
+    if args.output is not None:
+        say(f"fusing into {args.output}")
+        fused = fuse_maps(a, b, result.matrix, result.covariance)
+        _write("fused map", args.output, lambda: write_map(args.output, fused))
+    return EXIT_OK
