@@ -87,10 +87,12 @@ def _inflate(packed: bytes, bound: int, index: int) -> bytes:
     inflater = zlib.decompressobj(-15)
     try:
         out = inflater.decompress(packed, bound)
+        # Output stopped at the bound: one more byte proves the stream goes on,
+        # none means it ends here (its final bits were merely not consumed yet).
+        if not inflater.eof and inflater.decompress(inflater.unconsumed_tail, 1):
+            raise ProtocolError(f"tile {index}: expands past its bound of {bound} bytes")
     except zlib.error as exc:
         raise ProtocolError(f"tile {index}: corrupted deflate stream ({exc})") from None
-    if inflater.unconsumed_tail:
-        raise ProtocolError(f"tile {index}: expands past its bound of {bound} bytes")
     if not inflater.eof:
         raise ProtocolError(f"tile {index}: deflate stream is truncated")
     if inflater.unused_data:

@@ -1,0 +1,65 @@
+"""protocol.messages: constructors refuse what no valid message could hold."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from protocol import Geometry, Heartbeat, Link, Manifest, MapTiles, ProtocolError, Status, Tile
+
+
+def test_geometry_checks_and_tiling():
+    g = Geometry((300, 130), 0.05, (1, 2, 0.5), 128)
+    assert g.tile_grid == (3, 2) and g.n_tiles == 6
+    assert g.tile_shape(5) == (44, 2) and g.tile_window(3) == (slice(128, 256), slice(128, 130))
+    for kwargs, why in [
+        ({"shape": (0, 5)}, "positive"),
+        ({"shape": (5,)}, r"\(H, W\)"),
+        ({"resolution": -1.0}, "> 0"),
+        ({"resolution": float("inf")}, "finite"),
+        ({"origin": (0.0, float("nan"), 0.0)}, "origin.1. must be finite"),
+        ({"tile_size": 100}, "tile_size must be one of"),
+        ({"tile_size": True}, "tile_size must be one of"),
+    ]:
+        args = {"shape": (10, 10), "resolution": 0.05, **kwargs}
+        with pytest.raises(ProtocolError, match=why):
+            Geometry(**args)
+    with pytest.raises(ProtocolError, match="tile index 6 outside"):
+        g.tile_shape(6)
+
+
+def test_map_tiles_checks():
+    g = Geometry((20, 20), 0.05, tile_size=16)
+    t = Tile(0, 0, np.zeros((16, 16), np.int8))
+    with pytest.raises(ProtocolError, match=r"has shape \(16, 16\), geometry says \(16, 4\)"):
+        MapTiles("f", "r", 1, g, (Tile(1, 0, np.zeros((16, 16), np.int8)),))
+    with pytest.raises(ProtocolError, match="appears twice"):
+        MapTiles("f", "r", 1, g, (t, t))
+    with pytest.raises(ProtocolError, match="at least one tile"):
+        MapTiles("f", "r", 1, g, ())
+    with pytest.raises(ProtocolError, match="must be older"):
+        MapTiles("f", "r", 1, g, (t,), base_version=1)
+    with pytest.raises(ProtocolError, match="int8"):
+        Tile(0, 0, np.zeros((16, 16), np.int16))
+    with pytest.raises(ProtocolError, match="32-bit"):
+        Tile(0, 2**32, np.zeros((16, 16), np.int8))
+    assert not t.cells.flags.writeable
+
+
+def test_ids_versions_and_counters():
+    with pytest.raises(ProtocolError, match="outside"):
+        Heartbeat("f", "r 1", 1)
+    with pytest.raises(ProtocolError, match=r"\[0, 2\*\*63\)"):
+        Heartbeat("f", "r", -1)
+    with pytest.raises(ProtocolError, match="must be an integer"):
+        Heartbeat("f", "r", 1.0)
+    with pytest.raises(ProtocolError, match="counter name"):
+        Status("f", "r", 1, {"a/b": 1})
+    with pytest.raises(ProtocolError, match="must be finite"):
+        Status("f", "r", 1, {"a": float("nan")})
+    with pytest.raises(ProtocolError, match="two different robots"):
+        Link("f", "a", "a", "a", 1, 1, True, np.eye(3), np.eye(3), 1.0)
+    with pytest.raises(ProtocolError, match="must be 3x3"):
+        Link("f", "a", "a", "b", 1, 1, True, np.eye(2), np.eye(3), 1.0)
+    with pytest.raises(ProtocolError, match="manifest tile index 4 outside"):
+        Manifest("f", "r", 1, Geometry((20, 20), 0.05, tile_size=16), {4: 1})
