@@ -31,6 +31,8 @@ from pgvd.grid import rigid_matrix
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
 _BLOCK_CELLS = 1 << 21
+#: Weight of the undilated edge inside a tolerance-dilated one (breaks ties, see _dilated).
+_TIE_BREAK = 1e-3
 
 
 @dataclass(frozen=True)
@@ -52,9 +54,16 @@ def _size_class(h: int, w: int) -> tuple[int, int]:
 
 
 def _dilated(edge: Edge, tolerance: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """A's edge grey-dilated by ``tolerance`` cells (and its new origin).
+
+    A small share of the undilated edge is kept on top so that the exact
+    alignment wins the plateau of equally good shifts the dilation creates.
+    """
     if tolerance <= 0:
         return edge.matrix, edge.origin
-    m = ndi.grey_dilation(np.pad(edge.matrix, tolerance), size=2 * tolerance + 1)
+    padded = np.pad(edge.matrix, tolerance)
+    m = (1.0 - _TIE_BREAK) * ndi.grey_dilation(padded, size=2 * tolerance + 1)
+    m += _TIE_BREAK * padded
     return m, (edge.origin[0] - tolerance, edge.origin[1] - tolerance)
 
 
@@ -351,53 +360,56 @@ def refine(
     return m
 
 
+def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
+    """Unit wall normals at ``points``: the minor axis of the ``k`` nearest cells of the tree."""
+    _, idx = tree.query(points, k=k)
+    nb = tree.data[idx] - tree.data[idx].mean(axis=1, keepdims=True)
+    sxx = np.mean(nb[..., 0] ** 2, axis=1)
+    syy = np.mean(nb[..., 1] ** 2, axis=1)
+    sxy = np.mean(nb[..., 0] * nb[..., 1], axis=1)
+    # closed-form eigenvector of the smaller eigenvalue of [[sxx, sxy], [sxy, syy]]
+    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy) + np.pi / 2
+    return np.column_stack([np.cos(theta), np.sin(theta)])
+
+
 def alignment_covariance(
-    walls_a: cKDTree, walls_b: np.ndarray, matrix: np.ndarray, radius: float = 3.0
+    walls_a: cKDTree,
+    walls_b: np.ndarray,
+    matrix: np.ndarray,
+    radius: float = 2.0,
+    max_points: int = 4000,
+    correlation_length: float = 1.0,
 ) -> np.ndarray:
-    """Covariance of ``(tx, ty, psi)`` from the curvature of the alignment cost.
+    """Covariance of ``(tx, ty, psi)`` of ``matrix`` from the point-to-line alignment of walls.
 
-    The cost ``F = sum_i min(d_i, radius)^2`` over B's wall cells is read as
-    ``-2 log`` likelihood with the residual variance ``sigma^2 = F / N``
-    (Laplace approximation): ``Sigma = 2 sigma^2 H^-1`` with ``H`` the Hessian
-    of ``F`` by central differences.  Along a straight corridor the cost is
-    flat and the variance large, as it should be.
+    Each wall cell of B that lands within ``radius`` of A's walls gives a
+    residual ``r_i = n_i . (R x_i + t - y_i)`` along A's wall normal ``n_i``
+    with Jacobian ``J_i = [n_x, n_y, n_i . dR/dpsi x_i]`` (the ``r1, r2`` of
+    eq. (7)).  The Gauss-Newton curvature of the agreement peak gives
+    ``Sigma = sigma^2 (J^T J)^-1`` with ``sigma^2`` the residual variance
+    (at least the variance of grid quantisation, 1/12 cell^2).  Along a
+    featureless corridor ``J^T J`` is nearly singular and the variance large.
+
+    Neighbouring wall cells are not independent observations; the variance
+    is multiplied by ``correlation_length``, the number of consecutive wall
+    cells counted as one observation.
     """
-    from pgvd.grid import matrix_to_pose
-
-    psi0, tx0, ty0 = matrix_to_pose(matrix)
-    x0 = np.array([tx0, ty0, psi0])
-    centre = walls_b.mean(axis=0)
-    local = walls_b - centre
-
-    def cost(x: np.ndarray) -> float:
-        m = rigid_matrix(x[2], 0.0, 0.0)
-        moved = local @ m[:2, :2].T + (x[:2] + matrix[:2, :2] @ centre - matrix[:2, 2] + x0[:2])
-        d, _ = walls_a.query(moved, distance_upper_bound=radius)
-        return float(np.sum(np.minimum(d, radius) ** 2))
-
-    # Parametrise about B's wall centroid so psi and t decorrelate numerically.
-    base = np.array([0.0, 0.0, psi0])
-    steps = np.array([1.0, 1.0, 1.0 / max(1.0, float(np.abs(local).max()))])
-    f0 = cost(base)
-    hess = np.zeros((3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            ei, ej = np.eye(3)[i] * steps[i], np.eye(3)[j] * steps[j]
-            if i == j:
-                val = (cost(base + ei) - 2 * f0 + cost(base - ei)) / steps[i] ** 2
-            else:
-                val = (
-                    cost(base + ei + ej)
-                    - cost(base + ei - ej)
-                    - cost(base - ei + ej)
-                    + cost(base - ei - ej)
-                ) / (4 * steps[i] * steps[j])
-            hess[i, j] = hess[j, i] = val
-    sigma2 = max(f0 / len(walls_b), 0.25)
-    cov_c = 2.0 * sigma2 * np.linalg.pinv(hess)
-    # Back from the centroid parametrisation to t: t = t_c - R(psi) c  (first order in psi).
-    jac = np.eye(3)
-    r_dot = np.array([[-np.sin(psi0), np.cos(psi0)], [-np.cos(psi0), -np.sin(psi0)]])
-    jac[:2, 2] = -r_dot @ centre
-    cov = jac @ cov_c @ jac.T
+    pts = walls_b[:: -(-len(walls_b) // max_points)]
+    moved = _apply(matrix, pts)
+    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    if ok.sum() < 3:
+        return np.diag([np.inf, np.inf, np.inf])
+    x, y = pts[ok], walls_a.data[idx[ok]]
+    n = _normals(walls_a, y)
+    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
+    c, s = np.cos(psi), np.sin(psi)
+    dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
+    jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
+    res = np.sum(n * (moved[ok] - y), axis=1)
+    sigma2 = max(float(np.mean(res**2)), 1.0 / 12.0)
+    info = jac.T @ jac
+    # a tiny prior keeps a degenerate direction finite instead of singular
+    info += np.diag([1e-9, 1e-9, 1e-9 * max(1.0, float(np.abs(x).max())) ** 2])
+    cov = correlation_length * sigma2 * np.linalg.inv(info)
     return 0.5 * (cov + cov.T)

@@ -434,7 +434,7 @@ def merge(
             matrix,
             agreement.ratio,
         )
-    cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix)
+    cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
     clock.lap("covariance")
     diag = _diagnostics(best, graph_a, sp_a, k, a, b) if params.diagnostics else None
     if diag is not None:

@@ -1,0 +1,151 @@
+"""Edge matching (25)-(32), pair support, map agreement and refinement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pgvd.graph import build_graph
+from pgvd.grid import rigid_matrix
+from pgvd.io import read_map
+from pgvd.matching import (
+    MapView,
+    OverlayScores,
+    PairSupport,
+    WallMap,
+    alignment_covariance,
+    map_agreement,
+    refine,
+    rho_test,
+    similarity,
+)
+from pgvd.merge import coarsen
+
+
+def _shapes(offset: tuple[int, int], shape=(80, 90)) -> np.ndarray:
+    """Three unlike skeleton edges (an L, a straight line, a hook), moved by ``offset`` (x, y)."""
+    s = np.zeros(shape, bool)
+    ox, oy = offset
+    s[10 + oy, 10 + ox : 40 + ox] = True  # straight
+    s[25 + oy : 45 + oy, 10 + ox] = True  # L: vertical part ...
+    s[45 + oy, 10 + ox : 22 + ox] = True  # ... and foot
+    s[30 + oy : 50 + oy, 60 + ox] = True  # hook
+    s[30 + oy, 60 + ox : 66 + ox] = True
+    s[30 + oy : 36 + oy, 66 + ox] = True
+    return s
+
+
+@pytest.fixture(scope="module")
+def graphs():
+    a = _shapes((0, 0))
+    b = _shapes((7, -4))
+    ga = build_graph(a, a * 0.9, min_edge_length=5)
+    gb = build_graph(b, b * 0.9, min_edge_length=5)
+    assert len(ga.edges) == len(gb.edges) == 3
+    return ga, gb
+
+
+@pytest.mark.parametrize("tolerance", [0, 1])
+def test_gamma_of_shifted_copies_gives_the_shift(graphs, tolerance):
+    ga, gb = graphs
+    sim = similarity(ga.edges, gb.edges, tolerance)
+    for i, e in enumerate(ga.edges):
+        j = int(np.argmax(sim.gamma[i]))
+        assert gb.edges[j].length == e.length
+        assert sim.gamma[i, j] == pytest.approx(e.length * 0.81, rel=1e-4)
+        # B = A moved by (+7, -4), so B -> A is (-7, +4)
+        np.testing.assert_array_equal(sim.shift[i, j], [-7, 4])
+
+
+def test_gamma_of_edge_with_itself_has_zero_shift(graphs):
+    ga, _ = graphs
+    sim = similarity(ga.edges, ga.edges, 0)
+    np.testing.assert_array_equal(np.argmax(sim.gamma, axis=1), np.arange(3))
+    np.testing.assert_array_equal(sim.shift[np.arange(3), np.arange(3)], 0)
+
+
+def test_sparse_pair_support_matches_fft_gamma(graphs):
+    ga, gb = graphs
+    sim = similarity(ga.edges, gb.edges, 1)
+    pairs = PairSupport(ga.labels.shape, ga.edges, gb.edges, 1)
+    e = pairs.correlation((-7, 4))
+    for i in range(3):
+        j = int(np.argmax(sim.gamma[i]))
+        assert e[i, j] == pytest.approx(sim.gamma[i, j], rel=1e-5)
+
+
+def test_rho_test_rejects_a_weak_match():
+    a = np.zeros((60, 60), bool)
+    a[30, 10:50] = True  # horizontal
+    b_same = a.copy()
+    b_cross = np.zeros((60, 60), bool)
+    b_cross[10:50, 30] = True  # vertical: crosses A's edge in a few cells only
+    ea = build_graph(a, a * 0.9, 5).edges
+    for b, expect in ((b_same, True), (b_cross, False)):
+        eb = build_graph(b, b * 0.9, 5).edges
+        sim = similarity(ea, eb, 1)
+        assert bool(rho_test(sim.gamma, ea, eb, rho=0.7)[0, 0]) is expect
+    with pytest.raises(ValueError):
+        rho_test(sim.gamma, ea, eb, rho=0.0)
+
+
+@pytest.fixture(scope="module")
+def intel(shared):
+    return read_map(shared / "maps/intel_split_gt/intel_partA.yaml").probability()
+
+
+def test_map_agreement_of_real_map(intel):
+    wm = WallMap(intel, 0.65, 0.3)
+    same = map_agreement(wm, wm, np.eye(3))
+    moved = map_agreement(wm, wm, rigid_matrix(0.0, 12.0, -9.0))
+    assert same.ratio > 0.99 and same.disagree == 0
+    assert moved.ratio < 0.6
+
+
+def test_dense_overlay_scores_equal_direct_counts(intel):
+    c = coarsen(intel, 4)
+    va = MapView(c, 0.65, 0.3, 1)
+    vb = MapView(c[10:90, 20:100], 0.65, 0.3, 1)
+    agree, disagree = OverlayScores(va, vb.shape).maps(vb)
+    size = agree.shape
+    for tx, ty in [(20, 10), (23, 8), (-5, 40)]:
+        rb, cb = np.nonzero(vb.occ)
+        ra, ca_ = np.nonzero(va.occ)
+        direct_agree = 0
+        direct_dis = 0
+        for (r, col), dst in (((rb + ty, cb + tx), va), ((ra - ty, ca_ - tx), vb)):
+            ok = (r >= 0) & (r < dst.shape[0]) & (col >= 0) & (col < dst.shape[1])
+            direct_agree += int(dst.near[r[ok], col[ok]].sum())
+            direct_dis += int(dst.clear[r[ok], col[ok]].sum())
+        assert agree[ty % size[0], tx % size[1]] == direct_agree
+        assert disagree[ty % size[0], tx % size[1]] == direct_dis
+    # the true offset of the crop is the best agreement, up to the one-cell tolerance
+    best = np.unravel_index(np.argmax(agree - disagree), size)
+    assert abs(int(best[0]) - 10) <= 1 and abs(int(best[1]) - 20) <= 1
+
+
+def test_refine_and_covariance_on_real_walls(intel):
+    wm = WallMap(intel, 0.65, 0.3)
+    truth = rigid_matrix(np.radians(1.0), 3.0, -2.0)
+    walls_b = (wm.walls - truth[:2, 2]) @ np.linalg.inv(truth[:2, :2]).T  # A = truth(B)
+    m = refine(wm.tree, walls_b, np.eye(3))
+    np.testing.assert_allclose(m, truth, atol=0.02)
+    cov = alignment_covariance(wm.tree, walls_b, m)
+    assert np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0)
+    assert np.sqrt(cov[0, 0]) < 1.0 and np.sqrt(cov[2, 2]) < np.radians(0.5)
+
+
+def test_covariance_is_large_along_a_corridor():
+    xs = np.arange(0.0, 200.0)
+    walls = np.vstack(
+        [
+            np.column_stack([xs, np.full_like(xs, 10.0)]),
+            np.column_stack([xs, np.full_like(xs, 30.0)]),
+        ]
+    )
+    from scipy.spatial import cKDTree
+
+    cov = alignment_covariance(cKDTree(walls), walls, np.eye(3))
+    # two straight parallel walls fix y and the heading, not x
+    assert cov[0, 0] > 1e3 * cov[1, 1]
+    assert np.sqrt(cov[1, 1]) < 0.1
