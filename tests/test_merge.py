@@ -1,0 +1,144 @@
+"""The merge pipeline (Fig. 1) on real maps: accuracy, the three fr079 runs, rejection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pgvd.grid import Grid, relative_matrix, rigid_matrix
+from pgvd.io import read_map
+from pgvd.merge import MergeParams, MergeResult, merge
+from pgvd.transform import resample, warp
+
+SPLITS = {
+    "intel": ("intel_split_gt/intel_partA.yaml", "intel_split_gt/intel_partB.yaml"),
+    "fr079": ("fr079_split_gt/fr079_partA.yaml", "fr079_split_gt/fr079_partB.yaml"),
+}
+
+
+def _load(shared, rel: str) -> Grid:
+    g = read_map(shared / "maps" / rel)
+    return g if np.isclose(g.resolution, 0.05) else resample(g, 0.05)
+
+
+def _random_frame(g: Grid, rng: np.random.Generator) -> tuple[Grid, np.ndarray]:
+    """``g`` turned by a random angle and shifted, on a canvas padded so nothing is cut.
+
+    Returns the new grid and the matrix from ``g``'s pixels to the new pixels.
+    """
+    h, w = g.shape
+    side = int(np.ceil(np.hypot(h, w))) + 60
+    m = rigid_matrix(rng.uniform(0.0, 2 * np.pi), 0.0, 0.0)
+    shift = rng.uniform(-25.0, 25.0, size=2)
+    m[:2, 2] = (side - 1) / 2.0 + shift - m[:2, :2] @ np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    p = warp(g.probability(), m, (side, side), order=0, cval=0.5)
+    return Grid.from_probability(p, g.resolution), m
+
+
+def _errors(result: MergeResult, truth: np.ndarray, b: Grid) -> tuple[float, float]:
+    """(heading error in degrees, mean displacement in cells over B's occupied cells)."""
+    r, c = np.nonzero(b.probability() > 0.65)
+    pts = np.column_stack([c, r, np.ones(r.size)])
+    disp = np.linalg.norm((pts @ (result.matrix - truth).T)[:, :2], axis=1).mean()
+    dpsi = np.arctan2(result.matrix[0, 1], result.matrix[0, 0]) - np.arctan2(
+        truth[0, 1], truth[0, 0]
+    )
+    return abs(float(np.degrees(np.angle(np.exp(1j * dpsi))))), float(disp)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(SPLITS))
+def test_split_gt_recovered_in_random_frames(shared, name):
+    a, b = (_load(shared, p) for p in SPLITS[name])
+    truth = relative_matrix(a, b)
+    rng = np.random.default_rng(2024)
+    good = []
+    for _ in range(10):
+        bn, to_new = _random_frame(b, rng)
+        result = merge(a, bn, MergeParams(diagnostics=False))
+        dpsi, disp = _errors(result, truth @ np.linalg.inv(to_new), bn)
+        good.append(result.accepted and dpsi < 1.0 and disp < 2.0)
+    assert sum(good) >= 9, good
+
+
+@pytest.fixture(scope="module")
+def albert(shared):
+    maps = {n: _load(shared, f"fr079_albertB/map{n}.yaml") for n in (312, 342, 371)}
+    return {(i, j): merge(maps[i], maps[j]) for i, j in ((312, 342), (312, 371), (342, 371))}
+
+
+def test_fr079_albert_runs_merge_near_identity(albert):
+    for pair, r in albert.items():
+        assert r.accepted, (pair, r.reason)
+        assert r.score > 0.9
+        # the three gmapping runs share a start pose: the truth is close to identity
+        assert abs(r.rotation_deg) < 2.0, pair
+        assert np.hypot(*r.translation_px) < 20.0, pair
+    # and the three pairwise transforms are consistent: M(312<-371) = M(312<-342) M(342<-371)
+    chained = albert[(312, 342)].matrix @ albert[(342, 371)].matrix
+    np.testing.assert_allclose(chained, albert[(312, 371)].matrix, atol=1.5)
+
+
+def test_result_json_and_diagnostics(albert, shared):
+    r = albert[(342, 371)]
+    js = r.to_json()
+    assert set(js) == {
+        "accepted", "matrix", "rotation_deg", "translation_px", "covariance", "score",
+        "timings_ms", "reason",
+    }  # fmt: skip
+    assert np.array(js["matrix"]).shape == (3, 3) and np.array(js["covariance"]).shape == (3, 3)
+    assert js["timings_ms"]["total"] >= max(v for k, v in js["timings_ms"].items() if k != "total")
+    assert {"rotation", "pgvd", "graph", "gamma", "verify", "refine"} <= set(js["timings_ms"])
+    assert np.all(np.linalg.eigvalsh(r.covariance) > 0)
+    d = r.diagnostics
+    assert d is not None and d.pgvd_a.shape == d.edges_a.shape == (800, 1184)
+    assert d.pgvd_b.shape == d.edges_b.shape == (800, 1184)
+    assert d.edges_a.any() and d.edges_b.any() and d.gamma.ndim == 2
+    # B's matched edges, moved by the result, land on A's matched edges
+    r_b, c_b = np.nonzero(d.edges_b)
+    moved = np.column_stack([c_b, r_b, np.ones(r_b.size)]) @ r.matrix.T
+    x, y = np.rint(moved[:, 0]).astype(int), np.rint(moved[:, 1]).astype(int)
+    near_a = np.zeros_like(d.edges_a)
+    ra, ca = np.nonzero(d.edges_a)
+    for dy in range(-4, 5):
+        for dx in range(-4, 5):
+            near_a[np.clip(ra + dy, 0, 799), np.clip(ca + dx, 0, 1183)] = True
+    assert near_a[np.clip(y, 0, 799), np.clip(x, 0, 1183)].mean() > 0.8
+
+
+@pytest.mark.parametrize(
+    "pair",
+    [
+        ("intel_split_gt/intel_partA.yaml", "fr079_split_gt/fr079_partB.yaml"),
+        ("intel_split_gt/intel_partB.yaml", "willow/willow-2010-02-18-0.10.yaml"),
+        ("fr079_split_gt/fr079_partA.yaml", "uos_avz/avz.yaml"),
+    ],
+)
+def test_maps_of_different_buildings_rejected(shared, pair):
+    a, b = (_load(shared, p) for p in pair)
+    bn, _ = _random_frame(b, np.random.default_rng(7))
+    r = merge(a, bn, MergeParams(diagnostics=False))
+    assert not r.accepted, r.to_json()
+    assert r.reason != "accepted"
+
+
+@pytest.mark.parametrize("name", ["intel/intel.yaml", "fr079_albertB/map312.yaml"])
+def test_disjoint_halves_of_one_building_rejected(shared, name):
+    p = _load(shared, name).probability()
+    mid = p.shape[1] // 2
+    left = Grid.from_probability(p[:, : mid - 30], 0.05)  # a 60-cell (3 m) gap between them
+    right = Grid.from_probability(p[:, mid + 30 :], 0.05)
+    rng = np.random.default_rng(11)
+    for _ in range(2):
+        r = merge(_random_frame(left, rng)[0], _random_frame(right, rng)[0])
+        assert not r.accepted, r.to_json()
+
+
+def test_bad_inputs_raise_clear_errors():
+    p = np.full((40, 40), 0.1)
+    p[5, 5:35] = 0.9
+    a = Grid.from_probability(p, 0.05)
+    with pytest.raises(ValueError, match="resolution"):
+        merge(a, Grid.from_probability(p, 0.1))
+    with pytest.raises(ValueError, match="no occupied"):
+        merge(a, Grid.from_probability(np.full((40, 40), 0.1), 0.05))
