@@ -112,11 +112,6 @@ def _write(what: str, path: Path, write: Callable[[], None]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pgvd.fusion import fuse_maps
-    from pgvd.merge import merge
-    from pgvd.render import merge_figure
-    from pgvd.transform import resample, scale_matrix
-
     if args.output is not None and args.output.suffix.lower() not in _MAP_SUFFIXES:
         raise CliError(f"-o {args.output}: the fused map must end in .yaml, .yml or .npy")
     if args.max_cells <= 0:
@@ -126,6 +121,12 @@ def run(args: argparse.Namespace) -> int:
     say(f"reading {args.a} and {args.b}")
     a = _read(args.a, args.max_cells)
     b = _read(args.b, args.max_cells)
+    # imported after the files are read: bad input is refused without loading scipy
+    from pgvd.fusion import fuse_maps
+    from pgvd.merge import merge
+    from pgvd.render import merge_figure
+    from pgvd.transform import resample, scale_matrix
+
     b_scale = None
     if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
         say(f"resampling B from {b.resolution} to {a.resolution} m/cell")

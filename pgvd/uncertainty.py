@@ -22,7 +22,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from scipy import ndimage, signal
+from scipy import fft, ndimage
 
 from pgvd.transform import warp
 
@@ -216,7 +216,12 @@ def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
     kernel /= kernel.sum()
     h, w = img.shape
     padded = np.pad(img.astype(np.float64), half, mode="reflect" if min(h, w) > half else "edge")
-    return signal.fftconvolve(padded, kernel, mode="valid").astype(np.float32)
+    # circular FFT convolution; the 'valid' part [k-1, n) never sees the wrap-around
+    shape = tuple(fft.next_fast_len(n, real=True) for n in padded.shape)
+    spectrum = fft.rfft2(padded, s=shape) * fft.rfft2(kernel, s=shape)
+    full = fft.irfft2(spectrum, s=shape)
+    k = kernel.shape[0] - 1
+    return full[k : k + h, k : k + w].astype(np.float32)
 
 
 def propagate(

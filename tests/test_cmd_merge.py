@@ -1,0 +1,157 @@
+"""``pgvd merge`` through the real console entry (``python -m agent.cli``), on real maps."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pgvd.grid import Grid, matrix_to_pose, relative_matrix
+from pgvd.io import read_map, write_map
+from pgvd.transform import resample
+
+ROOT = Path(__file__).resolve().parents[1]
+CONTRACT_KEYS = {
+    "accepted",
+    "matrix",
+    "rotation_deg",
+    "translation_px",
+    "covariance",
+    "score",
+    "timings_ms",
+}
+
+
+def pgvd_merge(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "agent.cli", "merge", *map(str, args)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def _yaml_copy(tmp: Path, name: str, src: Path, drop: str = "", **replace: str) -> Path:
+    """A copy of a real map_server YAML pointing at the real image, with edits."""
+    lines = []
+    for line in src.read_text().splitlines():
+        key = line.split(":", 1)[0]
+        if key == drop:
+            continue
+        if key == "image":
+            line = f"image: {src.parent / line.split(':', 1)[1].strip()}"
+        if key in replace:
+            line = f"{key}: {replace[key]}"
+        lines.append(line)
+    out = tmp / f"{name}.yaml"
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]]:
+    intel = maps / "intel/intel.yaml"
+    p = read_map(intel).probability()
+    nan = p.copy()
+    nan[400, 400] = np.nan
+    np.save(tmp / "nan.npy", nan)
+    np.save(tmp / "empty.npy", np.zeros((0, 888), np.float32))
+    no_walls = np.where(p > 0.65, 0.1, p)
+    np.save(tmp / "no_walls.npy", no_walls)
+    (tmp / "dir.yaml").mkdir()
+    return [
+        ("missing file", [maps / "nope.yaml", intel], "no such file"),
+        ("unreadable file", [intel, tmp / "dir.yaml"], "is a directory"),
+        ("missing key", [_yaml_copy(tmp, "k", intel, drop="resolution"), intel], "missing key"),
+        ("zero resolution", [intel, _yaml_copy(tmp, "r0", intel, resolution="0")], "resolution"),
+        ("negative resolution", [_yaml_copy(tmp, "rneg", intel, resolution="-0.05"), intel], "> 0"),
+        ("empty map", [intel, tmp / "empty.npy"], "empty map"),
+        ("no occupied cells", [tmp / "no_walls.npy", intel], "no occupied cells"),
+        ("over the size limit", [intel, intel, "--max-cells", "500000"], "exceeds the limit"),
+        ("NaN", [intel, tmp / "nan.npy"], "NaN"),
+        ("bad -o suffix", [intel, intel, "-o", tmp / "fused.png"], ".yaml, .yml or .npy"),
+    ]
+
+
+def test_bad_input_exits_2_with_one_line(tmp_path: Path, shared: Path) -> None:
+    for name, args, why in _bad_inputs(tmp_path, shared / "maps"):
+        proc = pgvd_merge(*args)
+        assert proc.returncode == 2, (name, proc.stderr)
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and why in lines[0], (name, proc.stderr)
+        assert lines[0].startswith("pgvd merge: error: ") and "Traceback" not in proc.stderr
+        assert proc.stdout == ""
+
+
+@pytest.mark.slow
+def test_accepted_pair_json_fused_map_and_plot(tmp_path: Path, shared: Path) -> None:
+    d = shared / "maps/intel_split_gt"
+    fused, plot = tmp_path / "fused.yaml", tmp_path / "merge.png"
+    proc = pgvd_merge(
+        d / "intel_partA.yaml", d / "intel_partB.yaml", "--json", "-o", fused, "--plot", plot
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""  # no progress with --json unless -v
+    doc = json.loads(proc.stdout)
+    assert doc.keys() >= CONTRACT_KEYS and doc["accepted"] is True
+    a, b = read_map(d / "intel_partA.yaml"), read_map(d / "intel_partB.yaml")
+    truth = matrix_to_pose(relative_matrix(a, b))
+    got = matrix_to_pose(np.array(doc["matrix"]))
+    assert abs(np.degrees(got[0] - truth[0])) < 1.0
+    assert np.hypot(got[1] - truth[1], got[2] - truth[2]) < 2.0
+    assert doc["translation_px"] == [got[1], got[2]]
+    cov = np.array(doc["covariance"])
+    assert cov.shape == (3, 3) and np.all(np.linalg.eigvalsh(cov) >= 0)
+    assert doc["timings_ms"]["total"] > 0
+    # the fused map reads back, holds both halves, and keeps A's world frame
+    g = read_map(fused)
+    to_a = relative_matrix(g, a)
+    np.testing.assert_allclose(to_a[:2, :2], np.eye(2), atol=1e-9)
+    known = g.probability() != 0.5
+    assert known.sum() > max((a.probability() != 0.5).sum(), (b.probability() != 0.5).sum())
+    from PIL import Image
+
+    with Image.open(plot) as im:
+        assert im.mode == "RGB" and im.width > 2 * a.shape[1]
+
+
+@pytest.mark.slow
+def test_rejected_pair_exits_3_and_still_plots(tmp_path: Path, shared: Path) -> None:
+    fused, plot = tmp_path / "fused.npy", tmp_path / "why.png"
+    proc = pgvd_merge(
+        shared / "maps/intel/intel.yaml",
+        shared / "maps/uos_avz/avz.yaml",
+        "--json",
+        "-o",
+        fused,
+        "--plot",
+        plot,
+    )
+    assert proc.returncode == 3, proc.stderr
+    doc = json.loads(proc.stdout)  # strict JSON: NaN covariance entries are null
+    assert doc.keys() >= CONTRACT_KEYS and doc["accepted"] is False and doc["reason"]
+    assert plot.stat().st_size > 0 and not fused.exists()
+
+
+@pytest.mark.slow
+def test_resampled_b_matrix_maps_the_file_pixels(tmp_path: Path, shared: Path) -> None:
+    """B stored at 0.1 m/cell is resampled to A's 0.05; the matrix maps B's file pixels."""
+    d = shared / "maps/intel_split_gt"
+    a, b = read_map(d / "intel_partA.yaml"), read_map(d / "intel_partB.yaml")
+    coarse: Grid = resample(b, 0.1)
+    write_map(tmp_path / "b_coarse.yaml", coarse)
+    proc = pgvd_merge(d / "intel_partA.yaml", tmp_path / "b_coarse.yaml", "-v")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("merged: rotation")
+    assert "resampling B from 0.1 to 0.05" in proc.stderr and "rotation:" in proc.stderr
+    proc = pgvd_merge(d / "intel_partA.yaml", tmp_path / "b_coarse.yaml", "--json")
+    doc = json.loads(proc.stdout)
+    truth = relative_matrix(a, read_map(tmp_path / "b_coarse.yaml"))
+    assert doc["b_scale"] == 2.0
+    corners = np.array([[0, 0, 1], [300, 0, 1], [0, 300, 1], [300, 300, 1]], float).T
+    err = np.array(doc["matrix"]) @ corners - truth @ corners
+    assert np.abs(err[:2]).max() < 3.0  # cells of A, across B's extent
