@@ -210,7 +210,8 @@ class _Fields:
 
     def done(self) -> None:
         if self._body:
-            raise ProtocolError(f"{self.kind} message has unknown fields {sorted(self._body)}")
+            names = ", ".join(sorted(map(repr, self._body)))  # keys may be str or bytes
+            raise ProtocolError(f"{self.kind} message has unknown fields {names}")
 
 
 def _id(fields: _Fields, name: str, what: str, limits: Limits) -> str:

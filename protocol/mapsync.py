@@ -75,8 +75,10 @@ def encode_map(
     base_version : the version ``since`` was; informational.
     max_message_bytes : every tile message is smaller than this.
     tile_size : tile side, one of :data:`protocol.messages.TILE_SIZES`.
-    indices : send exactly these tiles, full (a queryable's answer to
-        :meth:`MapReassembler.missing`); overrides ``since``.
+    indices : send these tiles, full (a queryable's answer to
+        :meth:`MapReassembler.missing`); overrides ``since``.  Indices that
+        hold no knowledge in this version are skipped: the manifest, which a
+        queryable should send along, already tells the receiver they are empty.
 
     Returns
     -------
@@ -92,10 +94,7 @@ def encode_map(
     if base is not None and base.shape != q.shape:
         base, base_version = None, None
     if indices is not None:
-        unknown = sorted(set(indices) - set(checksums))
-        if unknown:
-            raise ProtocolError(f"tiles {unknown[:8]} hold no knowledge in version {version}")
-        tiles = [full_tile(q, geometry, i) for i in sorted(set(indices))]
+        tiles = [full_tile(q, geometry, i) for i in sorted(set(indices) & set(checksums))]
         base_version = None
     elif base is None:
         tiles = [full_tile(q, geometry, i) for i in checksums]
@@ -132,6 +131,8 @@ class MapReassembler:
         self.version: int | None = None
         #: Its int8 cells (what the sender quantised), or None.
         self.quantised: np.ndarray | None = None
+        #: Buffered tile messages dropped when their manifest arrived and contradicted them.
+        self.dropped = 0
         self._manifest: Manifest | None = None
         self._assembler: TileAssembler | None = None
         self._buffer: dict[int, list[MapTiles]] = {}
@@ -195,7 +196,11 @@ class MapReassembler:
             held = self._buffer.pop(version)
             if version == manifest.version:
                 for msg in held:
-                    self._apply(msg)
+                    try:
+                        self._apply(msg)
+                    except ProtocolError:
+                        # Raising here would lose the manifest; the bad tiles stay missing.
+                        self.dropped += 1
         return self._complete()
 
     def _hold(self, msg: MapTiles) -> None:

@@ -200,3 +200,23 @@ def test_every_tile_message_is_under_the_byte_bound_and_keyed():
     assert np.array_equal(
         deliver(MapReassembler("r1"), [*tiles, manifest], KEY).logodds, dequantise(q)
     )
+
+
+def test_early_tiles_contradicting_their_manifest_are_dropped_and_counted():
+    rng = np.random.default_rng(5)
+    q, other = random_quantised(rng, (40, 40), 0.5), random_quantised(rng, (40, 40), 0.5)
+    tiles, _ = encode_map("f", "r1", 1, as_grid(other), tile_size=32)
+    _, manifest = encode_map("f", "r1", 1, as_grid(q), tile_size=32)
+    reasm = MapReassembler("r1")
+    deliver(reasm, [*tiles, manifest])
+    assert reasm.dropped == 1 and reasm.missing() == [0, 1, 2, 3]
+    fetched, _ = encode_map("f", "r1", 1, as_grid(q), tile_size=32, indices=[0, 1, 2, 3, 99])
+    assert np.array_equal(deliver(reasm, fetched).logodds, dequantise(q))
+
+
+def test_requested_tiles_without_knowledge_are_skipped():
+    q = np.zeros((64, 64), np.int8)
+    q[40, 40] = 9  # only tile 3 of 2x2 holds knowledge
+    tiles, _ = encode_map("f", "r1", 1, as_grid(q), tile_size=32, indices=[0, 3])
+    assert [t.index for t in decode(tiles[0]).tiles] == [3]
+    assert encode_map("f", "r1", 1, as_grid(q), tile_size=32, indices=[0])[0] == []
