@@ -24,20 +24,36 @@ Maps (:mod:`protocol.mapsync`)
     ``encode_map(fleet, robot, version, grid, key=None, since=None,
     base_version=None, max_message_bytes=60_000, tile_size=128, indices=None)
     -> (tile_messages: list[bytes], manifest: bytes)``: log-odds quantised to
-    int8 (:mod:`protocol.quantize`), cut into tiles, only tiles holding
-    knowledge sent; with ``since`` (the grid of an earlier version) only
-    changed tiles, as differences; with ``indices`` exactly those tiles in full
-    (a queryable's answer).  Each tile message is under ``max_message_bytes``
-    (pass a small value, e.g. 20_000, for one tile per message).
+    int8 (:mod:`protocol.quantize`), cut into 128x128 tiles, only tiles holding
+    knowledge sent, each deflated in the smallest of three layouts
+    (:mod:`protocol.compress`); with ``since`` (the Grid or int8 array of an
+    earlier version) only changed tiles, as differences; with ``indices``
+    exactly those tiles in full (a queryable's answer to ``missing()``; indices
+    without knowledge are skipped).  Each tile message is under
+    ``max_message_bytes`` (pass e.g. 20_000 for about one tile per message);
+    ``tile_messages`` is empty when nothing changed since ``since``.
 
     ``MapReassembler(robot, fleet=None, limits=Limits())``, one per peer robot:
     ``feed(msg) -> Grid | None`` returns the complete grid when every tile of
-    the newest manifest is held; ``missing() -> list[int]`` names the tile
-    indices to fetch; ``version`` and ``quantised`` hold the last complete one.
+    the newest manifest is held (older versions are ignored; tiles ahead of
+    their manifest are buffered, bounded by ``limits.max_buffered_tiles``);
+    ``missing() -> list[int]`` names the tile indices to fetch, e.g. a delta
+    whose base this receiver never had; ``version`` and ``quantised`` hold the
+    last complete one; ``dropped`` counts buffered messages that contradicted
+    their manifest.  A sender's versions must keep growing across its restarts.
 
 Replays (:mod:`protocol.auth`)
-    ``ReplayGuard().admit(msg)`` raises ProtocolError unless the message's
-    version moves forward for its (robot, kind) (per tile for MapTiles).
+    ``ReplayGuard(state=None).admit(msg)`` raises ProtocolError unless the
+    message's version moves forward for its (robot, kind): per sequence number
+    for Heartbeat/Status, per map version for Manifest, per tile index (full
+    and delta apart) for MapTiles, per (version_a, version_b) for Link.  Call it
+    after ``decode``; persist ``guard.state`` to refuse replays across restarts.
+    Only meaningful with a fleet key: without one anybody can forge new versions.
+
+Wire layout (:mod:`protocol.codec`)
+    ``b"PG" | schema version | flags | msgpack body | CRC-32 or HMAC-SHA256``;
+    the trailer is checked before the body is parsed, inflating is bounded by
+    the tile shape, and every field is type-, range- and finiteness-checked.
 """
 
 from protocol.auth import ReplayGuard

@@ -170,6 +170,8 @@ class Tile:
         if self.cells.ndim != 2:
             raise ProtocolError(f"tile {self.index} cells must be 2-D, got {self.cells.shape}")
         cells = np.ascontiguousarray(self.cells)
+        if cells.flags.writeable:
+            cells = cells.copy()  # freeze a private copy, never the caller's array
         cells.flags.writeable = False
         object.__setattr__(self, "cells", cells)
 

@@ -220,3 +220,17 @@ def test_requested_tiles_without_knowledge_are_skipped():
     tiles, _ = encode_map("f", "r1", 1, as_grid(q), tile_size=32, indices=[0, 3])
     assert [t.index for t in decode(tiles[0]).tiles] == [3]
     assert encode_map("f", "r1", 1, as_grid(q), tile_size=32, indices=[0])[0] == []
+
+
+def test_a_grown_map_is_sent_in_full_and_rebuilt():
+    rng = np.random.default_rng(8)
+    small = random_quantised(rng, (50, 50), 0.4)
+    grown = random_quantised(rng, (70, 60), 0.4)
+    grown[:50, :50] = small
+    reasm = MapReassembler("r1")
+    tiles, manifest = encode_map("f", "r1", 1, as_grid(small), tile_size=32)
+    deliver(reasm, [*tiles, manifest])
+    tiles, manifest = encode_map("f", "r1", 2, as_grid(grown), since=as_grid(small), tile_size=32)
+    assert not any(t.is_delta for w in tiles for t in decode(w).tiles)
+    grid = deliver(reasm, [manifest, *tiles])
+    assert grid is not None and np.array_equal(reasm.quantised, grown)

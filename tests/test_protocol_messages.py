@@ -63,3 +63,10 @@ def test_ids_versions_and_counters():
         Link("f", "a", "a", "b", 1, 1, True, np.eye(2), np.eye(3), 1.0)
     with pytest.raises(ProtocolError, match="manifest tile index 4 outside"):
         Manifest("f", "r", 1, Geometry((20, 20), 0.05, tile_size=16), {4: 1})
+
+
+def test_tile_freezes_a_copy_not_the_callers_array():
+    cells = np.zeros((16, 16), np.int8)
+    tile = Tile(0, 0, cells)
+    cells[0, 0] = 1
+    assert tile.cells[0, 0] == 0 and not tile.cells.flags.writeable
