@@ -1,0 +1,66 @@
+"""A tiny run of bench/merge.py (every method, a few real pairs) so that the bench cannot rot.
+
+Structure and sanity only: no timing is asserted.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cv2")
+pytest.importorskip("matplotlib")
+
+from bench.merge import errors, main, methods, upsample
+from pgvd.grid import rigid_matrix
+from pgvd.io import read_carmen
+from pgvd.pairs import make_pair
+
+
+@pytest.fixture(scope="module")
+def small_pair(shared):
+    scans = read_carmen(shared / "logs" / "intel-corrected.log.gz")
+    return make_pair(scans, (0.0, 0.4), (0.3, 0.7), seed=5, resolution=0.1)
+
+
+@pytest.mark.slow
+def test_tiny_bench_run(shared, tmp_path):
+    argv = ["--logs", "intel", "--overlap", "2", "--disjoint", "1", "--resolution", "0.1"]
+    argv += ["--exhaustive-step", "3", "--no-scaling", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    doc = json.loads((tmp_path / "merge.json").read_text())
+    names = list(methods())
+    assert [r["method"] for r in doc["rows"]] == names
+    assert len(doc["records"]) == 3 * len(names)
+    for r in doc["records"]:
+        assert r["seconds"] > 0 and np.isfinite(r["cell_err"]) and 0 <= r["heading_deg"] <= 180
+        assert not (r["success"] and r["overlap"] == 0)
+    for row in doc["rows"]:
+        assert row["n_overlap"] == 2 and row["n_disjoint"] == 1
+        assert 0 <= row["success"] <= 1 and 0 <= row["false_accept"] <= 1
+    # The exhaustive reference finds the truth of an overlapping real pair.
+    exhaustive = [r for r in doc["records"] if r["method"] == "exhaustive" and r["overlap"] > 0]
+    assert any(r["success"] for r in exhaustive)
+    table = (tmp_path / "merge.md").read_text()
+    assert all(f"| {n} |" in table for n in names)
+    assert (tmp_path / "merge.png").stat().st_size > 10_000
+
+
+def test_errors_measure_heading_and_cells(small_pair):
+    assert errors(small_pair, small_pair.truth) == (0.0, 0.0)
+    heading, cell = errors(small_pair, small_pair.truth @ rigid_matrix(0.0, 3.0, 4.0))
+    assert heading == pytest.approx(0.0, abs=1e-9) and cell == pytest.approx(5.0)
+    heading, _ = errors(small_pair, rigid_matrix(np.radians(-2.0), 0, 0) @ small_pair.truth)
+    assert heading == pytest.approx(2.0)
+
+
+def test_upsample_keeps_the_truth(small_pair):
+    up = upsample(small_pair, 2)
+    assert up.a.shape == (2 * small_pair.a.shape[0], 2 * small_pair.a.shape[1])
+    # The centre of B pixel p's 2x2 block lands on the centre of A pixel truth(p)'s block.
+    p = np.array([10.0, 20.0, 1.0])
+    q = small_pair.truth @ p
+    block = np.array([2 * p[0] + 0.5, 2 * p[1] + 0.5, 1.0])
+    np.testing.assert_allclose(up.truth @ block, [2 * q[0] + 0.5, 2 * q[1] + 0.5, 1.0])
