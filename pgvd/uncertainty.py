@@ -89,8 +89,8 @@ def _polar_geometry(
     per-bin total weight of all pixels, and the number of rings.
     """
     h, w = shape
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    dx, dy = xs - np.float32(center[0]), ys - np.float32(center[1])
+    dx = np.arange(w, dtype=np.float32)[None, :] - np.float32(center[0])
+    dy = np.arange(h, dtype=np.float32)[:, None] - np.float32(center[1])
     r = np.hypot(dx, dy).ravel() / _RING_PX
     r0 = np.floor(r)
     fr = (r - r0).astype(np.float32)
@@ -182,11 +182,11 @@ def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
     """Anisotropic Gaussian blur with a constant 2x2 covariance (pixels^2), eq. (8).
 
     This is the translation part of eq. (8) (``sigma_psi = 0``, Sec. IV-F).
-    The 2-D kernel ``exp(-d^T Sigma^-1 d / 2)`` is sampled out to 4 sigma
-    and normalised, and applied by FFT convolution on the image padded by
-    reflection.  (The kernel is sampled in space, not its transfer function
-    in frequency: for sigma below a pixel the latter rings across the whole
-    map.)
+    The 2-D kernel ``exp(-d^T Sigma^-1 d / 2)`` is sampled out to 4 sigma,
+    normalised, and applied by FFT convolution on the image extended by
+    mirroring (``scipy.ndimage``'s default ``reflect``).  The kernel is
+    sampled in space, not its transfer function in frequency: for sigma
+    below a pixel the latter rings across the whole map.
 
     Parameters
     ----------
@@ -215,7 +215,7 @@ def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
     kernel = np.exp(-0.5 * (inv[0, 0] * xs**2 + 2 * inv[0, 1] * xs * ys + inv[1, 1] * ys**2))
     kernel /= kernel.sum()
     h, w = img.shape
-    padded = np.pad(img.astype(np.float64), half, mode="reflect" if min(h, w) > half else "edge")
+    padded = np.pad(img.astype(np.float64), half, mode="symmetric")
     # circular FFT convolution; the 'valid' part [k-1, n) never sees the wrap-around
     shape = tuple(fft.next_fast_len(n, real=True) for n in padded.shape)
     spectrum = fft.rfft2(padded, s=shape) * fft.rfft2(kernel, s=shape)
