@@ -85,17 +85,22 @@ def _manifest_checksums(msg: Manifest) -> bytes:
     return np.packbits(listed).tobytes() + crcs.tobytes()
 
 
+def _tiles_body(msg: MapTiles, tiles: list[Any]) -> dict[str, Any]:
+    """The body of a MapTiles message around already packed ``tiles``; "t" comes last."""
+    return {
+        "k": KIND_TILES,
+        "f": msg.fleet,
+        "r": msg.robot,
+        "v": msg.version,
+        "g": _geometry(msg.geometry),
+        "b": msg.base_version,
+        "t": tiles,
+    }
+
+
 def _body(msg: Message) -> dict[str, Any]:
     if isinstance(msg, MapTiles):
-        return {
-            "k": KIND_TILES,
-            "f": msg.fleet,
-            "r": msg.robot,
-            "v": msg.version,
-            "g": _geometry(msg.geometry),
-            "b": msg.base_version,
-            "t": [_tile(t) for t in msg.tiles],
-        }
+        return _tiles_body(msg, [_tile(t) for t in msg.tiles])
     if isinstance(msg, Manifest):
         return {
             "k": KIND_MANIFEST,
@@ -365,11 +370,11 @@ def encode_tiles(msg: MapTiles, key: bytes | None, max_message_bytes: int) -> li
     key = check_key(key)
     head = MAGIC + bytes((SCHEMA_VERSION, FLAG_MAC if key is not None else 0))
     trailer = len(seal(b"", key))
-    template = _body(MapTiles(msg.fleet, msg.robot, msg.version, msg.geometry, msg.tiles[:1]))
-    template["b"] = msg.base_version
-    template["t"] = []
-    # An array header grows from 1 to at most 5 bytes as tiles are added.
-    fixed = len(head) + len(msgpack.packb(template, use_bin_type=True)) + 4 + trailer
+    # Packed once with an empty tile list, whose 1-byte array header ends the body.
+    prefix = msgpack.packb(_tiles_body(msg, []), use_bin_type=True)[:-1]
+    per_message = Limits().max_tiles_per_message
+    # The array header takes at most 3 bytes for up to 2**16 tiles.
+    fixed = len(head) + len(prefix) + 3 + trailer
     entries = [msgpack.packb(_tile(t), use_bin_type=True) for t in msg.tiles]
     batches: list[list[bytes]] = [[]]
     size = fixed
@@ -378,24 +383,18 @@ def encode_tiles(msg: MapTiles, key: bytes | None, max_message_bytes: int) -> li
             raise ProtocolError(
                 f"a tile of {len(entry)} bytes does not fit in {max_message_bytes}-byte messages"
             )
-        if size + len(entry) >= max_message_bytes or len(batches[-1]) >= 256:
+        if size + len(entry) >= max_message_bytes or len(batches[-1]) >= per_message:
             batches.append([])
             size = fixed
         batches[-1].append(entry)
         size += len(entry)
     out = []
     for batch in batches:
-        # Splice pre-packed tile entries into the body: the body map ends with "t".
-        body = msgpack.packb(template, use_bin_type=True)[:-1]
-        body += _array_header(len(batch)) + b"".join(batch)
+        body = prefix + _array_header(len(batch)) + b"".join(batch)
         out.append(head + body + seal(head + body, key))
     return out
 
 
 def _array_header(n: int) -> bytes:
-    """msgpack array header for ``n`` elements."""
-    if n < 16:
-        return bytes((0x90 | n,))
-    if n < 2**16:
-        return b"\xdc" + n.to_bytes(2, "big")
-    return b"\xdd" + n.to_bytes(4, "big")
+    """msgpack array header for ``n < 2**16`` elements."""
+    return bytes((0x90 | n,)) if n < 16 else b"\xdc" + n.to_bytes(2, "big")

@@ -27,7 +27,7 @@ from protocol import (
     encode,
 )
 from protocol.auth import seal
-from protocol.codec import MAGIC, SCHEMA_VERSION
+from protocol.codec import MAGIC, SCHEMA_VERSION, encode_tiles
 from protocol.tiles import checksum
 
 KEY = b"fleet-key-for-tests-0123456789ab"
@@ -329,3 +329,11 @@ def test_out_of_range_cell_value():
     cells = np.full((16, 16), -128, np.int8)
     with pytest.raises(ProtocolError, match="-128 is outside the quantised range"):
         decode(raw(tile_body(cells)))
+
+
+@pytest.mark.parametrize("key", [None, KEY])
+def test_batched_tile_encoding_matches_encode_of_the_same_message(key):
+    msg = sample_messages()[0]
+    assert encode_tiles(msg, key, 60_000) == [encode(msg, key)]
+    with pytest.raises(ProtocolError, match="does not fit in 100-byte messages"):
+        encode_tiles(msg, key, 100)
