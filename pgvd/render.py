@@ -123,13 +123,29 @@ def _side_by_side(panels: list[np.ndarray]) -> np.ndarray:
     return np.hstack(cols)
 
 
-def merge_figure(a: Grid, b: Grid, result: _Result) -> np.ndarray:
+def _wall_box(*probs: np.ndarray, margin: int = 20) -> tuple[slice, slice]:
+    """Rows and columns around the walls of the maps, ignoring the 0.1 % outermost wall
+    cells on each side (stray hits of long rays), plus a margin."""
+    walls = np.logical_or.reduce([p > OCCUPIED_THRESH for p in probs])
+    rows, cols = np.nonzero(walls)
+    if rows.size == 0:
+        return slice(None), slice(None)
+    h, w = walls.shape
+    (r0, r1), (c0, c1) = (np.quantile(v, [0.001, 0.999]).astype(int) for v in (rows, cols))
+    return (
+        slice(max(r0 - margin, 0), min(r1 + margin + 1, h)),
+        slice(max(c0 - margin, 0), min(c1 + margin + 1, w)),
+    )
+
+
+def merge_figure(a: Grid, b: Grid, result: _Result, crop: bool = True) -> np.ndarray:
     """Overlay | PGVD of A | PGVD of B warped, on one canvas holding both maps, captioned.
 
     ``result`` is a :class:`pgvd.merge.MergeResult` (matrix B px -> A px,
     diagnostics with ``pgvd_a``/``edges_a`` in A's frame and
     ``pgvd_b``/``edges_b`` in B's).  A rejected result is drawn with its
     best candidate transform when it has one, so a person sees why it failed.
+    With ``crop`` the canvas is cut to the walls of both maps (plus a margin).
     """
     pa, pb = a.probability(), b.probability()
     m = np.asarray(result.matrix, dtype=np.float64)
@@ -156,14 +172,15 @@ def merge_figure(a: Grid, b: Grid, result: _Result) -> np.ndarray:
     to_canvas_b = offset @ m
     a_on = warp(pa, offset, shape, order=0, cval=0.5)
     b_on = warp(pb, to_canvas_b, shape, order=0, cval=0.5)
-    panels = [overlay(a_on, b_on)]
+    box = _wall_box(a_on, b_on) if crop else (slice(None), slice(None))
+    panels = [overlay(a_on[box], b_on[box])]
     if diag is not None:
-        sp_a = warp(diag.pgvd_a, offset, shape, order=0)
-        sp_b = warp(diag.pgvd_b, to_canvas_b, shape, order=0)
-        e_a = warp(diag.edges_a.astype(np.float32), offset, shape, order=0) > 0.5
-        e_b = warp(diag.edges_b.astype(np.float32), to_canvas_b, shape, order=0) > 0.5
-        panels += [pgvd_image(a_on, sp_a, e_a), pgvd_image(b_on, sp_b, e_b)]
+        sp_a = warp(diag.pgvd_a, offset, shape, order=0)[box]
+        sp_b = warp(diag.pgvd_b, to_canvas_b, shape, order=0)[box]
+        e_a = warp(diag.edges_a.astype(np.float32), offset, shape, order=0)[box] > 0.5
+        e_b = warp(diag.edges_b.astype(np.float32), to_canvas_b, shape, order=0)[box] > 0.5
+        panels += [pgvd_image(a_on[box], sp_a, e_a), pgvd_image(b_on[box], sp_b, e_b)]
     else:
-        panels += [grid_image(a_on), grid_image(b_on)]
+        panels += [grid_image(a_on[box]), grid_image(b_on[box])]
     body = _side_by_side(panels)
     return np.vstack([_caption(body.shape[1], text), body])

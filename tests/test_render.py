@@ -71,6 +71,10 @@ class _FakeResult:
     diagnostics: _FakeDiagnostics | None
 
 
+def _count(img: np.ndarray, colour: tuple[int, int, int]) -> int:
+    return int((img == colour).all(axis=2).sum())
+
+
 def test_merge_figure_places_both_maps_and_edges(shared: Path) -> None:
     g = read_map(shared / "maps/intel/intel.yaml")
     a = Grid(g.logodds[100:400, 100:450], g.resolution)
@@ -82,7 +86,7 @@ def test_merge_figure_places_both_maps_and_edges(shared: Path) -> None:
     edges_b[70, 20:140] = True  # the same cells as edges_a, seen from B
     diag = _FakeDiagnostics(np.zeros(a.shape), np.zeros(b.shape), edges_a, edges_b)
     res = _FakeResult(True, m, 0.0, (60.0, 50.0), 0.99, "accepted", diag)
-    fig = merge_figure(a, b, res)
+    fig = merge_figure(a, b, res, crop=False)
     canvas_h, canvas_w = 320, 400  # union of A (300 x 350) and B at (+60, +50) (270 x 340)
     assert fig.shape == (16 + canvas_h, 3 * canvas_w + 2, 3)
     body = fig[16:]
@@ -103,6 +107,12 @@ def test_merge_figure_places_both_maps_and_edges(shared: Path) -> None:
     green_b = (body[:, 2 * canvas_w + 2 :] == EDGE).all(axis=2)
     assert green_a[120, 80:200].all() and green_b[120, 80:200].all()
     np.testing.assert_array_equal(green_a, green_b)
+    # cropped to the walls: no larger, and (nearly) every wall still drawn
+    cropped = merge_figure(a, b, res)
+    assert cropped.shape[0] <= fig.shape[0] and cropped.shape[1] <= fig.shape[1]
+    assert _count(cropped, A_WALL) + _count(cropped, BOTH_WALL) >= 0.99 * (
+        _count(fig, A_WALL) + _count(fig, BOTH_WALL)
+    )
 
 
 def test_merge_figure_of_a_rejection_without_transform(shared: Path) -> None:
