@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     with LocalFleet("demo", out, ["--speed", str(args.speed)]) as fleet:
         for robot, seg, frame in zip(robots, segments(args.robots), frames, strict=True):
             spec = f"carmen:{args.log}@{seg[0]}-{seg[1]}"
-            fleet.add(robot, spec, ["--frame", ",".join(f"{v:.4f}" for v in frame)])
+            fleet.add(robot, spec, ["--frame=" + ",".join(f"{v:.4f}" for v in frame)])
             print(
                 f"  {robot}: scans {seg[0]:.2f}-{seg[1]:.2f} of the log, frame {frame[2]:.0f} deg"
             )
