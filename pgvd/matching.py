@@ -82,8 +82,65 @@ def _stack(mats: list[np.ndarray], idx: list[int], size: tuple[int, int]) -> np.
     return out
 
 
+class EdgeCorrelator:
+    """A's probabilistic edges (25), ready to be correlated (26) with any number of B edge sets.
+
+    A's tolerance-dilated sub-matrices, their size classes and their spectra
+    (per FFT size) are kept, so that trying several candidate headings of B
+    costs one pass over B's edges each.
+    """
+
+    def __init__(self, edges_a: list[Edge], tolerance: int = 1) -> None:
+        dil = [_dilated(e, tolerance) for e in edges_a]
+        self.mats = [m for m, _ in dil]
+        self.origins = np.array([o for _, o in dil], dtype=float).reshape(-1, 2)
+        self.groups = _groups(self.mats)
+        self._spectra: dict[tuple[tuple[int, int], tuple[int, int]], np.ndarray] = {}
+
+    def _spectrum(self, ka: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+        key = (ka, size)
+        if key not in self._spectra:
+            self._spectra[key] = sfft.rfft2(_stack(self.mats, self.groups[ka], ka), s=size)
+        return self._spectra[key]
+
+    def similarity(self, edges_b: list[Edge]) -> Similarity:
+        """Gamma (27) against B's edges and each pair's peak translation (29)."""
+        na, nb = len(self.mats), len(edges_b)
+        gamma = np.zeros((na, nb))
+        shift = np.zeros((na, nb, 2))
+        if na == 0 or nb == 0:
+            return Similarity(gamma, shift)
+        mats_b = [e.matrix for e in edges_b]
+        org_a = self.origins
+        org_b = np.array([e.origin for e in edges_b], dtype=float)
+        for kb, ib in _groups(mats_b).items():
+            stack_b = _stack(mats_b, ib, kb)
+            for ka, ia in self.groups.items():
+                size = (ka[0] + kb[0], ka[1] + kb[1])
+                fb = np.conj(sfft.rfft2(stack_b, s=size))
+                fa_all = self._spectrum(ka, size)
+                chunk = max(1, _BLOCK_CELLS // (len(ib) * size[0] * (size[1] // 2 + 1)))
+                for start in range(0, len(ia), chunk):
+                    sub = ia[start : start + chunk]
+                    corr = sfft.irfft2(fa_all[start : start + chunk, None] * fb[None], s=size)
+                    flat = corr.reshape(len(sub), len(ib), -1)
+                    arg = flat.argmax(axis=2)
+                    peak = np.take_along_axis(flat, arg[..., None], axis=2)[..., 0]
+                    u, v = np.divmod(arg, size[1])
+                    u = np.where(u < ka[0], u, u - size[0])
+                    v = np.where(v < ka[1], v, v - size[1])
+                    rows, cols = np.ix_(sub, ib)
+                    gamma[rows, cols] = peak
+                    shift[rows, cols, 0] = org_a[sub, 1][:, None] - org_b[ib, 1][None] + v
+                    shift[rows, cols, 1] = org_a[sub, 0][:, None] - org_b[ib, 0][None] + u
+        return Similarity(gamma, shift)
+
+
 def similarity(edges_a: list[Edge], edges_b: list[Edge], tolerance: int = 1) -> Similarity:
     """Similarity matrix Gamma (27) by batched FFT cross-correlation (26) of edge sub-matrices.
+
+    Edges are batched by size class (powers of two); every pair of classes
+    is one stack of real FFTs, so there is no Python loop over edge pairs.
 
     Parameters
     ----------
@@ -95,39 +152,7 @@ def similarity(edges_a: list[Edge], edges_b: list[Edge], tolerance: int = 1) -> 
     Similarity with Gamma and, per pair, the translation ``(tx, ty)`` at the
     correlation peak: B's edge cell ``(x, y)`` lands on A's edge at ``(x + tx, y + ty)``.
     """
-    na, nb = len(edges_a), len(edges_b)
-    gamma = np.zeros((na, nb))
-    shift = np.zeros((na, nb, 2))
-    if na == 0 or nb == 0:
-        return Similarity(gamma, shift)
-    dil = [_dilated(e, tolerance) for e in edges_a]
-    mats_a = [m for m, _ in dil]
-    org_a = np.array([o for _, o in dil], dtype=float)
-    mats_b = [e.matrix for e in edges_b]
-    org_b = np.array([e.origin for e in edges_b], dtype=float)
-    groups_b = _groups(mats_b)
-    for ka, ia in _groups(mats_a).items():
-        stack_a = _stack(mats_a, ia, ka)
-        for kb, ib in groups_b.items():
-            size = (ka[0] + kb[0], ka[1] + kb[1])
-            fb = np.conj(sfft.rfft2(_stack(mats_b, ib, kb), s=size))
-            per_a = len(ib) * size[0] * (size[1] // 2 + 1)
-            chunk = max(1, _BLOCK_CELLS // per_a)
-            for start in range(0, len(ia), chunk):
-                sub = ia[start : start + chunk]
-                fa = sfft.rfft2(stack_a[start : start + chunk], s=size)
-                corr = sfft.irfft2(fa[:, None] * fb[None], s=size)
-                flat = corr.reshape(len(sub), len(ib), -1)
-                arg = flat.argmax(axis=2)
-                peak = np.take_along_axis(flat, arg[..., None], axis=2)[..., 0]
-                u, v = np.divmod(arg, size[1])
-                u = np.where(u < ka[0], u, u - size[0])
-                v = np.where(v < ka[1], v, v - size[1])
-                rows, cols = np.ix_(sub, ib)
-                gamma[rows, cols] = peak
-                shift[rows, cols, 0] = org_a[sub, 1][:, None] - org_b[ib, 1][None] + v
-                shift[rows, cols, 1] = org_a[sub, 0][:, None] - org_b[ib, 0][None] + u
-    return Similarity(gamma, shift)
+    return EdgeCorrelator(edges_a, tolerance).similarity(edges_b)
 
 
 def rho_threshold(edges_a: list[Edge], edges_b: list[Edge], rho: float) -> np.ndarray:
@@ -237,50 +262,68 @@ class MapView:
         self.shape = prob.shape
 
 
-class OverlayScores:
-    """Agreement and disagreement of two maps for *every* integer translation, by FFT.
+@dataclass(frozen=True)
+class Overlay:
+    """Agreement and disagreement counts of B on A for every integer translation.
 
-    ``agree(t)`` counts B's walls on A's near-wall cells plus A's walls on
-    B's, ``disagree(t)`` the walls on the other map's clear free space: the
-    dense form of :func:`map_agreement` for translations only.  A's spectra
-    are computed once and reused for every rotated B of the same shape.
+    Attributes
+    ----------
+    agree, disagree : arrays indexed by ``(ty mod size[0], tx mod size[1])``.
+    shape_a, shape_b : shapes of the two maps (bounds of meaningful translations).
     """
 
-    def __init__(self, a: MapView, shape_b: tuple[int, int]) -> None:
-        ha, wa = a.shape
-        hb, wb = shape_b
-        self.size = (sfft.next_fast_len(ha + hb), sfft.next_fast_len(wa + wb))
-        self.shape_a, self.shape_b = a.shape, shape_b
-        f = {
-            k: sfft.rfft2(getattr(a, k).astype(np.float32), s=self.size)
-            for k in ("near", "clear", "occ")
-        }
-        self._fa = f
+    agree: np.ndarray
+    disagree: np.ndarray
+    shape_a: tuple[int, int]
+    shape_b: tuple[int, int]
 
-    def maps(self, b: MapView) -> tuple[np.ndarray, np.ndarray]:
-        """(agree, disagree) arrays indexed by ``t mod size`` with ``t = (ty, tx)``."""
-        if b.shape != self.shape_b:
-            raise ValueError(f"B view has shape {b.shape}, expected {self.shape_b}")
-        fb = {
-            k: np.conj(sfft.rfft2(getattr(b, k).astype(np.float32), s=self.size))
-            for k in ("near", "clear", "occ")
-        }
-        fa = self._fa
-        agree = sfft.irfft2(fa["near"] * fb["occ"] + fa["occ"] * fb["near"], s=self.size)
-        disagree = sfft.irfft2(fa["clear"] * fb["occ"] + fa["occ"] * fb["clear"], s=self.size)
-        return np.rint(agree), np.rint(disagree)
+    def at(self, t: tuple[int, int]) -> Agreement:
+        """Counts at the translation ``t = (tx, ty)``."""
+        idx = (t[1] % self.agree.shape[0], t[0] % self.agree.shape[1])
+        return Agreement(int(self.agree[idx]), int(self.disagree[idx]))
 
-    def best_near(self, net: np.ndarray, t: tuple[int, int], radius: int) -> tuple[int, int]:
-        """The translation ``(tx, ty)`` of largest ``net`` within ``radius`` cells of ``t``."""
-        ha, wa = self.shape_a
-        hb, wb = self.shape_b
+    def best_near(self, t: tuple[int, int], radius: int) -> tuple[int, int]:
+        """The translation ``(tx, ty)`` of largest agree - disagree within ``radius`` of ``t``."""
+        (ha, wa), (hb, wb) = self.shape_a, self.shape_b
         ty = np.arange(max(t[1] - radius, 1 - hb), min(t[1] + radius, ha - 1) + 1)
         tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
         if ty.size == 0 or tx.size == 0:
             return t
-        window = net[np.ix_(ty % self.size[0], tx % self.size[1])]
+        rows, cols = np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])
+        window = self.agree[rows, cols] - self.disagree[rows, cols]
         i, j = np.unravel_index(int(np.argmax(window)), window.shape)
         return int(tx[j]), int(ty[i])
+
+
+class OverlayScores:
+    """Dense form of :func:`map_agreement` for translations only, by FFT.
+
+    ``agree(t)`` counts B's walls on A's near-wall cells plus A's walls on
+    B's, ``disagree(t)`` the walls on the other map's clear free space.  A's
+    spectra are cached per FFT size and reused for every rotated B.
+    """
+
+    _LAYERS = ("near", "clear", "occ")
+
+    def __init__(self, a: MapView) -> None:
+        self.a = a
+        self._fa: dict[tuple[int, int], dict[str, np.ndarray]] = {}
+
+    def _spectra(self, view: MapView, size: tuple[int, int]) -> dict[str, np.ndarray]:
+        return {k: sfft.rfft2(getattr(view, k).astype(np.float32), s=size) for k in self._LAYERS}
+
+    def overlay(self, b: MapView) -> Overlay:
+        """Agreement and disagreement of ``b`` on A for all translations."""
+        size = tuple(
+            sfft.next_fast_len(sa + sb) for sa, sb in zip(self.a.shape, b.shape, strict=True)
+        )
+        if size not in self._fa:
+            self._fa[size] = self._spectra(self.a, size)
+        fa = self._fa[size]
+        fb = {k: np.conj(v) for k, v in self._spectra(b, size).items()}
+        agree = sfft.irfft2(fa["near"] * fb["occ"] + fa["occ"] * fb["near"], s=size)
+        disagree = sfft.irfft2(fa["clear"] * fb["occ"] + fa["occ"] * fb["clear"], s=size)
+        return Overlay(np.rint(agree), np.rint(disagree), self.a.shape, b.shape)
 
 
 def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:

@@ -43,6 +43,7 @@ from pgvd.graph import EdgeGraph, build_graph
 from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
 from pgvd.matching import (
+    EdgeCorrelator,
     MapView,
     OverlayScores,
     PairSupport,
@@ -53,7 +54,6 @@ from pgvd.matching import (
     refine,
     rho_test,
     rho_threshold,
-    similarity,
 )
 from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
 from pgvd.transform import warp
@@ -148,13 +148,13 @@ class MergeResult:
 @dataclass
 class _Hypothesis:
     heading: HeadingCandidate
-    coarse_matrix: np.ndarray  # coarse B -> coarse A
+    coarse_matrix: np.ndarray  # coarse B -> A's coarse crop
     net: int
     ratio: float
     support: int
     passing: np.ndarray
     graph_b: EdgeGraph
-    rotation: np.ndarray  # coarse B -> coarse rotated B
+    rotation: np.ndarray  # coarse B -> crop of the rotated coarse B (where sp_b lives)
     sp_b: np.ndarray
     gamma: np.ndarray
 
@@ -196,6 +196,18 @@ def _rotation_about_centre(
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     rot[:2, 2] = (side - 1) / 2.0 - rot[:2, :2] @ centre
     return rot, (side, side)
+
+
+def _known_box(p: np.ndarray, margin: int = 2) -> tuple[slice, slice]:
+    """Row and column slices of the cells that are not unknown, grown by ``margin``."""
+    known = np.abs(p - 0.5) > 0.05
+    rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
+    if rows.size == 0:
+        return slice(0, p.shape[0]), slice(0, p.shape[1])
+    return (
+        slice(max(0, rows[0] - margin), min(p.shape[0], rows[-1] + margin + 1)),
+        slice(max(0, cols[0] - margin), min(p.shape[1], cols[-1] + margin + 1)),
+    )
 
 
 def _keep_edges(graph: EdgeGraph, n: int) -> EdgeGraph:
@@ -240,7 +252,8 @@ def _search_heading(
     heading: HeadingCandidate,
     cb: np.ndarray,
     graph_a: EdgeGraph,
-    overlay: OverlayScores,
+    correlator: EdgeCorrelator,
+    scores: OverlayScores,
     params: MergeParams,
     cells: dict[str, int],
     clock: _Clock,
@@ -248,13 +261,17 @@ def _search_heading(
     """All verified translations for one candidate heading (coarse scale)."""
     rot, shape = _rotation_about_centre(heading.psi, cb.shape)
     rb = warp(cb, rot, shape, order=1, cval=0.5)
-    centre = ((shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0)
+    # Blurring spreads a wall by at most a few cells: crop to the known part first.
+    rows, cols = _known_box(rb, margin=2 + int(np.ceil(3 * np.sqrt(heading.variance) * shape[0])))
+    rb = rb[rows, cols]
+    centre = ((shape[1] - 1) / 2.0 - cols.start, (shape[0] - 1) / 2.0 - rows.start)
     rb = rotation_blur(rb, float(np.sqrt(heading.variance)), centre)
+    rot = _translation(-cols.start, -rows.start) @ rot
     s_b, sp_b = pgvd(rb, params.free)
     clock.lap("pgvd")
     graph_b = _keep_edges(build_graph(s_b, sp_b, cells["min_len"]), params.max_edges)
     clock.lap("graph")
-    sim = similarity(graph_a.edges, graph_b.edges, params.edge_tolerance)
+    sim = correlator.similarity(graph_b.edges)
     passing = rho_test(sim.gamma, graph_a.edges, graph_b.edges, params.rho)
     ia, ib = np.nonzero(passing)
     order = np.argsort(-sim.gamma[ia, ib], kind="stable")
@@ -265,24 +282,21 @@ def _search_heading(
     out: list[_Hypothesis] = []
     if not proposals:
         return out
-    view_b = MapView(rb, params.occupied, params.free, 1)
-    agree, disagree = overlay.maps(view_b)
-    net = agree - disagree
+    overlay = scores.overlay(MapView(rb, params.occupied, params.free, 1))
     pairs = PairSupport(overlay.shape_a, graph_a.edges, graph_b.edges, params.edge_tolerance)
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
     # A straight edge pair fixes the translation only across the corridor:
     # slide each proposal to the best whole-map agreement nearby.
-    refined = dict.fromkeys(overlay.best_near(net, t, cells["radius"]) for t in proposals)
+    refined = dict.fromkeys(overlay.best_near(t, cells["radius"]) for t in proposals)
     for tx, ty in refined:
         ok = pairs.correlation((tx, ty)) > thresh
-        idx = (ty % overlay.size[0], tx % overlay.size[1])
-        n_agree, n_disagree = int(agree[idx]), int(disagree[idx])
+        agreement = overlay.at((tx, ty))
         out.append(
             _Hypothesis(
                 heading=heading,
                 coarse_matrix=_translation(tx, ty) @ rot,
-                net=n_agree - n_disagree,
-                ratio=n_agree / max(1, n_agree + n_disagree),
+                net=agreement.agree - agreement.disagree,
+                ratio=agreement.ratio,
                 support=pair_support(ok),
                 passing=ok,
                 graph_b=graph_b,
@@ -323,17 +337,23 @@ def _paint(coarse: np.ndarray, matrix: np.ndarray, k: int, shape: tuple[int, int
 
 
 def _diagnostics(
-    best: _Hypothesis, graph_a: EdgeGraph, sp_a: np.ndarray, k: int, a: Grid, b: Grid
+    best: _Hypothesis,
+    graph_a: EdgeGraph,
+    sp_a: np.ndarray,
+    off_a: np.ndarray,
+    k: int,
+    shapes: tuple[tuple[int, int], tuple[int, int]],
 ) -> MergeDiagnostics:
     ia, ib = np.nonzero(best.passing)
     to_fine = _scale(k)
+    crop_a = to_fine @ off_a @ np.linalg.inv(to_fine)
     # B's PGVD lives in the rotated coarse frame: draw it back in B's pixels.
     back = np.linalg.inv(to_fine @ best.rotation @ np.linalg.inv(to_fine))
     return MergeDiagnostics(
-        pgvd_a=_paint(sp_a, np.eye(3), k, a.shape),
-        pgvd_b=_paint(best.sp_b, back, k, b.shape),
-        edges_a=_paint(_edge_mask(graph_a, ia), np.eye(3), k, a.shape),
-        edges_b=_paint(_edge_mask(best.graph_b, ib), back, k, b.shape),
+        pgvd_a=_paint(sp_a, crop_a, k, shapes[0]),
+        pgvd_b=_paint(best.sp_b, back, k, shapes[1]),
+        edges_a=_paint(_edge_mask(graph_a, ia), crop_a, k, shapes[0]),
+        edges_b=_paint(_edge_mask(best.graph_b, ib), back, k, shapes[1]),
         gamma=best.gamma,
     )
 
@@ -387,6 +407,10 @@ def merge(
     clock.lap("rotation")
     k = max(1, round(params.coarse_resolution / a.resolution))
     ca, cb = coarsen(pa, k, params.occupied), coarsen(pb, k, params.occupied)
+    # Search only the known part of A; cells of A's crop are offset by off_a.
+    rows, cols = _known_box(ca)
+    ca = ca[rows, cols]
+    off_a = _translation(cols.start, rows.start)
     coarse_res = a.resolution * k
     min_len = max(3, round(params.min_edge_length / coarse_res))
     clock.lap("coarsen")
@@ -394,14 +418,13 @@ def merge(
     clock.lap("pgvd")
     graph_a = _keep_edges(build_graph(s_a, sp_a, min_len), params.max_edges)
     clock.lap("graph")
-    overlay = OverlayScores(
-        MapView(ca, params.occupied, params.free, 1), _rotation_about_centre(0.0, cb.shape)[1]
-    )
+    scores = OverlayScores(MapView(ca, params.occupied, params.free, 1))
+    correlator = EdgeCorrelator(graph_a.edges, params.edge_tolerance)
     cells = {"min_len": min_len, "radius": max(1, round(params.search_radius / coarse_res))}
     clock.lap("verify")
     hyps: list[_Hypothesis] = []
     for heading in headings:
-        hyps += _search_heading(heading, cb, graph_a, overlay, params, cells, clock)
+        hyps += _search_heading(heading, cb, graph_a, correlator, scores, params, cells, clock)
     good = [h for h in hyps if h.support >= params.min_pairs]
     if not good:
         why = (
@@ -412,7 +435,7 @@ def merge(
         return _rejected(why, clock)
     best = max(good, key=lambda h: (h.net, h.ratio))
     to_fine = _scale(k)
-    matrix = to_fine @ best.coarse_matrix @ np.linalg.inv(to_fine)
+    matrix = to_fine @ off_a @ best.coarse_matrix @ np.linalg.inv(to_fine)
     fine_a = WallMap(pa, params.occupied, params.free)
     fine_b = WallMap(pb, params.occupied, params.free)
     matrix = refine(fine_a.tree, fine_b.walls, matrix)
@@ -436,7 +459,11 @@ def merge(
         )
     cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
     clock.lap("covariance")
-    diag = _diagnostics(best, graph_a, sp_a, k, a, b) if params.diagnostics else None
+    diag = (
+        _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))
+        if params.diagnostics
+        else None
+    )
     if diag is not None:
         clock.lap("diagnostics")
     psi, tx, ty = matrix_to_pose(matrix)

@@ -106,7 +106,8 @@ def test_dense_overlay_scores_equal_direct_counts(intel):
     c = coarsen(intel, 4)
     va = MapView(c, 0.65, 0.3, 1)
     vb = MapView(c[10:90, 20:100], 0.65, 0.3, 1)
-    agree, disagree = OverlayScores(va, vb.shape).maps(vb)
+    ov = OverlayScores(va).overlay(vb)
+    agree, disagree = ov.agree, ov.disagree
     size = agree.shape
     for tx, ty in [(20, 10), (23, 8), (-5, 40)]:
         rb, cb = np.nonzero(vb.occ)
@@ -117,11 +118,12 @@ def test_dense_overlay_scores_equal_direct_counts(intel):
             ok = (r >= 0) & (r < dst.shape[0]) & (col >= 0) & (col < dst.shape[1])
             direct_agree += int(dst.near[r[ok], col[ok]].sum())
             direct_dis += int(dst.clear[r[ok], col[ok]].sum())
-        assert agree[ty % size[0], tx % size[1]] == direct_agree
-        assert disagree[ty % size[0], tx % size[1]] == direct_dis
+        assert ov.at((tx, ty)).agree == direct_agree
+        assert ov.at((tx, ty)).disagree == direct_dis
     # the true offset of the crop is the best agreement, up to the one-cell tolerance
     best = np.unravel_index(np.argmax(agree - disagree), size)
     assert abs(int(best[0]) - 10) <= 1 and abs(int(best[1]) - 20) <= 1
+    assert ov.best_near((17, 13), 5) == (int(best[1]), int(best[0]))
 
 
 def test_refine_and_covariance_on_real_walls(intel):
