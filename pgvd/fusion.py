@@ -7,7 +7,6 @@ from collections.abc import Iterable
 import numpy as np
 
 from pgvd.grid import LOGODDS_LIMIT, Grid, pixel_to_world, probability_to_logodds
-from pgvd.io import OCCUPIED_THRESH
 from pgvd.transform import union_canvas
 from pgvd.uncertainty import propagate
 
@@ -59,22 +58,12 @@ def fuse_many(base: np.ndarray, others: Iterable[np.ndarray]) -> np.ndarray:
     return out
 
 
-def wall_centroid(grid: Grid) -> tuple[float, float]:
-    """Mean pixel ``(x, y)`` of the occupied cells: the centre about which
-    :func:`pgvd.matching.alignment_covariance` expresses the heading error."""
-    rows, cols = np.nonzero(grid.probability() > OCCUPIED_THRESH)
-    if rows.size == 0:
-        h, w = grid.shape
-        return (w - 1) / 2.0, (h - 1) / 2.0
-    return float(cols.mean()), float(rows.mean())
-
-
 def fuse_maps(
     a: Grid,
     b: Grid,
     matrix: np.ndarray,
     covariance: np.ndarray,
-    center: tuple[float, float] | None = None,
+    center: tuple[float, float] = (0.0, 0.0),
 ) -> Grid:
     """Fuse map B into map A on a canvas that holds both whole (Fig. 1, last blocks).
 
@@ -88,8 +77,10 @@ def fuse_maps(
     ----------
     a, b : the maps, equal resolutions.
     matrix : 3x3, B pixel -> A pixel.
-    covariance : 3x3 over ``(x px, y px, psi rad)``; NaN entries are read as 0.
-    center : B pixel about which the heading error acts; default B's wall centroid.
+    covariance : 3x3 over ``(tx px, ty px, psi rad)`` of ``matrix`` read as eq. (1)
+        (``rigid_matrix(psi, tx, ty)``), as :class:`pgvd.merge.MergeResult` reports it.
+    center : B pixel about which that heading error acts: eq. (1) rotates
+        about B's pixel origin, the default.
 
     Returns
     -------
@@ -101,13 +92,12 @@ def fuse_maps(
     dx, dy = int(offset[0, 2]), int(offset[1, 2])
     base = np.zeros(shape, dtype=np.float32)
     base[dy : dy + a.shape[0], dx : dx + a.shape[1]] = a.logodds
-    cov = np.nan_to_num(np.asarray(covariance, dtype=np.float64), nan=0.0)
     moved = propagate(
         b.probability(),
         offset @ np.asarray(matrix, dtype=np.float64),
-        cov,
+        covariance,
         shape,
-        center=wall_centroid(b) if center is None else center,
+        center=center,
         cval=0.5,
     )
     fused = fuse(base, probability_to_logodds(np.clip(moved, 0.0, 1.0)))

@@ -208,7 +208,9 @@ def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
         raise ValueError(f"cov_xy must be positive semi-definite, got {cov.tolist()}")
     if eig.max() < _MIN_SIGMA_PX**2:
         return img.copy()
-    half = math.ceil(4.0 * math.sqrt(eig.max()))
+    # beyond the map's size a wider kernel changes nothing but the cost (a flat corridor
+    # can leave a translation variance of thousands of cells^2)
+    half = min(math.ceil(4.0 * math.sqrt(eig.max())), max(img.shape))
     ys, xs = np.mgrid[-half : half + 1, -half : half + 1].astype(np.float64)
     # a degenerate direction (e.g. translation fully explained by the heading) is a delta
     inv = np.linalg.inv(cov + _DELTA_VARIANCE * np.eye(2))
