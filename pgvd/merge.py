@@ -132,13 +132,18 @@ class MergeResult:
     diagnostics: MergeDiagnostics | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
-        """The ``pgvd merge --json`` object of design.md (plus ``reason``)."""
+        """The ``pgvd merge --json`` object of design.md (plus ``reason``).
+
+        A rejected result has no covariance: its entries are ``None`` (JSON null).
+        """
         return {
             "accepted": bool(self.accepted),
             "matrix": [[float(v) for v in row] for row in self.matrix],
             "rotation_deg": float(self.rotation_deg),
             "translation_px": [float(self.translation_px[0]), float(self.translation_px[1])],
-            "covariance": [[float(v) for v in row] for row in self.covariance],
+            "covariance": [
+                [float(v) if np.isfinite(v) else None for v in row] for row in self.covariance
+            ],
             "score": float(self.score),
             "timings_ms": {k: round(float(v), 3) for k, v in self.timings_ms.items()},
             "reason": self.reason,
@@ -255,7 +260,8 @@ def _search_heading(
     correlator: EdgeCorrelator,
     scores: OverlayScores,
     params: MergeParams,
-    cells: dict[str, int],
+    min_len: int,
+    radius: int,
     clock: _Clock,
 ) -> list[_Hypothesis]:
     """All verified translations for one candidate heading (coarse scale)."""
@@ -269,7 +275,7 @@ def _search_heading(
     rot = _translation(-cols.start, -rows.start) @ rot
     s_b, sp_b = pgvd(rb, params.free)
     clock.lap("pgvd")
-    graph_b = _keep_edges(build_graph(s_b, sp_b, cells["min_len"]), params.max_edges)
+    graph_b = _keep_edges(build_graph(s_b, sp_b, min_len), params.max_edges)
     clock.lap("graph")
     sim = correlator.similarity(graph_b.edges)
     passing = rho_test(sim.gamma, graph_a.edges, graph_b.edges, params.rho)
@@ -287,7 +293,7 @@ def _search_heading(
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
     # A straight edge pair fixes the translation only across the corridor:
     # slide each proposal to the best whole-map agreement nearby.
-    refined = dict.fromkeys(overlay.best_near(t, cells["radius"]) for t in proposals)
+    refined = dict.fromkeys(overlay.best_near(t, radius) for t in proposals)
     for tx, ty in refined:
         ok = pairs.correlation((tx, ty)) > thresh
         agreement = overlay.at((tx, ty))
@@ -418,13 +424,17 @@ def merge(
     clock.lap("pgvd")
     graph_a = _keep_edges(build_graph(s_a, sp_a, min_len), params.max_edges)
     clock.lap("graph")
+    if not graph_a.edges:
+        return _rejected(f"map A has no GVD edge of {params.min_edge_length} m or more", clock)
     scores = OverlayScores(MapView(ca, params.occupied, params.free, 1))
     correlator = EdgeCorrelator(graph_a.edges, params.edge_tolerance)
-    cells = {"min_len": min_len, "radius": max(1, round(params.search_radius / coarse_res))}
+    radius = max(1, round(params.search_radius / coarse_res))
     clock.lap("verify")
     hyps: list[_Hypothesis] = []
     for heading in headings:
-        hyps += _search_heading(heading, cb, graph_a, correlator, scores, params, cells, clock)
+        hyps += _search_heading(
+            heading, cb, graph_a, correlator, scores, params, min_len, radius, clock
+        )
     good = [h for h in hyps if h.support >= params.min_pairs]
     if not good:
         why = (
