@@ -154,7 +154,7 @@ def _number(meta: dict[str, YamlValue], key: str, path: Path) -> float:
 
 
 def _read_meta(path: Path) -> dict[str, YamlValue]:
-    text = _read_bytes(path).decode("utf-8", errors="replace")
+    text = _read_bytes(path).decode("utf-8-sig", errors="replace")  # tolerate a BOM
     meta = parse_map_yaml(text, path)
     missing = [k for k in _REQUIRED_KEYS if k not in meta]
     if missing:

@@ -38,7 +38,9 @@ def _pgm(path: Path, pixels: np.ndarray, maxval: int = 255) -> None:
 def _png(path: Path, pixels: np.ndarray, mode: str) -> None:
     from PIL import Image
 
-    Image.fromarray(pixels, mode=mode).save(path)
+    img = Image.fromarray(pixels)  # Pillow infers L, LA, RGBA or I;16 from shape and dtype
+    assert img.mode == mode
+    img.save(path)
 
 
 def _map(tmp_path: Path, pixels: np.ndarray, extra: str = "", name: str = "m.pgm") -> Path:
@@ -134,6 +136,16 @@ def test_rgba_png_and_16bit_and_ascii_pgm(tmp_path: Path) -> None:
     _pgm(tmp_path / "m16.pgm", gray.astype(np.uint16) * 257, maxval=65535)
     y = _map(tmp_path, gray, name="m16.pgm")
     np.testing.assert_allclose(read_map(y).probability(), expect, atol=1e-6)
+    _png(tmp_path / "m16.png", gray.astype(np.uint16) * 257, "I;16")
+    np.testing.assert_allclose(
+        read_map(_map(tmp_path, gray, name="m16.png")).probability(), expect, atol=1e-6
+    )
+    la = np.dstack([gray, np.full_like(gray, 255)])
+    _png(tmp_path / "la.png", la, "LA")
+    np.testing.assert_allclose(read_map(_map(tmp_path, gray, name="la.png")).probability(), expect)
+    bom = "\ufeff" + (tmp_path / "m.yaml").read_text()
+    (tmp_path / "m.yaml").write_text(bom, encoding="utf-8")
+    np.testing.assert_allclose(read_map(tmp_path / "m.yaml").probability(), expect)
     txt = "P2\n# comment\n3 2\n255\n" + " ".join(map(str, gray.ravel())) + "\n"
     (tmp_path / "a.pgm").write_text(txt)
     (tmp_path / "a.yaml").write_text("image: a.pgm\n" + YAML_TAIL)
