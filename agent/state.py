@@ -16,6 +16,7 @@ import io
 import json
 import os
 import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -87,7 +88,7 @@ class StateDir:
         for path in sorted(self.maps_dir.glob("*.npz")):
             try:
                 maps[check_name(path.stem, "robot id")] = _read_map(path)
-            except (OSError, ValueError, KeyError) as exc:
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
                 errors.append(f"{path.name}: {exc}")
         return maps, errors
 

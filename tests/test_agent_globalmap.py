@@ -1,0 +1,94 @@
+"""The global map is a pure, order-independent function of local maps and links."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.globalmap import build_components, compose_transforms, map_digest, spanning_forest
+from agent.links import LinkRecord
+from pgvd.fusion import fuse_maps
+from pgvd.grid import Grid, relative_matrix, rigid_matrix
+from pgvd.io import read_map
+from pgvd.transform import resample
+
+
+def link(a: str, b: str, m: np.ndarray, score: float = 0.9, accepted: bool = True) -> LinkRecord:
+    return LinkRecord(a, 1, b, 1, accepted, m, np.diag([0.2, 0.2, 1e-5]), score, a)
+
+
+def test_spanning_forest_is_best_score_first_and_independent_of_input_order() -> None:
+    m = np.eye(3)
+    links = [
+        link("a", "b", m, 0.8),
+        link("b", "c", m, 0.9),
+        link("a", "c", m, 0.7),
+        link("d", "e", m, 0.5, accepted=False),
+    ]
+    forests = {
+        tuple(
+            (k, tuple(ln.pair for ln in v)) for k, v in sorted(spanning_forest("abcde", p).items())
+        )
+        for p in itertools.permutations(links)
+    }
+    assert forests == {(("a", (("b", "c"), ("a", "b"))), ("d", ()), ("e", ()))}
+
+
+def test_compose_transforms_walks_links_both_ways() -> None:
+    ab = rigid_matrix(0.3, 10.0, -4.0)  # b px -> a px
+    bc = rigid_matrix(-0.1, 2.0, 7.0)  # c px -> b px
+    mats, covs = compose_transforms("a", [link("a", "b", ab), link("b", "c", bc)])
+    np.testing.assert_allclose(mats["c"], ab @ bc)
+    mats, _ = compose_transforms("b", [link("a", "b", ab)])
+    np.testing.assert_allclose(mats["a"], np.linalg.inv(ab))
+    assert covs["c"][2, 2] == pytest.approx(2e-5)  # heading variances add along the path
+
+
+@pytest.fixture(scope="module")
+def halves(shared: Path) -> tuple[Grid, Grid, np.ndarray]:
+    """The two halves of intel_split_gt at 0.1 m, and their true B px -> A px matrix."""
+    d = shared / "maps" / "intel_split_gt"
+    a = resample(read_map(d / "intel_partA.yaml"), 0.1)
+    b = resample(read_map(d / "intel_partB.yaml"), 0.1)
+    return a, b, relative_matrix(a, b)
+
+
+def test_component_fuses_local_maps_in_a_fixed_order(halves: tuple) -> None:
+    a, b, truth = halves
+    maps = {"r2": (4, b), "r1": (7, a)}
+    (comp,) = build_components(maps, [link("r1", "r2", truth)])
+    assert comp.anchor == "r1" and comp.members == ("r1", "r2")
+    assert comp.versions == {"r1": 7, "r2": 4}
+    # Exactly one fusion of the two local maps: never a fused map fused again.
+    direct = fuse_maps(a, b, truth, np.diag([0.2, 0.2, 1e-5]))
+    np.testing.assert_array_equal(comp.grid.logodds, direct.logodds)
+    assert comp.digest == map_digest(direct)
+
+
+def test_same_inputs_same_global_map_whatever_the_order(halves: tuple) -> None:
+    a, b, truth = halves
+    third = Grid(np.roll(a.logodds, 5, axis=1), a.resolution, a.origin)
+    links = [link("r1", "r2", truth), link("r1", "r3", rigid_matrix(0, -5, 0), 0.5)]
+    first = build_components({"r1": (1, a), "r2": (1, b), "r3": (1, third)}, links)
+    second = build_components({"r3": (1, third), "r2": (1, b), "r1": (1, a)}, links[::-1])
+    assert [c.digest for c in first] == [c.digest for c in second]
+    assert first[0].members == ("r1", "r2", "r3")
+
+
+def test_robot_overlapping_nobody_stays_its_own_component(halves: tuple) -> None:
+    a, b, truth = halves
+    maps = {"r1": (1, a), "r2": (1, b), "r0": (1, b)}
+    comps = build_components(maps, [link("r1", "r2", truth), link("r0", "r1", truth, 0.2, False)])
+    assert [(c.anchor, c.members) for c in comps] == [("r0", ("r0",)), ("r1", ("r1", "r2"))]
+    lonely = comps[0]
+    assert lonely.grid is b and lonely.transforms == {"r0": pytest.approx(np.eye(3))}
+
+
+def test_digest_changes_with_the_map() -> None:
+    g = Grid(np.zeros((4, 5), np.float32), 0.1)
+    h = Grid(np.where(np.eye(4, 5) > 0, 2.0, 0.0).astype(np.float32), 0.1)
+    assert map_digest(g) != map_digest(h)
+    assert map_digest(g) == map_digest(Grid(g.logodds.copy(), 0.1))

@@ -1,0 +1,66 @@
+"""Key expressions of a fleet and the Zenoh configuration an agent builds."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from agent.keys import FleetKeys, check_name
+from agent.zenoh_config import ZenohOptions, build_config
+
+
+def test_keys_live_under_the_fleet_prefix() -> None:
+    k = FleetKeys("lab")
+    assert k.tiles("r1") == "pgvd/lab/tiles/r1"
+    assert k.link("r1", "r2") == "pgvd/lab/link/r1/r2"
+    assert k.latest("r1") == "pgvd/lab/latest/r1/**"
+    assert k.latest_reply("r1", 4, "t0") == "pgvd/lab/latest/r1/4/t0"
+    assert k.robot_of("pgvd/lab/latest/r1/4/m", "latest") == "r1"
+    assert k.robot_of("pgvd/other/tiles/r1", "tiles") is None
+    assert k.robot_of("pgvd/lab/tiles/r*", "tiles") is None
+
+
+@pytest.mark.parametrize("bad", ["", "a/b", "r*", "$x", "-r", "a" * 65, "r 1", "r.1"])
+def test_names_that_cannot_be_one_key_chunk_are_refused(bad: str) -> None:
+    with pytest.raises(ValueError, match="robot id"):
+        check_name(bad, "robot id")
+
+
+def test_default_config_is_peer_on_explicit_endpoints() -> None:
+    cfg = build_config(
+        ZenohOptions(
+            listen=["tcp/127.0.0.1:17000"],
+            connect=["tcp/127.0.0.1:17001"],
+            shared_memory=False,
+            lease_ms=2000,
+        )
+    )
+    assert json.loads(cfg.get_json("mode")) == "peer"
+    assert json.loads(cfg.get_json("scouting/delay")) == 0
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(cfg.get_json("scouting/gossip/enabled")) is True
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/127.0.0.1:17000"]
+    assert json.loads(cfg.get_json("connect/endpoints")) == ["tcp/127.0.0.1:17001"]
+    assert json.loads(cfg.get_json("transport/shared_memory/enabled")) is False
+    assert json.loads(cfg.get_json("transport/link/tx/lease")) == 2000
+
+
+def test_config_file_is_extended_not_replaced(tmp_path: Path) -> None:
+    f = tmp_path / "z.json5"
+    f.write_text('{ mode: "client", scouting: { multicast: { enabled: true } } }')
+    cfg = build_config(ZenohOptions(config_file=f, connect=["tcp/127.0.0.1:7447"]))
+    assert json.loads(cfg.get_json("mode")) == "client"
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is True
+    assert json.loads(cfg.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7447"]
+
+
+def test_bad_config_is_one_line(tmp_path: Path) -> None:
+    f = tmp_path / "z.json5"
+    f.write_text("{ mode: ")
+    with pytest.raises(ValueError, match="bad Zenoh config") as info:
+        build_config(ZenohOptions(config_file=f))
+    assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="mode"):
+        build_config(ZenohOptions(mode="satellite"))

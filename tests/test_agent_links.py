@@ -1,0 +1,124 @@
+"""The link cache, which pairs need registering, whose turn it is, and the links chosen."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from agent.links import (
+    LinkCache,
+    LinkRecord,
+    due_keys,
+    dumps,
+    loads,
+    needed_keys,
+    select_links,
+    wait_before_computing,
+)
+from pgvd.grid import rigid_matrix
+
+
+def rec(a: str, va: int, b: str, vb: int, accepted: bool = True, score: float = 0.9) -> LinkRecord:
+    return LinkRecord(
+        a, va, b, vb, accepted, rigid_matrix(0.1, 3.0, -2.0), np.eye(3) * 0.01, score, a
+    )
+
+
+def test_record_round_trips_through_json() -> None:
+    r = rec("r1", 3, "r2", 5)
+    (back,) = loads(dumps([r]))
+    assert back.key == r.key and back.accepted and back.decided_by == "r1"
+    np.testing.assert_array_equal(back.matrix, r.matrix)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"a": "r2", "b": "r1"}, "a < b"),
+        ({"matrix": np.full((3, 3), np.nan)}, "finite 3x3"),
+        ({"covariance": np.eye(2)}, "finite 3x3"),
+        ({"score": float("inf")}, "score"),
+    ],
+)
+def test_record_refuses_malformed_fields(change: dict, message: str) -> None:
+    fields = dict(
+        a="r1", version_a=1, b="r2", version_b=1, accepted=True, matrix=np.eye(3),
+        covariance=np.eye(3), score=0.5, decided_by="r1",
+    )  # fmt: skip
+    fields.update(change)
+    with pytest.raises(ValueError, match=message):
+        LinkRecord(**fields)
+
+
+@given(st.text(max_size=200))
+def test_loads_raises_only_value_error(text: str) -> None:
+    with contextlib.suppress(ValueError):
+        loads(text)
+
+
+@given(
+    st.lists(
+        st.dictionaries(
+            st.sampled_from(["a", "version_a", "b", "version_b", "accepted", "matrix", "score"]),
+            st.one_of(st.integers(), st.text(max_size=3), st.none(), st.lists(st.integers())),
+        ),
+        max_size=3,
+    )
+)
+def test_loads_of_json_garbage_raises_only_value_error(items: list) -> None:
+    with contextlib.suppress(ValueError):
+        loads(json.dumps(items))
+
+
+def test_first_decision_for_a_key_stays() -> None:
+    cache = LinkCache([rec("r1", 1, "r2", 1, score=0.9)])
+    assert not cache.add(rec("r1", 1, "r2", 1, score=0.1))
+    assert cache.get(("r1", 1, "r2", 1)).score == 0.9
+
+
+def test_prune_keeps_latest_future_and_newest_superseded() -> None:
+    cache = LinkCache(
+        [rec("r1", 1, "r2", 1), rec("r1", 2, "r2", 1), rec("r1", 3, "r2", 2), rec("r1", 4, "r2", 2)]
+    )
+    cache.prune({"r1": 4, "r2": 2})
+    assert [r.key for r in cache.records()] == [("r1", 3, "r2", 2), ("r1", 4, "r2", 2)]
+    cache.prune({"r1": 3, "r2": 2})  # a link of versions not yet seen here is kept
+    assert ("r1", 4, "r2", 2) in [r.key for r in cache.records()]
+
+
+def test_needed_keys_are_pairs_without_a_link_of_the_latest_versions() -> None:
+    cache = LinkCache([rec("r1", 2, "r2", 1), rec("r1", 1, "r3", 1)])
+    versions = {"r1": 2, "r2": 1, "r3": 4}
+    assert needed_keys(versions, cache) == [("r1", 2, "r3", 4), ("r2", 1, "r3", 4)]
+
+
+def test_lower_robot_registers_first_others_after_timeouts() -> None:
+    key = ("r2", 1, "r5", 1)
+    assert wait_before_computing("r2", key, 4.0) == 0.0
+    assert wait_before_computing("r5", key, 4.0) == 4.0
+    assert wait_before_computing("r1", key, 4.0) == 8.0
+    first = {key: 100.0}
+    assert due_keys("r5", [key], first, 103.9, 4.0) == []
+    assert due_keys("r5", [key], first, 104.0, 4.0) == [key]
+    assert due_keys("r2", [key], first, 100.0, 4.0) == [key]
+
+
+def test_due_keys_put_own_pairs_first() -> None:
+    keys = [("r1", 1, "r2", 1), ("r3", 1, "r4", 1)]
+    first = dict.fromkeys(keys, 0.0)
+    assert due_keys("r3", keys, first, 100.0, 1.0) == [("r3", 1, "r4", 1), ("r1", 1, "r2", 1)]
+
+
+def test_select_links_prefers_exact_versions_and_reports_settled() -> None:
+    cache = LinkCache([rec("r1", 1, "r2", 1), rec("r1", 2, "r2", 1)])
+    chosen, settled = select_links({"r1": 2, "r2": 1}, cache)
+    assert [c.key for c in chosen] == [("r1", 2, "r2", 1)] and settled
+    chosen, settled = select_links({"r1": 3, "r2": 1}, cache)
+    assert [c.key for c in chosen] == [("r1", 2, "r2", 1)] and not settled
+    _, settled = select_links({"r1": 2, "r2": 1, "r3": 1}, cache)
+    assert not settled  # pairs with r3 have no link at all yet

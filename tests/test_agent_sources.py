@@ -1,0 +1,111 @@
+"""Sources: spec parsing, frames, the version gate, CARMEN replay and map-file following."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.ndimage import maximum_filter
+
+from agent.evaluate import link_error, true_matrix
+from agent.sources import (
+    CarmenSource,
+    ChangeGate,
+    MapFileSource,
+    frame_for_robot,
+    parse_frame,
+    parse_source,
+)
+from pgvd.grid import Grid
+
+INTEL = Path(__file__).resolve().parents[1] / "agent" / "data" / "intel-corrected.log.gz"
+
+
+def test_parse_source() -> None:
+    spec = parse_source("carmen:logs/x.log.gz@0.25-0.5")
+    assert (spec.kind, spec.path, spec.segment) == ("carmen", Path("logs/x.log.gz"), (0.25, 0.5))
+    assert parse_source("carmen:a.log").segment == (0.0, 1.0)
+    assert parse_source("map:m.yaml").kind == "map"
+    for bad in ("nope:x", "map:", "carmen:x@0.5-0.2", "carmen:x@0-1.5"):
+        with pytest.raises(ValueError):
+            parse_source(bad)
+
+
+def test_frames() -> None:
+    assert frame_for_robot("r1") == frame_for_robot("r1") != frame_for_robot("r2")
+    assert parse_frame("1,-2,90") == pytest.approx((1.0, -2.0, np.pi / 2))
+    with pytest.raises(ValueError):
+        parse_frame("1,2")
+
+
+def test_change_gate() -> None:
+    lo = np.zeros((10, 10), np.float32)
+    gate = ChangeGate(min_fraction=0.1, min_interval=1.0)
+    lo[:5] = -1.0
+    assert gate.due(Grid(lo.copy()), now=10.0)
+    lo[5, 0] = 1.0  # 1 of 51 known cells: too small a change
+    assert not gate.due(Grid(lo.copy()), now=20.0)
+    assert gate.due(Grid(lo.copy()), now=20.0, final=True)  # the final map always goes out
+    lo[6:] = 1.0
+    assert not gate.due(Grid(lo.copy()), now=20.5)  # big change, but too soon
+    assert gate.due(Grid(lo.copy()), now=21.5)
+    assert not gate.due(Grid(lo.copy()), now=30.0, final=True)  # nothing changed
+
+
+def _replay(frame: tuple[float, float, float], **kw: object) -> CarmenSource:
+    src = CarmenSource(parse_source(f"carmen:{INTEL}@0.0-0.1"), frame, 0.1, 1e9, **kw)
+    src.step(0.0)
+    src.step(1.0)
+    return src
+
+
+def test_carmen_replay_in_own_frame_reports_the_truth() -> None:
+    a = _replay((0.0, 0.0, 0.0))
+    b = _replay((4.0, -3.0, 1.0))
+    assert a.done and b.done and a.grid().logodds.any()
+    truth = true_matrix(a.describe()["world_to_pixel"], b.describe()["world_to_pixel"])
+    # Warp B's walls into A with the reported truth: they land on A's walls.
+    gb, ga = b.grid(), a.grid()
+    ys, xs = np.nonzero(gb.logodds > 2.0)
+    pts = truth @ np.vstack([xs, ys, np.ones_like(xs)])
+    walls = maximum_filter(ga.logodds > 0, size=3)  # one cell of rasterisation slack
+    assert walls[np.rint(pts[1]).astype(int), np.rint(pts[0]).astype(int)].mean() > 0.97
+    assert link_error(truth, truth, gb.shape) == (0.0, 0.0)
+
+
+def test_carmen_replay_follows_the_clock_and_resumes() -> None:
+    spec = parse_source(f"carmen:{INTEL}@0.0-0.1")
+    src = CarmenSource(spec, (0.0, 0.0, 0.0), 0.1, speed=100.0)
+    src.step(0.0)
+    span = src.scans[-1].timestamp - src.scans[0].timestamp
+    src.step(span / 100.0 / 2)
+    half = src.cursor
+    assert 0 < half < len(src.scans)
+    again = CarmenSource(spec, (0.0, 0.0, 0.0), 0.1, 100.0, resume=(src.logodds, half))
+    assert again.cursor == half
+    np.testing.assert_array_equal(again.logodds, src.logodds)
+    again.step(0.0)
+    assert again.cursor == half + 1  # the next scan is due at once, not the first one
+    again.step(1e6)
+    full = _replay((0.0, 0.0, 0.0))
+    np.testing.assert_allclose(again.logodds, full.logodds, atol=1e-5)
+
+
+def test_map_file_source_waits_for_stable_files_and_survives_bad_ones(
+    shared: Path, tmp_path: Path
+) -> None:
+    src_dir = shared / "maps" / "intel_split_gt"
+    yaml = tmp_path / "map.yaml"
+    text = (src_dir / "intel_partA.yaml").read_text().replace("intel_partA.pgm", "map.pgm")
+    source = MapFileSource(parse_source(f"map:{yaml}"), poll=0.0)
+    assert not source.step(0.0)  # nothing there yet
+    yaml.write_text(text)
+    (tmp_path / "map.pgm").write_bytes(b"P5\n10 10\n255\n")  # half-written image
+    assert not source.step(1.0)  # first sight: wait one poll
+    assert not source.step(2.0) and source.errors == 1  # parse fails: counted, retried
+    shutil.copy(src_dir / "intel_partA.pgm", tmp_path / "map.pgm")
+    assert not source.step(3.0)
+    assert source.step(4.0)
+    assert source.grid().shape[0] > 100 and not source.step(5.0)

@@ -1,0 +1,65 @@
+"""Atomic persistence of maps and links in the state directory."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent import state as state_mod
+from agent.links import LinkRecord
+from agent.state import StateDir, StoredMap
+from pgvd.grid import Grid
+
+
+def grid(seed: int) -> Grid:
+    rng = np.random.default_rng(seed)
+    lo = rng.normal(0, 3, (30, 40)).astype(np.float32)
+    lo[rng.random(lo.shape) < 0.3] = 0.0
+    return Grid(lo, 0.1, (1.5, -2.0, 0.0))
+
+
+def test_maps_and_links_round_trip(tmp_path: Path) -> None:
+    sd = StateDir(tmp_path)
+    sd.save_map("r1", StoredMap(7, grid(1), {"cursor": 120}))
+    sd.save_map("r2", StoredMap(3, grid(2)))
+    link = LinkRecord("r1", 7, "r2", 3, True, np.eye(3), np.eye(3), 0.95, "r1")
+    sd.save_links([link])
+    maps, errors = StateDir(tmp_path).load_maps()
+    assert errors == [] and sorted(maps) == ["r1", "r2"]
+    assert maps["r1"].version == 7 and maps["r1"].extra == {"cursor": 120}
+    np.testing.assert_array_equal(maps["r1"].grid.logodds, grid(1).logodds)
+    assert maps["r2"].grid.origin == (1.5, -2.0, 0.0)
+    links, errors = sd.load_links()
+    assert errors == [] and [r.key for r in links] == [link.key]
+
+
+def test_a_crash_during_a_write_leaves_the_old_file_whole(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sd = StateDir(tmp_path)
+    sd.save_map("r1", StoredMap(1, grid(1)))
+
+    def crash(*_: object) -> None:
+        raise OSError("disk gone")
+
+    monkeypatch.setattr(state_mod.os, "replace", crash)
+    with pytest.raises(OSError):
+        sd.save_map("r1", StoredMap(2, grid(2)))
+    monkeypatch.undo()
+    maps, _ = sd.load_maps()
+    assert maps["r1"].version == 1
+    assert sorted(os.listdir(sd.maps_dir)) == ["r1.npz"]  # no temporary left behind
+
+
+def test_corrupt_files_are_skipped_with_one_line_each(tmp_path: Path) -> None:
+    sd = StateDir(tmp_path)
+    sd.save_map("r1", StoredMap(1, grid(1)))
+    (sd.maps_dir / "r2.npz").write_bytes(b"PK\x03\x04 not a zip")
+    (tmp_path / "links.json").write_text("{not json")
+    maps, errors = sd.load_maps()
+    assert sorted(maps) == ["r1"] and len(errors) == 1 and "r2.npz" in errors[0]
+    links, errors = sd.load_links()
+    assert links == [] and "links.json" in errors[0]

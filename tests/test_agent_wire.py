@@ -1,0 +1,75 @@
+"""The agent's adapter over the protocol: versions out, maps and links in."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agent import wire
+from agent.keys import FleetKeys
+from agent.links import LinkRecord
+from pgvd.grid import Grid, rigid_matrix
+from protocol import SCALE, ProtocolError, decode
+
+
+def grid(seed: int, shape: tuple[int, int] = (300, 260)) -> Grid:
+    rng = np.random.default_rng(seed)
+    lo = np.zeros(shape, np.float32)
+    lo[40:200, 30:220] = rng.normal(0, 4, (160, 190))
+    return Grid(lo, 0.1, (2.0, -1.0, 0.0))
+
+
+def test_own_map_is_stored_as_peers_decode_it() -> None:
+    g = grid(1)
+    w = wire.on_the_wire(g)
+    assert np.abs(w.logodds - g.logodds).max() <= SCALE * 1.0001  # weak cells round away from 0
+    assert not np.array_equal(w.logodds, g.logodds)
+    np.testing.assert_array_equal(wire.on_the_wire(w).logodds, w.logodds)
+
+
+@pytest.mark.parametrize("key", [None, b"fleet secret"])
+def test_versions_delta_and_full_reach_a_peer_identically(key: bytes | None) -> None:
+    out = wire.Outbound("f", "r1", key)
+    inbound = wire.Inbound("f", key)
+    v1, v2 = wire.on_the_wire(grid(1)), wire.on_the_wire(grid(2))
+    for version, g, prev in ((1, v1, None), (2, v2, (1, v1))):
+        tiles, manifest = out.prepare(version, g, prev)
+        done = None
+        for data in [*tiles, manifest]:
+            done = inbound.feed(inbound.decode(data, key)) or done
+        assert done is not None and done[0] == version
+        np.testing.assert_array_equal(done[1].logodds, g.logodds)
+    # A late joiner gets the full latest version from the queryable's replies.
+    late = wire.Inbound("f", key)
+    replies = out.latest_replies(FleetKeys("f"))
+    assert replies[-1][0] == "pgvd/f/latest/r1/2/m"
+    got = [late.feed(late.decode(d, key)) for _, d in replies]
+    np.testing.assert_array_equal(got[-1][1].logodds, v2.logodds)
+
+
+def test_a_delta_without_its_base_leaves_the_map_incomplete() -> None:
+    out = wire.Outbound("f", "r1", None)
+    v1, v2 = wire.on_the_wire(grid(1)), wire.on_the_wire(grid(2))
+    out.prepare(1, v1, None)
+    tiles, manifest = out.prepare(2, v2, (1, v1))
+    inbound = wire.Inbound("f", None)
+    for data in [*tiles, manifest]:
+        assert inbound.feed(inbound.decode(data, None)) is None
+    assert inbound.incomplete("r1")
+
+
+def test_links_round_trip_and_non_rigid_ones_are_refused() -> None:
+    rec = LinkRecord("r1", 3, "r2", 4, True, rigid_matrix(0.2, 5, 6), np.eye(3), 0.9, "r1")
+    msg = decode(wire.encode_link("f", rec, None))
+    back = wire.link_record(msg)
+    assert back.key == rec.key and back.decided_by == "r1"
+    np.testing.assert_allclose(back.matrix, rec.matrix)
+    bad = LinkRecord("r1", 3, "r2", 4, True, np.diag([2.0, 2.0, 1.0]), np.eye(3), 0.9, "r1")
+    with pytest.raises(ValueError, match="rigid"):
+        wire.link_record(decode(wire.encode_link("f", bad, None)))
+
+
+def test_wrong_key_is_a_protocol_error() -> None:
+    tiles, _ = wire.Outbound("f", "r1", b"k1").prepare(1, grid(1), None)
+    with pytest.raises(ProtocolError):
+        wire.Inbound("f", b"k2").decode(tiles[0], b"k2")

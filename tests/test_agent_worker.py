@@ -1,0 +1,93 @@
+"""The fusion worker: whose turn a pair is, links published once, rebuilds when settled."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agent.book import FleetBook
+from agent.links import LinkRecord
+from agent.worker import FusionWorker, GlobalState, Registration
+from pgvd.grid import Grid, rigid_matrix
+
+
+def tiny(seed: int) -> Grid:
+    lo = np.zeros((20, 20), np.float32)
+    lo[seed : seed + 5, 3:15] = 2.0
+    return Grid(lo, 0.1)
+
+
+def shifted_fuse(base: Grid, other: Grid, m: np.ndarray, cov: np.ndarray) -> Grid:
+    return Grid(base.logodds + other.logodds, base.resolution, base.origin)
+
+
+class Harness:
+    def __init__(self, me: str) -> None:
+        self.book = FleetBook()
+        self.calls: list[tuple[int, int]] = []
+        self.links: list[LinkRecord] = []
+        self.globals: list[GlobalState] = []
+        self.worker = FusionWorker(
+            me, self.book, self.register, self.links.append, self.globals.append, 4.0,
+            shifted_fuse,
+        )  # fmt: skip
+
+    def register(self, a: Grid, b: Grid) -> Registration:
+        self.calls.append((int(a.logodds.sum()), int(b.logodds.sum())))
+        return Registration(True, rigid_matrix(0.0, 1.0, 2.0), np.eye(3) * 0.1, 0.9)
+
+
+def test_lower_robot_registers_at_once_and_publishes_the_link() -> None:
+    h = Harness("r1")
+    h.book.put_map("r1", 1, tiny(1))
+    h.book.put_map("r2", 1, tiny(2))
+    assert h.worker.step(now=0.0)
+    assert len(h.calls) == 1 and [ln.key for ln in h.links] == [("r1", 1, "r2", 1)]
+    assert h.links[0].decided_by == "r1"
+    assert not h.worker.step(now=0.1)  # nothing due: rebuild instead
+    (state,) = h.globals
+    assert state.settled and state.components[0].members == ("r1", "r2")
+    assert not h.worker.step(now=0.2) and len(h.globals) == 1  # same inputs: no rebuild
+
+
+def test_higher_robot_waits_for_the_link_then_computes_it_itself() -> None:
+    h = Harness("r2")
+    h.book.put_map("r1", 1, tiny(1))
+    h.book.put_map("r2", 1, tiny(2))
+    assert not h.worker.step(now=10.0) and h.calls == []
+    (interim,) = h.globals
+    assert not interim.settled and [c.anchor for c in interim.components] == ["r1", "r2"]
+    assert h.worker.step(now=14.0) and len(h.calls) == 1
+
+
+def test_a_received_link_saves_the_registration() -> None:
+    h = Harness("r3")
+    h.book.put_map("r1", 1, tiny(1))
+    h.book.put_map("r2", 1, tiny(2))
+    h.worker.step(now=0.0)
+    other = LinkRecord("r1", 1, "r2", 1, True, rigid_matrix(0, 1, 2), np.eye(3), 0.9, "r1")
+    assert h.book.add_link(other)
+    assert not h.worker.step(now=100.0) and h.calls == []
+    assert h.globals[-1].settled and h.links == []
+
+
+def test_a_failing_registration_becomes_a_rejected_link() -> None:
+    h = Harness("r1")
+
+    def boom(a: Grid, b: Grid) -> Registration:
+        raise ValueError("map without occupied cells")
+
+    h.worker.register = boom
+    h.book.put_map("r1", 1, tiny(1))
+    h.book.put_map("r2", 1, tiny(2))
+    h.worker.step(now=0.0)
+    assert [ln.accepted for ln in h.links] == [False]
+    h.worker.step(now=0.1)
+    assert [c.members for c in h.globals[-1].components] == [("r1",), ("r2",)]
+
+
+def test_a_superseded_link_is_not_cached() -> None:
+    book = FleetBook()
+    book.put_map("r1", 3, tiny(1))
+    book.put_map("r2", 1, tiny(2))
+    old = LinkRecord("r1", 2, "r2", 1, True, np.eye(3), np.eye(3), 0.9, "r1")
+    assert not book.add_link(old)
