@@ -7,9 +7,11 @@ different byte layout; the encoder keeps whichever is smallest per tile:
 * ``PALETTE``: up to 16 distinct values, then each cell's palette index packed
   in 1, 2 or 4 bits per cell, rows padded to a byte (PNG's indexed colour).
   Trinary and lightly graded maps shrink by ~12% over RAW.
-* ``SPARSE``: a bit mask of the nonzero cells, then their values in row-major
-  order.  Deltas after one scan are mostly zero, which this codes in ~15% fewer
-  bytes than RAW.
+* ``SPARSE``: for a tile with ``k < n / 4`` nonzero cells of ``n``, the
+  row-major gaps between them (the first one counted from cell 0) as uint16, split in
+  a plane of low bytes and a plane of high bytes, then their ``k`` values.
+  Deltas after one scan are mostly zero: on the intel and freiburg-079
+  replays this codes them in ~20% fewer bytes than RAW or a bit mask.
 
 Measured on real maps before picking zlib: see the commit introducing
 :mod:`protocol.codec` (zstd saved <3% at level 9, lz4 doubled the size).
@@ -58,9 +60,11 @@ def _palette_layout(cells: np.ndarray, values: np.ndarray) -> bytes:
 
 
 def _sparse_layout(cells: np.ndarray) -> bytes:
-    """``[packbits(cells != 0)][nonzero values]``, both row-major."""
-    mask = cells.ravel() != 0
-    return np.packbits(mask).tobytes() + cells.ravel()[mask].tobytes()
+    """``[gap low bytes][gap high bytes][values]`` of the nonzero cells, row-major."""
+    flat = cells.ravel()
+    where = np.flatnonzero(flat)
+    gaps = np.diff(where, prepend=0).astype("<u2")  # < 2**16: tiles hold <= 65536 cells
+    return gaps.view(np.uint8).reshape(-1, 2).T.tobytes() + flat[where].tobytes()
 
 
 def pack_cells(cells: np.ndarray) -> tuple[int, bytes]:
@@ -74,7 +78,7 @@ def pack_cells(cells: np.ndarray) -> tuple[int, bytes]:
         candidate = _deflate(_palette_layout(cells, values))
         if len(candidate) < len(best[1]):
             best = (PALETTE, candidate)
-    # Only a mostly-empty tile can win with a mask; skip the work otherwise.
+    # SPARSE is defined for tiles less than a quarter full, where it can win.
     if np.count_nonzero(cells) * 4 < cells.size:
         candidate = _deflate(_sparse_layout(cells))
         if len(candidate) < len(best[1]):
@@ -126,25 +130,28 @@ def _unpack_palette(data: bytes, shape: tuple[int, int], index: int) -> np.ndarr
     return values[idx]
 
 
+def _sparse_bound(n: int) -> int:
+    """Largest SPARSE layout of an ``n``-cell tile: 3 bytes for each of < n/4 cells."""
+    return 3 * ((n - 1) // 4)
+
+
 def _unpack_sparse(data: bytes, shape: tuple[int, int], index: int) -> np.ndarray:
     n = shape[0] * shape[1]
-    mask_bytes = -(-n // 8)
-    if len(data) < mask_bytes:
-        raise ProtocolError(f"tile {index}: sparse tile shorter than its mask")
-    bits = np.unpackbits(np.frombuffer(data, np.uint8, mask_bytes))
-    if bits[n:].any():
-        raise ProtocolError(f"tile {index}: nonzero padding in a sparse tile mask")
-    mask = bits[:n].astype(bool)
-    values = np.frombuffer(data, np.int8, offset=mask_bytes)
-    if len(values) != np.count_nonzero(mask):
-        raise ProtocolError(
-            f"tile {index}: sparse tile holds {len(values)} values for "
-            f"{np.count_nonzero(mask)} mask bits"
-        )
+    k, rest = divmod(len(data), 3)  # k < n / 4 is enforced by the inflate bound
+    if rest:
+        raise ProtocolError(f"tile {index}: sparse tile of {len(data)} bytes for {n} cells")
+    raw = np.frombuffer(data, np.uint8)
+    gaps = raw[:k].astype(np.int64) | (raw[k : 2 * k].astype(np.int64) << 8)
+    if k > 1 and gaps[1:].min() < 1:
+        raise ProtocolError(f"tile {index}: sparse tile repeats a cell")
+    where = np.cumsum(gaps)
+    if k and where[-1] >= n:
+        raise ProtocolError(f"tile {index}: sparse cell {where[-1]} outside the {n}-cell tile")
+    values = raw[2 * k :].view(np.int8)
     if not values.all():
         raise ProtocolError(f"tile {index}: zero value listed in a sparse tile")
     cells = np.zeros(n, np.int8)
-    cells[mask] = values
+    cells[where] = values
     return cells.reshape(shape)
 
 
@@ -168,5 +175,5 @@ def unpack_cells(encoding: int, packed: bytes, shape: tuple[int, int], index: in
         bound = 1 + MAX_PALETTE + h * -(-w // 2)
         return _unpack_palette(_inflate(packed, bound, index), shape, index)
     if encoding == SPARSE:
-        return _unpack_sparse(_inflate(packed, -(-n // 8) + n, index), shape, index)
+        return _unpack_sparse(_inflate(packed, _sparse_bound(n), index), shape, index)
     raise ProtocolError(f"tile {index}: unknown encoding {encoding!r}")

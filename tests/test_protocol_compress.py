@@ -94,18 +94,30 @@ def test_malformed_palette_tiles():
 
 
 def test_malformed_sparse_tiles():
-    def sparse(layout: bytes, shape=(2, 4)):
+    def sparse(low: list[int], high: list[int], values: list[int], shape=(2, 4)):
+        layout = bytes(low) + bytes(high) + np.array(values, np.int8).tobytes()
         return unpack_cells(SPARSE, deflate(layout), shape, 9)
 
-    with pytest.raises(ProtocolError, match="holds 1 values for 2 mask bits"):
-        sparse(bytes([0b11000000, 5]))
+    with pytest.raises(ProtocolError, match="sparse tile of 2 bytes for 8 cells"):
+        unpack_cells(SPARSE, deflate(b"ab"), (2, 4), 9)
+    with pytest.raises(ProtocolError, match="expands past its bound of 3 bytes"):
+        sparse([0, 1], [0, 0], [1, 1])  # two of eight cells is not < a quarter
+    with pytest.raises(ProtocolError, match="repeats a cell"):
+        sparse([3, 0], [0, 0], [1, 1], shape=(4, 4))
+    with pytest.raises(ProtocolError, match="sparse cell 8 outside the 8-cell tile"):
+        sparse([8], [0], [1])
     with pytest.raises(ProtocolError, match="zero value"):
-        sparse(bytes([0b10000000, 0]))
-    with pytest.raises(ProtocolError, match="nonzero padding"):
-        sparse(bytes([0b10000001, 3]), shape=(1, 7))
-    with pytest.raises(ProtocolError, match="shorter than its mask"):
-        sparse(b"", shape=(3, 3))
-    assert sparse(bytes([0b01000000, 0xFF])).tolist() == [[0, -1, 0, 0], [0, 0, 0, 0]]
+        sparse([0], [0], [0])
+    assert sparse([1], [0], [-1]).tolist() == [[0, -1, 0, 0], [0, 0, 0, 0]]
+    assert sparse([2, 3], [1, 0], [5, 6], shape=(4, 100))[2, 58:62].tolist() == [5, 0, 0, 6]
+
+
+def test_sparse_reaches_the_last_cell_of_the_largest_tile():
+    cells = np.zeros((256, 256), np.int8)
+    cells[-1, -1] = 7
+    encoding, packed = pack_cells(cells)
+    assert encoding == SPARSE
+    assert np.array_equal(unpack_cells(encoding, packed, cells.shape, 0), cells)
 
 
 def test_truncated_stream_and_unknown_encoding():
