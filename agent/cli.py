@@ -31,6 +31,9 @@ def _subcommands() -> list[Callable[[argparse._SubParsersAction], None]]:
     from agent import cmd_agent, cmd_demo, cmd_status
 
     registrars += [cmd_agent.register, cmd_status.register, cmd_demo.register]
+    from agent import cmd_router
+
+    registrars.append(cmd_router.register)
     from agent import cmd_merge
 
     registrars.append(cmd_merge.register)

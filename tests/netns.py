@@ -27,6 +27,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -39,6 +40,11 @@ _STALE = re.compile(rf"^{_PREFIX}(\d+)-\d+-")
 _SEQ = itertools.count()
 SUBNET = "127.10.0"
 _EXEC = ("ip", "netns", "exec")
+
+
+def pgvd_argv(*args: str) -> list[str]:
+    """The command line of ``pgvd ARGS`` through this interpreter (works before pip install)."""
+    return [sys.executable, "-c", "import sys; from agent.cli import main; sys.exit(main())", *args]
 
 
 class NetnsError(RuntimeError):
