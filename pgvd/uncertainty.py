@@ -70,6 +70,48 @@ def transform_covariance(xy: np.ndarray, psi: float, cov3: np.ndarray) -> np.nda
     return out
 
 
+def _pose_jacobians(m: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    m = np.asarray(m, dtype=np.float64)
+    if m.shape != (3, 3) or not np.isfinite(m).all():
+        raise ValueError(f"matrix must be a finite 3x3 array, got shape {m.shape}")
+    return m[:2, :2], m[:2, 2], float(np.arctan2(m[0, 1], m[0, 0]))
+
+
+def compose_covariance(
+    m1: np.ndarray, cov1: np.ndarray, m2: np.ndarray, cov2: np.ndarray
+) -> np.ndarray:
+    """Covariance of ``(tx, ty, psi)`` of ``m1 @ m2`` from independent ``cov1``, ``cov2``.
+
+    With eq. (1) ``M = [R_psi | T]``: ``psi = psi1 + psi2`` and
+    ``T = R1 T2 + T1``, so a heading error of ``m1`` also moves ``T`` by
+    ``dR1/dpsi1 T2 = R1 J T2`` (the ``r1, r2`` of eq. (7) at ``T2``).  First
+    order, as eq. (4): ``Sigma = A1 Sigma1 A1^T + A2 Sigma2 A2^T``.
+    """
+    r1, _, _ = _pose_jacobians(m1)
+    _, t2, _ = _pose_jacobians(m2)
+    a1 = np.eye(3)
+    a1[:2, 2] = r1 @ _J @ t2
+    a2 = np.eye(3)
+    a2[:2, :2] = r1
+    out = a1 @ _check_cov3(cov1) @ a1.T + a2 @ _check_cov3(cov2) @ a2.T
+    return (out + out.T) / 2.0
+
+
+def inverse_covariance(m: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Covariance of ``(tx, ty, psi)`` of ``inv(m)`` (first order, eq. (4)).
+
+    ``inv(M) = [R^T | -R^T T]`` with heading ``-psi``: ``dT'/dT = -R^T``,
+    ``dT'/dpsi = R^T J T``, ``dpsi'/dpsi = -1``.
+    """
+    r, t, _ = _pose_jacobians(m)
+    a = np.zeros((3, 3))
+    a[:2, :2] = -r.T
+    a[:2, 2] = r.T @ _J @ t
+    a[2, 2] = -1.0
+    out = a @ _check_cov3(cov) @ a.T
+    return (out + out.T) / 2.0
+
+
 def _check_cov3(cov3: np.ndarray) -> np.ndarray:
     c = np.asarray(cov3, dtype=np.float64)
     if c.shape != (3, 3) or not np.isfinite(c).all():

@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 
-from pgvd.grid import rigid_matrix
-from pgvd.uncertainty import propagate, rotation_blur, transform_covariance, translation_blur
+from pgvd.grid import matrix_to_pose, rigid_matrix
+from pgvd.uncertainty import (
+    compose_covariance,
+    inverse_covariance,
+    propagate,
+    rotation_blur,
+    transform_covariance,
+    translation_blur,
+)
 
 
 def _f(params: np.ndarray, p1: np.ndarray) -> np.ndarray:
@@ -128,3 +137,43 @@ def test_propagate_spreads_each_cell_by_eq4() -> None:
     # propagate with cval: the canvas outside B stays exactly cval
     out = propagate(np.full((50, 50), 0.5, np.float32), np.eye(3), cov, (80, 80), cval=0.5)
     assert np.allclose(out[60:, 60:], 0.5)
+
+
+def _pose(m: np.ndarray) -> np.ndarray:
+    psi, tx, ty = matrix_to_pose(m)
+    return np.array([tx, ty, psi])
+
+
+def _numeric_jacobian(
+    fn: Callable[[np.ndarray], np.ndarray], x: np.ndarray, h: float = 1e-6
+) -> np.ndarray:
+    return np.column_stack([(fn(x + h * e) - fn(x - h * e)) / (2 * h) for e in np.eye(len(x))])
+
+
+def test_compose_and_inverse_covariance_match_numerical_jacobians() -> None:
+    """First-order covariance of m1 @ m2 and of inv(m), against finite differences of
+    the pose of the composed/inverted matrix (eq. (4) through the composition)."""
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        x1 = np.array([*rng.uniform(-300, 300, 2), rng.uniform(-np.pi, np.pi)])
+        x2 = np.array([*rng.uniform(-300, 300, 2), rng.uniform(-np.pi, np.pi)])
+        c1, c2 = _random_cov(rng), _random_cov(rng)
+        m1, m2 = rigid_matrix(x1[2], *x1[:2]), rigid_matrix(x2[2], *x2[:2])
+
+        def composed(x: np.ndarray) -> np.ndarray:
+            return _pose(rigid_matrix(x[2], *x[:2]) @ rigid_matrix(x[5], *x[3:5]))
+
+        jac = _numeric_jacobian(composed, np.concatenate([x1, x2]))
+        joint = np.zeros((6, 6))
+        joint[:3, :3], joint[3:, 3:] = c1, c2
+        np.testing.assert_allclose(
+            compose_covariance(m1, c1, m2, c2), jac @ joint @ jac.T, rtol=1e-5, atol=1e-8
+        )
+
+        def inverted(x: np.ndarray) -> np.ndarray:
+            return _pose(np.linalg.inv(rigid_matrix(x[2], *x[:2])))
+
+        jac = _numeric_jacobian(inverted, x1)
+        np.testing.assert_allclose(
+            inverse_covariance(m1, c1), jac @ c1 @ jac.T, rtol=1e-5, atol=1e-8
+        )
