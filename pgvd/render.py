@@ -156,8 +156,10 @@ def merge_figure(a: Grid, b: Grid, result: _Result, crop: bool = True) -> np.nda
         text += f", score {result.score:.3f} | A blue, B orange, both dark, matched edges green"
     else:
         text = f"REJECTED: {result.reason}"
+    # pgvd.merge reports a rejection without any candidate as the identity with score 0
+    no_candidate = not result.accepted and result.score == 0.0 and np.array_equal(m, np.eye(3))
     shape, offset = (None, None)
-    if np.isfinite(m).all():
+    if np.isfinite(m).all() and not no_candidate:
         shape, offset = union_canvas(a.shape, b.shape, m)
     if shape is None or shape[0] * shape[1] > _MAX_CANVAS:
         # no usable transform: the two maps and their PGVDs side by side, untransformed

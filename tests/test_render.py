@@ -119,9 +119,10 @@ def test_merge_figure_of_a_rejection_without_transform(shared: Path) -> None:
     g = read_map(shared / "maps/intel/intel.yaml")
     a = Grid(g.logodds[:200, :300], g.resolution)
     b = Grid(g.logodds[300:500, 300:500], g.resolution)
-    res = _FakeResult(False, np.full((3, 3), np.nan), 0.0, (0.0, 0.0), 0.0, "no pair", None)
-    fig = merge_figure(a, b, res)
-    assert fig.shape == (16 + 200, 300 + 1 + 200, 3)
+    for m in (np.full((3, 3), np.nan), np.eye(3)):
+        res = _FakeResult(False, m, 0.0, (0.0, 0.0), 0.0, "no edge pair passes", None)
+        fig = merge_figure(a, b, res)
+        assert fig.shape == (16 + 200, 300 + 1 + 200, 3)
     np.testing.assert_array_equal(fig[16:, :300], grid_image(a.probability()))
     caption = fig[:16]
     assert (caption < 128).any() and (caption == 255).mean() > 0.5  # black text on white
