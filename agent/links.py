@@ -6,15 +6,15 @@ reused by everyone.  A robot bumps its map version only when its map changed eno
 (:class:`agent.sources.ChangeGate`), so "new pair or changed map" is exactly "no link for
 the latest versions yet".
 
-To bound CPU on a small machine, the agent of the lower robot id registers a pair first;
-the other robot's agent steps in after ``timeout`` and any third agent after twice that,
-in case the first went silent.
+To bound CPU on a small machine, one agent of the pair (:func:`first_registrar`) registers
+it first; the other robot's agent steps in after ``timeout`` and any third agent after
+twice that, in case the first went silent.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -154,16 +154,37 @@ def needed_keys(versions: Mapping[str, int], cache: LinkCache) -> list[LinkKey]:
     return keys
 
 
-def wait_before_computing(me: str, key: LinkKey, timeout: float) -> float:
+def first_registrar(a: str, b: str, robots: Sequence[str]) -> str:
+    """The robot whose agent registers the pair ``(a, b)`` first, among ``robots`` known.
+
+    The robots, sorted, sit on a circle and each one takes its pairs with the next
+    ``(n - 1) / 2`` robots clockwise (a balanced round-robin): every agent registers
+    about half of its pairs, where "lower id first" would give robot 1 all of its
+    ``n - 1``.  Agents that know different robot sets for a moment may disagree; the
+    timeouts of :func:`wait_before_computing` cover that.
+    """
+    ring = sorted(set(robots) | {a, b})
+    n = len(ring)
+    i, j = ring.index(a), ring.index(b)
+    d = (j - i) % n
+    if 2 * d == n:  # opposite on an even circle: alternate
+        return a if min(i, j) % 2 == 0 else b
+    return a if 2 * d < n else b
+
+
+def wait_before_computing(
+    me: str, key: LinkKey, timeout: float, robots: Sequence[str] = ()
+) -> float:
     """Seconds an agent waits for someone else's link before registering ``key`` itself.
 
-    The lower robot of the pair computes at once, the other after ``timeout``, anyone
-    else after ``2 * timeout``: normally one registration per pair for the whole fleet.
+    :func:`first_registrar` computes at once, the other robot of the pair after
+    ``timeout``, anyone else after ``2 * timeout``: normally one registration per pair
+    for the whole fleet.
     """
     a, _, b, _ = key
-    if me == a:
+    if me == first_registrar(a, b, robots):
         return 0.0
-    if me == b:
+    if me in (a, b):
         return timeout
     return 2.0 * timeout
 
@@ -174,10 +195,13 @@ def due_keys(
     first_needed: Mapping[LinkKey, float],
     now: float,
     timeout: float,
+    robots: Sequence[str] = (),
 ) -> list[LinkKey]:
     """Of ``keys``, those this agent should register now, own pairs first, then by key."""
     due = [
-        k for k in keys if now - first_needed.get(k, now) >= wait_before_computing(me, k, timeout)
+        k
+        for k in keys
+        if now - first_needed.get(k, now) >= wait_before_computing(me, k, timeout, robots)
     ]
     return sorted(due, key=lambda k: (me not in (k[0], k[2]), k))
 

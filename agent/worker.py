@@ -127,7 +127,9 @@ class FusionWorker:
         """Do one job; True if there may be more to do right away."""
         now = time.monotonic() if now is None else now
         snap = self.book.snapshot(now)
-        due = due_keys(self.me, snap.needed, snap.first_needed, now, self.link_timeout)
+        due = due_keys(
+            self.me, snap.needed, snap.first_needed, now, self.link_timeout, sorted(snap.maps)
+        )
         if due:
             self._register(snap, due[0])
             return True

@@ -15,6 +15,7 @@ from agent.links import (
     LinkRecord,
     due_keys,
     dumps,
+    first_registrar,
     loads,
     needed_keys,
     select_links,
@@ -97,15 +98,26 @@ def test_needed_keys_are_pairs_without_a_link_of_the_latest_versions() -> None:
     assert needed_keys(versions, cache) == [("r1", 2, "r3", 4), ("r2", 1, "r3", 4)]
 
 
-def test_lower_robot_registers_first_others_after_timeouts() -> None:
+def test_one_robot_of_the_pair_registers_first_others_after_timeouts() -> None:
     key = ("r2", 1, "r5", 1)
-    assert wait_before_computing("r2", key, 4.0) == 0.0
-    assert wait_before_computing("r5", key, 4.0) == 4.0
-    assert wait_before_computing("r1", key, 4.0) == 8.0
-    first = {key: 100.0}
-    assert due_keys("r5", [key], first, 103.9, 4.0) == []
-    assert due_keys("r5", [key], first, 104.0, 4.0) == [key]
-    assert due_keys("r2", [key], first, 100.0, 4.0) == [key]
+    first = first_registrar("r2", "r5", ["r1", "r2", "r5"])
+    second = "r5" if first == "r2" else "r2"
+    ring = ["r1", "r2", "r5"]
+    assert wait_before_computing(first, key, 4.0, ring) == 0.0
+    assert wait_before_computing(second, key, 4.0, ring) == 4.0
+    assert wait_before_computing("r1", key, 4.0, ring) == 8.0
+    seen = {key: 100.0}
+    assert due_keys(second, [key], seen, 103.9, 4.0, ring) == []
+    assert due_keys(second, [key], seen, 104.0, 4.0, ring) == [key]
+    assert due_keys(first, [key], seen, 100.0, 4.0, ring) == [key]
+
+
+@pytest.mark.parametrize("n", [2, 3, 5, 8])
+def test_first_registrars_spread_the_work_evenly(n: int) -> None:
+    robots = [f"r{i}" for i in range(1, n + 1)]
+    pairs = [(a, b) for i, a in enumerate(robots) for b in robots[i + 1 :]]
+    load = [sum(first_registrar(a, b, robots) == r for a, b in pairs) for r in robots]
+    assert sum(load) == len(pairs) and max(load) - min(load) <= 1
 
 
 def test_due_keys_put_own_pairs_first() -> None:
