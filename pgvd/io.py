@@ -273,9 +273,10 @@ def _decode_png(data: bytes, path: Path, max_cells: int) -> tuple[np.ndarray, np
         raise MapFormatError(path, "truncated PNG (no IHDR chunk)")
     width, height = struct.unpack(">II", data[16:24])
     _check_size(path, width, height, max_cells)
-    from PIL import Image  # pillow comes with scikit-image
+    # pillow comes with scikit-image; its own decompression-bomb limit (89 M pixels) is
+    # above the default max_cells and left alone (it is process-wide)
+    from PIL import Image
 
-    Image.MAX_IMAGE_PIXELS = None  # our own limit was checked above
     try:
         with Image.open(BytesIO(data)) as im:
             im.load()
