@@ -273,8 +273,17 @@ def _parse_tiles(fields: _Fields, limits: Limits) -> MapTiles:
             f"{len(raw_tiles)} tiles in one message exceed the limit of "
             f"{limits.max_tiles_per_message}"
         )
-    tiles = tuple(_parse_tile(raw, geometry) for raw in raw_tiles)
-    return MapTiles(fleet, robot, version, geometry, tiles, base_version)
+    tiles, cells = [], 0
+    for raw in raw_tiles:
+        tile = _parse_tile(raw, geometry)
+        cells += tile.cells.size
+        # Checked after each bounded inflate: never more than one tile past the limit.
+        if cells > limits.max_message_cells:
+            raise ProtocolError(
+                f"tiles of one message exceed the limit of {limits.max_message_cells} cells"
+            )
+        tiles.append(tile)
+    return MapTiles(fleet, robot, version, geometry, tuple(tiles), base_version)
 
 
 def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
@@ -372,22 +381,28 @@ def encode_tiles(msg: MapTiles, key: bytes | None, max_message_bytes: int) -> li
     trailer = len(seal(b"", key))
     # Packed once with an empty tile list, whose 1-byte array header ends the body.
     prefix = msgpack.packb(_tiles_body(msg, []), use_bin_type=True)[:-1]
-    per_message = Limits().max_tiles_per_message
+    # Stay within what a decoder with default limits accepts.
+    limits = Limits()
     # The array header takes at most 3 bytes for up to 2**16 tiles.
     fixed = len(head) + len(prefix) + 3 + trailer
-    entries = [msgpack.packb(_tile(t), use_bin_type=True) for t in msg.tiles]
     batches: list[list[bytes]] = [[]]
-    size = fixed
-    for entry in entries:
+    size, cells = fixed, 0
+    for tile in msg.tiles:
+        entry = msgpack.packb(_tile(tile), use_bin_type=True)
         if fixed + len(entry) >= max_message_bytes:
             raise ProtocolError(
                 f"a tile of {len(entry)} bytes does not fit in {max_message_bytes}-byte messages"
             )
-        if size + len(entry) >= max_message_bytes or len(batches[-1]) >= per_message:
+        if (
+            size + len(entry) >= max_message_bytes
+            or cells + tile.cells.size > limits.max_message_cells
+            or len(batches[-1]) >= limits.max_tiles_per_message
+        ):
             batches.append([])
-            size = fixed
+            size, cells = fixed, 0
         batches[-1].append(entry)
         size += len(entry)
+        cells += tile.cells.size
     out = []
     for batch in batches:
         body = prefix + _array_header(len(batch)) + b"".join(batch)

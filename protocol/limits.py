@@ -17,6 +17,9 @@ class Limits:
     max_tiles : tiles of one map (bounds a manifest).
     max_tiles_per_message : tiles carried by one MapTiles message.
     max_tile_cells : cells of one tile, hence the decompressed bytes of one tile.
+    max_message_cells : cells of all tiles of one message, hence what decoding one
+        message may allocate (a well-compressed 64 KB message could otherwise
+        inflate to 256 full tiles of 64 KB each).
     max_id_length : characters of a fleet or robot id.
     max_status_entries : counters in one Status message.
     max_buffered_tiles : tiles a reassembler holds for versions whose manifest has not arrived.
@@ -28,6 +31,7 @@ class Limits:
     max_tiles: int = 4_096
     max_tiles_per_message: int = 256
     max_tile_cells: int = 65_536
+    max_message_cells: int = 1_048_576
     max_id_length: int = 64
     max_status_entries: int = 128
     max_buffered_tiles: int = 1_024

@@ -337,3 +337,23 @@ def test_batched_tile_encoding_matches_encode_of_the_same_message(key):
     assert encode_tiles(msg, key, 60_000) == [encode(msg, key)]
     with pytest.raises(ProtocolError, match="does not fit in 100-byte messages"):
         encode_tiles(msg, key, 100)
+
+
+def test_cells_decoded_from_one_message_are_bounded():
+    """240 empty 256x256 tiles deflate to ~30 KB but would inflate to 15 MB: refused."""
+    g = Geometry((3840, 4096), 0.05, tile_size=256)
+    zeros = np.zeros((256, 256), np.int8)
+    msg = MapTiles("f", "r", 1, g, tuple(Tile(i, checksum(zeros), zeros) for i in range(240)))
+    wire = encode(msg)
+    assert len(wire) < 40_000
+    tracemalloc.start()
+    try:
+        with pytest.raises(ProtocolError, match="exceed the limit of 1048576 cells"):
+            decode(wire)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 4_000_000
+    # encode_map's batching keeps every message within that limit.
+    parts = encode_tiles(msg, None, 60_000)
+    assert len(parts) == 15 and all(len(decode(p).tiles) == 16 for p in parts)
