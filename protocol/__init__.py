@@ -36,7 +36,7 @@ Maps (:mod:`protocol.mapsync`)
     ``MapReassembler(robot, fleet=None, limits=Limits())``, one per peer robot:
     ``feed(msg) -> Grid | None`` returns the complete grid when every tile of
     the newest manifest is held (older versions are ignored; tiles ahead of
-    their manifest are buffered, bounded by ``limits.max_buffered_tiles``);
+    their manifest are buffered, bounded by ``limits.max_buffered_cells``);
     ``missing() -> list[int]`` names the tile indices to fetch, e.g. a delta
     whose base this receiver never had; ``version`` and ``quantised`` hold the
     last complete one; ``dropped`` counts buffered messages that contradicted

@@ -22,7 +22,8 @@ class Limits:
         inflate to 256 full tiles of 64 KB each).
     max_id_length : characters of a fleet or robot id.
     max_status_entries : counters in one Status message.
-    max_buffered_tiles : tiles a reassembler holds for versions whose manifest has not arrived.
+    max_buffered_cells : cells of the tiles a reassembler holds for versions whose
+        manifest has not arrived (per peer robot).
     """
 
     max_message_bytes: int = 65_536
@@ -34,4 +35,4 @@ class Limits:
     max_message_cells: int = 1_048_576
     max_id_length: int = 64
     max_status_entries: int = 128
-    max_buffered_tiles: int = 1_024
+    max_buffered_cells: int = 4_194_304

@@ -120,7 +120,7 @@ class MapReassembler:
     ----------
     robot : the peer whose messages this reassembler accepts.
     fleet : if given, messages of another fleet are refused.
-    limits : bounds on buffered tiles.
+    limits : bounds the cells of tiles buffered ahead of their manifest.
     """
 
     def __init__(self, robot: str, fleet: str | None = None, limits: Limits = Limits()) -> None:  # noqa: B008
@@ -136,6 +136,7 @@ class MapReassembler:
         self._manifest: Manifest | None = None
         self._assembler: TileAssembler | None = None
         self._buffer: dict[int, list[MapTiles]] = {}
+        self._buffered = 0  # cells held in _buffer
 
     @property
     def pending_version(self) -> int | None:
@@ -194,6 +195,7 @@ class MapReassembler:
         self._manifest = manifest
         for version in [v for v in self._buffer if v <= manifest.version]:
             held = self._buffer.pop(version)
+            self._buffered -= sum(map(_cells, held))
             if version == manifest.version:
                 for msg in held:
                     try:
@@ -206,11 +208,10 @@ class MapReassembler:
     def _hold(self, msg: MapTiles) -> None:
         """Buffer tiles of a version whose manifest has not arrived; oldest are dropped first."""
         self._buffer.setdefault(msg.version, []).append(msg)
-        while sum(len(m.tiles) for ms in self._buffer.values() for m in ms) > (
-            self.limits.max_buffered_tiles
-        ):
+        self._buffered += _cells(msg)
+        while self._buffered > self.limits.max_buffered_cells:
             oldest = min(self._buffer)
-            self._buffer[oldest].pop(0)
+            self._buffered -= _cells(self._buffer[oldest].pop(0))
             if not self._buffer[oldest]:
                 del self._buffer[oldest]
 
@@ -240,3 +241,7 @@ class MapReassembler:
         self.version, self.quantised, self._manifest = manifest.version, q, None
         g = manifest.geometry
         return Grid(dequantise(q), g.resolution, g.origin)
+
+
+def _cells(msg: MapTiles) -> int:
+    return sum(t.cells.size for t in msg.tiles)

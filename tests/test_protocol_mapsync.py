@@ -180,7 +180,7 @@ def test_reassembler_refuses_other_robots_fleets_and_contradictions():
 def test_buffer_of_early_tiles_is_bounded():
     """Tiles ahead of their manifest are held up to the limit; the newest are kept."""
     rng = np.random.default_rng(0)
-    reasm = MapReassembler("r1", limits=Limits(max_buffered_tiles=4))
+    reasm = MapReassembler("r1", limits=Limits(max_buffered_cells=4 * 16 * 16))
     for v in range(1, 4):
         q = random_quantised(rng, (64, 64), 0.9)
         tiles, manifest = encode_map("f", "r1", v, as_grid(q), tile_size=16, max_message_bytes=400)
