@@ -140,7 +140,7 @@ def _polar_geometry(
     ring -= ring.min()  # a centre outside the image needs no empty inner rings
     n_rings = int(ring.max()) + 2
     itype = np.int32 if n_rings * n_theta < 2**31 else np.int64  # int32: faster gathers
-    # nearest angle bin: bins are sigma_psi / 3 wide, which adds only 1 % to the variance
+    # nearest angle bin: bins are sigma_psi / 3 wide; rotation_blur discounts their variance
     t = np.arctan2(dy, dx).ravel()
     t *= np.float32(n_theta / (2 * np.pi))
     a = np.rint(t).astype(itype)
@@ -172,8 +172,9 @@ def rotation_blur(
     convolution (so sparse inner rings stay exact), and each pixel reads the
     bins back with the same weights: linear in radius, with rings half a
     pixel apart (radial smoothing below 0.35 px std), and nearest in angle,
-    with bins ``sigma_psi / 3`` wide (+1 % variance; a single cell's blur is
-    centred to within ``r sigma_psi / 6`` along the tangent).
+    with bins ``sigma_psi / 3`` wide (the Gaussian is narrowed by the
+    variance the two nearest-bin steps add; a single cell's blur is centred
+    to within ``r sigma_psi / 6`` along the tangent).
 
     Parameters
     ----------
@@ -201,7 +202,8 @@ def rotation_blur(
     )
     key = ((h, w), (round(cx, 6), round(cy, 6)), n_theta)
     idx, wts, totals, n_rings = _polar_geometry(*key)
-    sigma_bins = round(sigma_psi * n_theta / (2 * math.pi), 9)
+    # nearest-bin splat and read each add the variance of a uniform bin (1/12 bin^2)
+    sigma_bins = round(math.sqrt(max((sigma_psi * n_theta / (2 * math.pi)) ** 2 - 1 / 6, 0)), 9)
     sums = np.bincount(idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=totals.size)
     sums = ndimage.gaussian_filter1d(
         sums.astype(np.float32).reshape(n_rings, n_theta),
@@ -281,7 +283,7 @@ def propagate(
     matrix: np.ndarray,
     cov3: np.ndarray,
     out_shape: tuple[int, int],
-    center: tuple[float, float] | None = None,
+    center: tuple[float, float] = (0.0, 0.0),
     cval: float = 0.0,
 ) -> np.ndarray:
     """Eq. (8): transform ``image`` by ``matrix`` and blur it by the transform's covariance.
@@ -301,7 +303,9 @@ def propagate(
     cov3 : 3x3 covariance over ``(x px, y px, psi rad)``, eq. (3), with the
         heading error acting about ``center``.
     out_shape : (rows, cols) of the output frame.
-    center : rotation centre in B's pixels; default B's image centre.
+    center : rotation centre in B's pixels; default B's pixel origin, where
+        eq. (1) with ``P1`` = B's pixel puts it (the convention of
+        ``matrix_to_pose`` and of :class:`pgvd.merge.MergeResult`).
     cval : value outside B (0 for log-odds, 0.5 for probabilities).
 
     Returns
@@ -309,8 +313,7 @@ def propagate(
     (rows, cols) float32 array: B in the output frame, blurred by eq. (8).
     """
     c = _check_cov3(cov3)
-    h, w = np.shape(image)
-    cb = np.array([(w - 1) / 2.0, (h - 1) / 2.0] if center is None else center, dtype=np.float64)
+    cb = np.asarray(center, dtype=np.float64)
     moved = warp(image, matrix, out_shape, order=1, cval=cval).astype(np.float32)
     center_out = (np.asarray(matrix, dtype=np.float64) @ np.append(cb, 1.0))[:2]
     s_pp = c[2, 2]
@@ -318,8 +321,9 @@ def propagate(
     if s_pp > 0:
         k = c[:2, 2] / s_pp
         center_out = center_out + _J @ k
-        cov_t = cov_t - np.outer(k, k) * s_pp
-        cov_t = (cov_t + cov_t.T) / 2.0
+        # the Schur complement is PSD; clip the rounding that could make it not so
+        evals, evecs = np.linalg.eigh(cov_t - np.outer(k, k) * s_pp)
+        cov_t = (evecs * np.clip(evals, 0.0, None)) @ evecs.T
         # blur deviations from cval so the canvas outside B stays exactly cval
         moved = rotation_blur(moved - cval, math.sqrt(s_pp), tuple(center_out)) + cval
     return translation_blur(moved - cval, cov_t) + cval
