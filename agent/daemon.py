@@ -318,11 +318,11 @@ class Agent:
         if not isinstance(msg, wire.MAP_MESSAGES):
             self.counters.drop("unexpected_kind", sender, type(msg).__name__)
             return
-        if msg.robot == self.me:
-            self.counters.drop("own_robot_id", sender, "a peer publishes under this robot's id")
-            return
         if sender != msg.robot:
             self.counters.drop("key_mismatch", sender, f"key {key} carries robot {msg.robot}")
+            return
+        if msg.robot == self.me:
+            self.counters.drop("own_robot_id", sender, "a peer publishes under this robot's id")
             return
         held = self.book.version(msg.robot)
         if held is not None and msg.version < held:

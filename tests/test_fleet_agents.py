@@ -13,16 +13,23 @@ of its outcomes:
 
 from __future__ import annotations
 
+import json
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 
 from agent.evaluate import link_error, true_matrix
-from agent.launcher import LocalFleet, agreement, sources_done, wait_for
+from agent.launcher import ROOT, LocalFleet, agreement, sources_done, wait_for
 from agent.state import StateDir
+from agent.zenoh_config import ZenohOptions, build_config
+from pgvd.grid import Grid
+from protocol import encode_map
 
 pytestmark = [pytest.mark.fleet, pytest.mark.slow]
 
@@ -83,6 +90,11 @@ def scenario(shared: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
         out["agreed5"] = wait_for(lambda: _agreed(fleet), 90)
         out["statuses5"] = fleet.statuses()
         out["late"] = late.status()
+        out["status_cli"] = _status_cli(fleet.agents["r1"].endpoint)
+        out["injected"] = _inject_bad_messages(fleet.agents["r1"].endpoint)
+        wait_for(lambda: all((s or {}).get("drops") for s in fleet.statuses().values()), 10)
+        out["after_injection"] = fleet.statuses()
+        out["alive_after_injection"] = [r for r, a in fleet.agents.items() if a.alive()]
 
         exits = {}
         for robot, agent in fleet.agents.items():
@@ -98,6 +110,29 @@ def scenario(shared: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
             r: StateDir(a.state_dir).load_maps()[0][r].grid for r, a in fleet.agents.items()
         }
     return out
+
+
+def _status_cli(endpoint: str) -> dict:
+    """``pgvd status --json`` run as a user would, connecting to one agent."""
+    cmd = [sys.executable, "-m", "agent.cli", "status", "--fleet", "t", "--connect", endpoint]
+    res = subprocess.run([*cmd, "--json"], cwd=ROOT, capture_output=True, text=True, timeout=30)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout)
+
+
+def _inject_bad_messages(endpoint: str) -> list[str]:
+    """Publish garbage, a foreign fleet's manifest and a spoofed robot id into the fleet."""
+    opts = ZenohOptions(connect=(endpoint,))
+    foreign = encode_map("other", "r9", 1, Grid(np.ones((8, 8), np.float32), 0.1))[1]
+    spoofed = encode_map("t", "r1", 99, Grid(np.ones((8, 8), np.float32), 0.1))[1]
+    with zenoh.open(build_config(opts)) as session:
+        assert wait_for(lambda: list(session.info.peers_zid()), 10)
+        time.sleep(0.5)  # gossip: let the other agents link to this session too
+        session.put("pgvd/t/tiles/r9", b"\x00garbage")
+        session.put("pgvd/t/manifest/r9", foreign)
+        session.put("pgvd/t/manifest/r9", spoofed)
+        time.sleep(0.5)
+    return ["bad_message", "foreign_fleet", "key_mismatch"]
 
 
 def _intel_links(status: dict) -> list[dict]:
@@ -156,6 +191,22 @@ def test_sigterm_exits_cleanly_within_2_s(scenario: dict) -> None:
         assert seconds < 2.0, (robot, seconds)
 
 
-def test_no_message_was_dropped(scenario: dict) -> None:
+def test_no_message_was_dropped_in_normal_operation(scenario: dict) -> None:
     for robot, s in scenario["statuses5"].items():
         assert s["drops"] == {}, robot
+
+
+def test_bad_messages_are_dropped_counted_and_survived(scenario: dict) -> None:
+    assert scenario["alive_after_injection"] == ["r1", "r2", "r3", "r4", "r5"]
+    for robot, s in scenario["after_injection"].items():
+        assert set(s["drops"]) == set(scenario["injected"]), robot
+        assert s["global"] == scenario["statuses5"][robot]["global"]  # nothing changed
+
+
+def test_status_command_lists_robots_versions_links_and_traffic(scenario: dict) -> None:
+    got = scenario["status_cli"]
+    assert sorted(got) == ["r1", "r2", "r3", "r4", "r5"]
+    for s in got.values():
+        assert {r: v["version"] for r, v in s["robots"].items()} == _final(scenario["statuses5"])
+        assert any(ln["accepted"] and ln["score"] > 0 for ln in s["links"])
+        assert s["bytes_sent"] > 0 and s["bytes_received"] > 0
