@@ -35,7 +35,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "and fuse B into A. Exit 0: merged; 3: no overlap; 2: bad input."
         ),
     )
-    p.add_argument("a", type=Path, help="map A (.yaml map_server file or .npy probabilities)")
+    p.add_argument(
+        "a",
+        type=Path,
+        help="map A: .yaml map_server file, or .npy probabilities (0.5 unknown, 0.05 m/cell)",
+    )
     p.add_argument("b", type=Path, help="map B, resampled to A's resolution if it differs")
     p.add_argument(
         "-o", "--output", type=Path, metavar="FUSED", help="write the fused map (.yaml or .npy)"
