@@ -37,10 +37,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "a",
+        metavar="A",
         type=Path,
         help="map A: .yaml map_server file, or .npy probabilities (0.5 unknown, 0.05 m/cell)",
     )
-    p.add_argument("b", type=Path, help="map B, resampled to A's resolution if it differs")
+    p.add_argument(
+        "b", metavar="B", type=Path, help="map B, resampled to A's resolution if it differs"
+    )
     p.add_argument(
         "-o", "--output", type=Path, metavar="FUSED", help="write the fused map (.yaml or .npy)"
     )
