@@ -2,7 +2,7 @@
 
 Usage::
 
-    python3 -m bench.stages [--repeat 7] [--shared ../shared] [--json OUT.json]
+    python3 -m bench.stages [--repeat 7] [--shared ../shared] [--json OUT.json] [--plot OUT.png]
 
 Pairs:
 
@@ -118,11 +118,42 @@ def _print(res: dict) -> None:
     print(f"  ratio: merge = {r['total/fft_xcorr']} x FFT xcorr = {r['total/read_map']} x read_map")
 
 
+def _plot(results: list[dict], path: Path) -> None:
+    """Stacked horizontal bars: where the time of one merge goes, next to the baseline."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 1.2 + 1.1 * len(results)))
+    colours = plt.get_cmap("tab10").colors
+    labels = []
+    for row, res in enumerate(results):
+        left = 0.0
+        for i, stage in enumerate(STAGES):
+            v = res["stages_ms"][stage]
+            ax.barh(2 * row, v, left=left, color=colours[i], label=stage if row == 0 else None)
+            left += v
+        ax.barh(
+            2 * row + 0.8,
+            res["baseline_ms"]["fft_xcorr"],
+            color="0.6",
+            label="one full-res FFT xcorr" if row == 0 else None,
+        )
+        labels += [(2 * row, res["pair"]), (2 * row + 0.8, "baseline")]
+    ax.set_yticks([y for y, _ in labels], [t for _, t in labels])
+    ax.set_xlabel("ms (median, one thread)")
+    ax.legend(ncol=5, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.35))
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
+    ap.add_argument("--plot", type=Path, default=None, help="bar chart of the stages (matplotlib)")
     args = ap.parse_args(argv)
     maps = args.shared / "maps"
     if not maps.is_dir():
@@ -149,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     _print(results[-1])
     if args.json is not None:
         args.json.write_text(json.dumps(results, indent=2))
+    if args.plot is not None:
+        _plot(results, args.plot)
     return 0
 
 

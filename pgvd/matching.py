@@ -282,15 +282,18 @@ class Overlay:
         idx = (t[1] % self.agree.shape[0], t[0] % self.agree.shape[1])
         return Agreement(int(self.agree[idx]), int(self.disagree[idx]))
 
-    def best_near(self, t: tuple[int, int], radius: int) -> tuple[int, int]:
-        """The translation ``(tx, ty)`` of largest agree - disagree within ``radius`` of ``t``."""
+    def best_near(
+        self, t: tuple[int, int], radius: int, disagreement_weight: float = 1.0
+    ) -> tuple[int, int]:
+        """The translation ``(tx, ty)`` within ``radius`` of ``t`` of largest
+        ``agree - disagreement_weight * disagree``."""
         (ha, wa), (hb, wb) = self.shape_a, self.shape_b
         ty = np.arange(max(t[1] - radius, 1 - hb), min(t[1] + radius, ha - 1) + 1)
         tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
         if ty.size == 0 or tx.size == 0:
             return t
         rows, cols = np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])
-        window = self.agree[rows, cols] - self.disagree[rows, cols]
+        window = self.agree[rows, cols] - disagreement_weight * self.disagree[rows, cols]
         i, j = np.unravel_index(int(np.argmax(window)), window.shape)
         return int(tx[j]), int(ty[i])
 

@@ -77,6 +77,10 @@ class MergeParams:
     min_pairs : edge pairs that must pass (32) at an accepted translation.
     min_agreement : minimum agreement / (agreement + disagreement) of the overlay.
     min_overlap : minimum length (m) of agreeing walls, so a sliver of overlap is no match.
+    disagreement_weight : hypotheses are ranked by ``agree - weight * disagree``: a wall on
+        clear free space is strong evidence against, a wall on a wall weak evidence for
+        (walls are everywhere in a building), so a large overlap with some conflicts
+        must not outrank a smaller, consistent one.
     occupied, free : probability thresholds of walls and free space.
     diagnostics : fill :attr:`MergeResult.diagnostics`.
     """
@@ -92,6 +96,7 @@ class MergeParams:
     min_pairs: int = 2
     min_agreement: float = 0.85
     min_overlap: float = 15.0
+    disagreement_weight: float = 4.0
     occupied: float = OCCUPIED
     free: float = 0.3
     diagnostics: bool = True
@@ -154,7 +159,7 @@ class MergeResult:
 class _Hypothesis:
     heading: HeadingCandidate
     coarse_matrix: np.ndarray  # coarse B -> A's coarse crop
-    net: int
+    evidence: float
     ratio: float
     support: int
     passing: np.ndarray
@@ -293,7 +298,9 @@ def _search_heading(
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
     # A straight edge pair fixes the translation only across the corridor:
     # slide each proposal to the best whole-map agreement nearby.
-    refined = dict.fromkeys(overlay.best_near(t, radius) for t in proposals)
+    refined = dict.fromkeys(
+        overlay.best_near(t, radius, params.disagreement_weight) for t in proposals
+    )
     for tx, ty in refined:
         ok = pairs.correlation((tx, ty)) > thresh
         agreement = overlay.at((tx, ty))
@@ -301,7 +308,7 @@ def _search_heading(
             _Hypothesis(
                 heading=heading,
                 coarse_matrix=_translation(tx, ty) @ rot,
-                net=agreement.agree - agreement.disagree,
+                evidence=agreement.agree - params.disagreement_weight * agreement.disagree,
                 ratio=agreement.ratio,
                 support=pair_support(ok),
                 passing=ok,
@@ -443,7 +450,7 @@ def merge(
             else (f"no translation is supported by {params.min_pairs} edge pairs")
         )
         return _rejected(why, clock)
-    best = max(good, key=lambda h: (h.net, h.ratio))
+    best = max(good, key=lambda h: (h.evidence, h.ratio))
     to_fine = _scale(k)
     matrix = to_fine @ off_a @ best.coarse_matrix @ np.linalg.inv(to_fine)
     fine_a = WallMap(pa, params.occupied, params.free)
