@@ -122,6 +122,23 @@ def test_maps_of_different_buildings_rejected(shared, pair):
     assert r.reason != "accepted"
 
 
+@pytest.mark.parametrize("name", ["intel/intel.yaml", "uos_avz/avz.yaml"])
+def test_overlapping_parts_of_one_map_recovered(shared, name):
+    """Two 62 % wide parts of one real map (24 % of the width shared), each in its own frame."""
+    p = _load(shared, name).probability()
+    w = p.shape[1]
+    cut_a, cut_b = round(0.62 * w), round(0.38 * w)
+    a = Grid.from_probability(p[:, :cut_a], 0.05)
+    b = Grid.from_probability(p[:, cut_b:], 0.05)
+    truth = rigid_matrix(0.0, float(cut_b), 0.0)
+    rng = np.random.default_rng(5)
+    for _ in range(2):
+        bn, to_new = _random_frame(b, rng)
+        result = merge(a, bn, MergeParams(diagnostics=False))
+        dpsi, disp = _errors(result, truth @ np.linalg.inv(to_new), bn)
+        assert result.accepted and dpsi < 1.0 and disp < 2.0, (result.reason, dpsi, disp)
+
+
 @pytest.mark.parametrize("name", ["intel/intel.yaml", "fr079_albertB/map312.yaml"])
 def test_disjoint_halves_of_one_building_rejected(shared, name):
     p = _load(shared, name).probability()
