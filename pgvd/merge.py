@@ -8,27 +8,36 @@ Stages (``timings_ms`` keys):
     both maps pooled to the search scale (``MergeParams.coarse_resolution``,
     0.2 m by default): a coarse cell is a wall if any of its cells is one
     (walls are one cell thick and must survive), else it holds the mean
-    probability.  All PGVD/Gamma/rho stages run at this scale, exactly as
-    the paper defines them, only on fewer cells.
+    probability.  All PGVD/Gamma/rho stages run at this scale, as the paper
+    defines them, only on 16x fewer cells; maps are cropped to their known
+    cells.
 ``pgvd``
     for A once and for B once per candidate heading: B is rotated (12) and
     the heading variance is propagated as the tangential blur of (8)
     (:func:`pgvd.uncertainty.rotation_blur`), then the PGVD (13)-(24).
 ``graph``
-    vertices and edges (Sec. IV-D); the longest edges are kept.
+    vertices and edges (Sec. IV-D); the ``max_edges`` longest, most
+    confident edges are kept.
 ``gamma``
-    the similarity matrix (26)-(28) by batched FFT and the rho test (32);
-    every passing pair proposes its correlation-peak translation (29).
+    the similarity matrix (26)-(28) by batched FFT and the rho test (32)
+    (with a one-coarse-cell tolerance, see :func:`pgvd.matching.similarity`);
+    every passing pair proposes its correlation-peak translation (29), best
+    Gamma first.
 ``verify``
-    the paper's future work: a proposed translation counts only if at least
-    ``min_pairs`` edge pairs pass (32) *at that translation* and the overlaid
-    maps agree (agreement / (agreement + disagreement) of walls vs free space).
-    The best (heading, translation) over all candidates wins.
+    the paper's future work.  A straight edge pair fixes a translation only
+    across the corridor, so each proposal first slides (within
+    ``search_radius``) to the best whole-map overlay nearby; it then counts
+    only if at least ``min_pairs`` edge pairs pass (32) *at that
+    translation*.  Hypotheses of all headings are ranked by the overlay
+    evidence ``agree - disagreement_weight * disagree`` (walls on walls vs
+    walls on clear free space, both ways).  The winner is refined and
+    checked again at full resolution: it is accepted only if
+    agreement / (agreement + disagreement) >= ``min_agreement`` over at
+    least ``min_overlap`` metres of agreeing walls.
 ``refine``
-    trimmed ICP of the wall cells at full resolution, then the final
-    agreement check at full resolution decides acceptance.
+    trimmed ICP of the wall cells at full resolution.
 ``covariance``
-    Laplace approximation of the alignment cost at the optimum.
+    Gauss-Newton (point-to-line) covariance of ``(x, y, psi)`` at the optimum.
 """
 
 from __future__ import annotations
