@@ -7,7 +7,8 @@ Messages (:mod:`protocol.messages`, frozen dataclasses)
     ``Geometry(shape, resolution, origin, tile_size=128)``,
     ``Tile(index, checksum, cells: int8 ndarray, base_checksum=None)``,
     ``MapTiles(fleet, robot, version, geometry, tiles, base_version=None)``,
-    ``Manifest(fleet, robot, version, geometry, checksums: {tile index: crc32})``,
+    ``Manifest(fleet, robot, version, geometry, checksums: {tile index: crc32},
+    base_version=None, digest=None)`` (a delta manifest when base_version is set),
     ``Link(fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted,
     matrix 3x3, covariance 3x3, score)``,
     ``Heartbeat(fleet, robot, seq, map_version=None)``,
@@ -27,7 +28,11 @@ Maps (:mod:`protocol.mapsync`)
     int8 (:mod:`protocol.quantize`), cut into 128x128 tiles, only tiles holding
     knowledge sent, each deflated in the smallest of three layouts
     (:mod:`protocol.compress`); with ``since`` (the Grid or int8 array of an
-    earlier version) only changed tiles, as differences; with ``indices``
+    earlier version) only changed tiles, as differences, and with
+    ``base_version`` too a delta manifest (only changed tiles' checksums plus a
+    digest of the full list: bytes proportional to the change; a receiver
+    lacking ``base_version`` reports every tile missing and should fetch the
+    full latest version, tiles and full manifest); with ``indices``
     exactly those tiles in full (a queryable's answer to ``missing()``; indices
     without knowledge are skipped).  Each tile message is under
     ``max_message_bytes`` (pass e.g. 20_000 for about one tile per message);

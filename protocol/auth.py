@@ -64,8 +64,9 @@ def replay_keys(msg: Message) -> list[tuple[tuple[str, ...], tuple[int, ...]]]:
     """The (key, version) pairs by which :class:`ReplayGuard` orders ``msg``.
 
     A MapTiles message is ordered per tile (many messages share one map
-    version); full and delta tiles are ordered separately so that a receiver
-    that could not apply a delta can still fetch the same version in full.
+    version); full and delta tiles, and full and delta manifests, are ordered
+    separately so that a receiver that could not apply a delta can still
+    fetch the same version in full.
     A Link is ordered by its pair of map versions, which both only grow.
     """
     if isinstance(msg, MapTiles):
@@ -74,7 +75,7 @@ def replay_keys(msg: Message) -> list[tuple[tuple[str, ...], tuple[int, ...]]]:
             for t in msg.tiles
         ]
     if isinstance(msg, Manifest):
-        return [((msg.robot, "manifest"), (msg.version,))]
+        return [((msg.robot, "manifest", "delta" if msg.is_delta else "full"), (msg.version,))]
     if isinstance(msg, Link):
         pair = (msg.decided_by, "link", msg.robot_a, msg.robot_b)
         return [(pair, (msg.version_a, msg.version_b))]

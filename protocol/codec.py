@@ -11,7 +11,7 @@ finiteness before a message object is built.  Tiles are deflate streams
 (:mod:`protocol.compress`) inflated with a hard bound derived from the tile's
 own shape, so a small message can never expand into a large allocation.
 A manifest's checksums travel as a bitmap of the tiles it lists followed by
-one little-endian CRC-32 per listed tile.
+one little-endian CRC-32 per listed tile (:func:`protocol.tiles.pack_checksums`).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from protocol.messages import (
     Tile,
     check_id,
 )
-from protocol.tiles import apply_tile
+from protocol.tiles import apply_tile, pack_checksums
 
 MAGIC = b"PG"
 #: Bumped on any incompatible change of the body layout.
@@ -78,13 +78,6 @@ def _tile(t: Tile) -> list[Any]:
     return [t.index, t.checksum, t.base_checksum, encoding, packed]
 
 
-def _manifest_checksums(msg: Manifest) -> bytes:
-    listed = np.zeros(msg.geometry.n_tiles, bool)
-    listed[list(msg.checksums)] = True
-    crcs = np.array(list(msg.checksums.values()), dtype="<u4")
-    return np.packbits(listed).tobytes() + crcs.tobytes()
-
-
 def _tiles_body(msg: MapTiles, tiles: list[Any]) -> dict[str, Any]:
     """The body of a MapTiles message around already packed ``tiles``; "t" comes last."""
     return {
@@ -108,7 +101,9 @@ def _body(msg: Message) -> dict[str, Any]:
             "r": msg.robot,
             "v": msg.version,
             "g": _geometry(msg.geometry),
-            "c": _manifest_checksums(msg),
+            "c": pack_checksums(msg.geometry, msg.checksums),
+            "b": msg.base_version,
+            "d": msg.digest,
         }
     if isinstance(msg, Link):
         return {
@@ -292,6 +287,8 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
     version = fields.take("v", int)
     geometry = _parse_geometry(fields, limits)
     packed = fields.take("c", bytes)
+    base_version = fields.take("b", int, nullable=True)
+    digest = fields.take("d", int, nullable=True)
     fields.done()
     n = geometry.n_tiles
     bitmap = -(-n // 8)
@@ -307,7 +304,7 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
         )
     crcs = np.frombuffer(packed, "<u4", offset=bitmap)
     checksums = {int(i): int(c) for i, c in zip(listed, crcs, strict=True)}
-    return Manifest(fleet, robot, version, geometry, checksums)
+    return Manifest(fleet, robot, version, geometry, checksums, base_version, digest)
 
 
 def _matrix(fields: _Fields, name: str) -> list[list[Any]]:

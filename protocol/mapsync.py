@@ -24,8 +24,11 @@ from protocol.tiles import (
     changed_tiles,
     check_quantised,
     delta_tile,
+    expand_manifest,
     full_tile,
     manifest_checksums,
+    manifest_digest,
+    zero_checksum,
 )
 
 
@@ -72,7 +75,11 @@ def encode_map(
     since : the map (Grid, int8 quantised array, or float log-odds) of an
         earlier version the receivers hold; only tiles changed since then are
         sent, as differences.  Ignored when its shape differs (a full update).
-    base_version : the version ``since`` was; informational.
+    base_version : the version ``since`` was.  With ``since``, the manifest is
+        then a delta manifest: it lists only the changed tiles (bytes
+        proportional to the change, not to the map), and receivers that do
+        not hold ``base_version`` must fetch the full manifest (e.g. from a
+        queryable, or wait for the full one to be re-announced).
     max_message_bytes : every tile message is smaller than this.
     tile_size : tile side, one of :data:`protocol.messages.TILE_SIZES`.
     indices : send these tiles, full (a queryable's answer to
@@ -84,7 +91,8 @@ def encode_map(
     -------
     tile_messages : list of bytes, each one MapTiles message (may be empty
         when nothing changed since ``since``).
-    manifest : bytes of the Manifest listing every tile that holds knowledge.
+    manifest : bytes of the Manifest: every tile that holds knowledge, or the
+        changed ones when ``since`` and ``base_version`` are given.
     """
     q = quantise_grid(grid)
     geometry = Geometry(grid.shape, grid.resolution, tuple(grid.origin), tile_size)
@@ -102,11 +110,27 @@ def encode_map(
     else:
         check_quantised(base, geometry)
         tiles = [delta_tile(q, base, geometry, i) for i in changed_tiles(q, base, geometry)]
+    if base is not None and base_version is not None:
+        manifest = _delta_manifest(manifest, base, base_version)
     manifest_bytes = encode(manifest, key)
     if not tiles:
         return [], manifest_bytes
     msg = MapTiles(fleet, robot, version, geometry, tuple(tiles), base_version)
     return encode_tiles(msg, key, max_message_bytes), manifest_bytes
+
+
+def _delta_manifest(full: Manifest, base: np.ndarray, base_version: int) -> Manifest:
+    """``full`` as a delta manifest against the quantised grid ``base`` of ``base_version``."""
+    g = full.geometry
+    before = manifest_checksums(base, g)
+    changes = {i: crc for i, crc in full.checksums.items() if before.get(i) != crc}
+    changes.update({i: zero_checksum(g, i) for i in before if i not in full.checksums})
+    digest = manifest_digest(g, full.checksums)
+    return Manifest(full.fleet, full.robot, full.version, g, changes, base_version, digest)
+
+
+#: Delta manifests a reassembler keeps while their base versions complete.
+MAX_ORPHANS = 16
 
 
 class MapReassembler:
@@ -133,7 +157,10 @@ class MapReassembler:
         self.quantised: np.ndarray | None = None
         #: Buffered tile messages dropped when their manifest arrived and contradicted them.
         self.dropped = 0
-        self._manifest: Manifest | None = None
+        self._manifest: Manifest | None = None  # full manifest being assembled
+        self._base: Manifest | None = None  # full manifest of the complete version
+        # Delta manifests whose base version is not complete yet, by version (bounded).
+        self._orphans: dict[int, Manifest] = {}
         self._assembler: TileAssembler | None = None
         self._buffer: dict[int, list[MapTiles]] = {}
         self._buffered = 0  # cells held in _buffer
@@ -144,10 +171,14 @@ class MapReassembler:
         return None if self._manifest is None else self._manifest.version
 
     def missing(self) -> list[int]:
-        """Tile indices the pending manifest needs and that are not held (empty if none pending)."""
-        if self._manifest is None or self._assembler is None:
-            return []
-        return self._assembler.missing(self._manifest)
+        """Tile indices to fetch: those the pending manifest lacks, else every index when a
+        delta manifest waits for a base version this receiver does not hold (it cannot
+        tell which tiles exist), else none."""
+        if self._manifest is not None and self._assembler is not None:
+            return self._assembler.missing(self._manifest)
+        if self._orphans:
+            return list(range(self._orphans[max(self._orphans)].geometry.n_tiles))
+        return []
 
     def feed(self, msg: Message) -> Grid | None:
         """Take one decoded message; return the complete grid when a version completes.
@@ -178,6 +209,19 @@ class MapReassembler:
         return self._complete()
 
     def _take_manifest(self, manifest: Manifest) -> Grid | None:
+        if manifest.is_delta:
+            base = self._base
+            if base is None or manifest.base_version != self.version:
+                self._orphans[manifest.version] = manifest
+                if len(self._orphans) > MAX_ORPHANS:
+                    del self._orphans[min(self._orphans)]
+                return None
+            if (base.geometry.shape, base.geometry.tile_size) != (
+                manifest.geometry.shape,
+                manifest.geometry.tile_size,
+            ):
+                raise ProtocolError(f"delta manifest {manifest.version} changes the map's shape")
+            manifest = expand_manifest(manifest, base.checksums)
         current = self._manifest
         if current is not None:
             if manifest.version < current.version:
@@ -239,8 +283,16 @@ class MapReassembler:
         assembler.forget(manifest.checksums)
         q.flags.writeable = False
         self.version, self.quantised, self._manifest = manifest.version, q, None
+        self._base = manifest
         g = manifest.geometry
-        return Grid(dequantise(q), g.resolution, g.origin)
+        grid = Grid(dequantise(q), g.resolution, g.origin)
+        self._orphans = {v: m for v, m in self._orphans.items() if v > manifest.version}
+        waiting = [m for m in self._orphans.values() if m.base_version == manifest.version]
+        if waiting:
+            # A delta manifest that waited for this version: take it now.
+            del self._orphans[waiting[0].version]
+            return self._take_manifest(waiting[0]) or grid
+        return grid
 
 
 def _cells(msg: MapTiles) -> int:

@@ -240,8 +240,15 @@ class MapTiles:
 class Manifest:
     """What one version of a robot's map consists of: one checksum per tile that holds knowledge.
 
-    Tiles not listed are entirely unknown (all zero).  A receiver compares these
-    checksums with the tiles it holds to know exactly which ones it lacks.
+    A full manifest (``base_version`` None) lists every tile that holds
+    knowledge; tiles not listed are entirely unknown (all zero).  A receiver
+    compares these checksums with the tiles it holds to know which it lacks.
+
+    A delta manifest lists only the tiles that differ from ``base_version``
+    (a tile that lost all knowledge is listed with the checksum of an all-zero
+    tile), plus ``digest``, the :func:`protocol.tiles.manifest_digest` of the
+    full list, so a receiver holding ``base_version`` rebuilds and verifies the
+    full manifest while the bytes stay proportional to the change, not the map.
     """
 
     fleet: str
@@ -249,6 +256,8 @@ class Manifest:
     version: int
     geometry: Geometry
     checksums: Mapping[int, int] = field(default_factory=dict)
+    base_version: int | None = None
+    digest: int | None = None
 
     def __post_init__(self) -> None:
         check_id(self.fleet, "fleet")
@@ -256,6 +265,18 @@ class Manifest:
         check_version(self.version, "version")
         if not isinstance(self.geometry, Geometry):
             raise ProtocolError("geometry must be a Geometry")
+        if (self.base_version is None) != (self.digest is None):
+            raise ProtocolError("a delta manifest needs both base_version and digest")
+        if self.base_version is not None:
+            check_version(self.base_version, "base_version")
+            if self.base_version >= self.version:
+                raise ProtocolError(
+                    f"base_version {self.base_version} must be older than version {self.version}"
+                )
+            if isinstance(self.digest, bool) or not isinstance(self.digest, (int, np.integer)):
+                raise ProtocolError("digest must be an integer")
+            if not 0 <= self.digest < 2**64:
+                raise ProtocolError(f"digest must be a 64-bit unsigned integer, got {self.digest}")
         if not isinstance(self.checksums, Mapping):
             raise ProtocolError("checksums must map tile index -> checksum")
         n = self.geometry.n_tiles
@@ -267,16 +288,21 @@ class Manifest:
             clean[i] = check_crc(self.checksums[index], f"checksum of tile {i}")
         object.__setattr__(self, "checksums", MappingProxyType(clean))
 
+    @property
+    def is_delta(self) -> bool:
+        """True when only the tiles changed since :attr:`base_version` are listed."""
+        return self.base_version is not None
+
+    def _key(self) -> tuple:
+        return (
+            self.fleet, self.robot, self.version, self.geometry, dict(self.checksums),
+            self.base_version, self.digest,
+        )  # fmt: skip
+
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Manifest):
             return NotImplemented
-        return (self.fleet, self.robot, self.version, self.geometry, dict(self.checksums)) == (
-            other.fleet,
-            other.robot,
-            other.version,
-            other.geometry,
-            dict(other.checksums),
-        )
+        return self._key() == other._key()
 
     __hash__ = None  # type: ignore[assignment]
 

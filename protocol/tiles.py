@@ -9,8 +9,9 @@ any order, full or as differences against content the receiver already holds.
 
 from __future__ import annotations
 
+import hashlib
 import zlib
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
@@ -21,6 +22,49 @@ from protocol.messages import Geometry, Manifest, Tile
 def checksum(cells: np.ndarray) -> int:
     """CRC-32 of an int8 tile's row-major bytes (shape is implied by the tile index)."""
     return zlib.crc32(np.ascontiguousarray(cells, dtype=np.int8).data)
+
+
+def zero_checksum(geometry: Geometry, index: int) -> int:
+    """Checksum of tile ``index`` when it holds no knowledge (all zero)."""
+    rows, cols = geometry.tile_shape(index)
+    return zlib.crc32(bytes(rows * cols))
+
+
+def pack_checksums(geometry: Geometry, checksums: Mapping[int, int]) -> bytes:
+    """A bitmap of the listed tiles, then their CRC-32s little-endian in index order."""
+    listed = np.zeros(geometry.n_tiles, bool)
+    listed[list(checksums)] = True
+    crcs = np.array([checksums[i] for i in sorted(checksums)], dtype="<u4")
+    return np.packbits(listed).tobytes() + crcs.tobytes()
+
+
+def manifest_digest(geometry: Geometry, checksums: Mapping[int, int]) -> int:
+    """64-bit BLAKE2b of a full checksum list, carried by delta manifests to verify a rebuild."""
+    packed = pack_checksums(geometry, checksums)
+    return int.from_bytes(hashlib.blake2b(packed, digest_size=8).digest(), "little")
+
+
+def expand_manifest(delta: Manifest, base: Mapping[int, int]) -> Manifest:
+    """The full manifest of a delta manifest, given the full checksums of its base version.
+
+    Raises
+    ------
+    ProtocolError
+        If the rebuilt list does not match the delta's digest: ``base`` is not
+        the sender's ``base_version``.
+    """
+    full = dict(base)
+    for i, crc in delta.checksums.items():
+        if crc == zero_checksum(delta.geometry, i):
+            full.pop(i, None)
+        else:
+            full[i] = crc
+    if manifest_digest(delta.geometry, full) != delta.digest:
+        raise ProtocolError(
+            f"delta manifest of version {delta.version} does not apply to the held "
+            f"version {delta.base_version}"
+        )
+    return Manifest(delta.fleet, delta.robot, delta.version, delta.geometry, full)
 
 
 def check_quantised(q: np.ndarray, geometry: Geometry) -> np.ndarray:

@@ -68,6 +68,7 @@ def sample_messages() -> list:
     return [
         MapTiles("fleet", "r1", 3, g, (Tile(0, checksum(cells), cells),)),
         Manifest("fleet", "r1", 3, g, {0: checksum(cells), 3: 7}),
+        Manifest("fleet", "r1", 4, g, {1: 9}, base_version=3, digest=2**64 - 1),
         Link("fleet", "r1", "r1", "r2", 3, 4, True, np.eye(3), np.eye(3) * 0.5, 0.93),
         Heartbeat("fleet", "r1", 17, 3),
         Status("fleet", "r1", 18, {"dropped": 2, "merge_ms": 12.5}),
@@ -251,7 +252,7 @@ def test_tile_shape_mismatch():
         body["t"][0][0] = 6
         decode(raw(body))
     g = [20, 30, 0.05, 0.0, 0.0, 0.0, 16]  # 2x2 tiles
-    manifest = {"k": "manifest", "f": "f", "r": "r", "v": 1, "g": g}
+    manifest = {"k": "manifest", "f": "f", "r": "r", "v": 1, "g": g, "b": None, "d": None}
     beyond = np.packbits([0, 0, 0, 0, 1, 0, 0, 0]).tobytes() + bytes(4)
     with pytest.raises(ProtocolError, match="bits beyond the last tile"):
         decode(raw({**manifest, "c": beyond}))

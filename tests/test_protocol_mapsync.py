@@ -102,8 +102,13 @@ def test_deltas_rebuild_every_version(spec, order, steps):
 
 
 @settings(max_examples=40, deadline=None)
-@given(spec=grids, order=st.randoms(use_true_random=False), steps=st.integers(2, 5))
-def test_interleaved_versions_converge_after_fetching_missing_tiles(spec, order, steps):
+@given(
+    spec=grids, order=st.randoms(use_true_random=False), steps=st.integers(2, 5),
+    delta_manifests=st.booleans(),
+)  # fmt: skip
+def test_interleaved_versions_converge_after_fetching_missing_tiles(
+    spec, order, steps, delta_manifests
+):
     """Messages of several versions mixed and some lost: missing() names what to fetch."""
     h, w, ts, density, seed = spec
     rng = np.random.default_rng(seed)
@@ -113,9 +118,11 @@ def test_interleaved_versions_converge_after_fetching_missing_tiles(spec, order,
     wires = []
     for v, q in enumerate(versions, start=1):
         since = None if v == 1 else as_grid(versions[v - 2])
+        base_version = v - 1 if since is not None and delta_manifests else None
         tiles, manifest = encode_map(
-            "f", "r1", v, as_grid(q), since=since, tile_size=ts, max_message_bytes=1500
-        )
+            "f", "r1", v, as_grid(q), since=since, base_version=base_version, tile_size=ts,
+            max_message_bytes=1500,
+        )  # fmt: skip
         wires += [*tiles, manifest]
     order.shuffle(wires)
     lost = order.randrange(len(wires) + 1)
@@ -234,3 +241,76 @@ def test_a_grown_map_is_sent_in_full_and_rebuilt():
     assert not any(t.is_delta for w in tiles for t in decode(w).tiles)
     grid = deliver(reasm, [manifest, *tiles])
     assert grid is not None and np.array_equal(reasm.quantised, grown)
+
+
+def _versions(seed: int, shape=(100, 100), n: int = 3) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    out = [random_quantised(rng, shape, 0.3)]
+    while len(out) < n:
+        out.append(mutate(rng, out[-1]))
+    return out
+
+
+def _encode(v: int, versions: list[np.ndarray], delta: bool = True, **kw):
+    since = as_grid(versions[v - 2]) if delta and v > 1 else None
+    base = v - 1 if since is not None else None
+    return encode_map("f", "r1", v, as_grid(versions[v - 1]), since=since, base_version=base, **kw)
+
+
+def _window(i: int) -> tuple[slice, slice]:
+    r, c = divmod(i, 2)
+    return slice(64 * r, 64 * r + 64), slice(64 * c, 64 * c + 64)
+
+
+def test_delta_manifest_lists_only_changed_tiles_and_rebuilds_the_full_one():
+    v1, v2 = _versions(11, n=2)
+    v2 = v2.copy()
+    v2[64:, 64:] = 0  # tile 3 of 2x2 loses all knowledge
+    versions = [v1, v2]
+    _, full = _encode(2, versions, delta=False, tile_size=64)
+    tiles, delta = _encode(2, versions, tile_size=64)
+    msg = decode(delta)
+    assert msg.is_delta and msg.base_version == 1 and not decode(full).is_delta
+    changed = {i for i in range(4) if (v1 != v2)[_window(i)].any()}
+    assert set(msg.checksums) == changed and 3 in changed and 3 not in decode(full).checksums
+    reasm = MapReassembler("r1")
+    deliver(reasm, [*_encode(1, versions, tile_size=64)[0], _encode(1, versions, tile_size=64)[1]])
+    grid = deliver(reasm, [delta, *tiles])
+    assert grid is not None and np.array_equal(reasm.quantised, v2)
+    assert reasm.version == 2
+
+
+def test_delta_manifest_without_its_base_asks_for_everything_then_takes_the_full_map():
+    versions = _versions(12)
+    reasm = MapReassembler("r1")
+    tiles, manifest = _encode(3, versions, tile_size=32)
+    deliver(reasm, [*tiles, manifest])
+    assert reasm.version is None and reasm.missing() == list(range(16))
+    tiles, manifest = _encode(3, versions, delta=False, tile_size=32)  # the queryable's answer
+    deliver(reasm, [manifest, *tiles])
+    assert reasm.version == 3 and np.array_equal(reasm.quantised, versions[2])
+
+
+def test_delta_manifest_against_other_content_is_refused():
+    versions = _versions(13)
+    reasm = MapReassembler("r1")
+    tiles, manifest = _encode(1, versions, tile_size=32)
+    deliver(reasm, [*tiles, manifest])
+    # Version 2 claims base 1 but was computed against other content.
+    other = _versions(99, n=2)
+    _, manifest = encode_map(
+        "f", "r1", 2, as_grid(other[1]), since=as_grid(other[0]), base_version=1, tile_size=32
+    )
+    with pytest.raises(ProtocolError, match="does not apply to the held version 1"):
+        reasm.feed(decode(manifest))
+
+
+def test_delta_manifest_waits_for_its_base_to_complete():
+    versions = _versions(14)
+    wires = {v: _encode(v, versions, tile_size=32) for v in (1, 2, 3)}
+    reasm = MapReassembler("r1")
+    deliver(reasm, [wires[1][1], wires[2][1], wires[3][1], *wires[3][0], *wires[2][0]])
+    assert reasm.version is None and reasm.missing() == list(range(16))
+    grid = deliver(reasm, wires[1][0])  # v1 completes, v2 expands and completes, then v3
+    assert grid is not None and reasm.version == 3
+    assert np.array_equal(quantise_grid(grid), versions[2])

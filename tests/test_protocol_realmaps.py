@@ -72,7 +72,10 @@ def test_intel_log_replay_stages_and_one_scan_deltas(shared):
         rows, cols = integrate_scan(logodds, scans[done], frame)
         done += 1
         after = frame.grid(logodds.copy())
-        tiles, manifest = encode_map("f", "r1", 2 * version, after, since=before)
+        tiles, manifest = encode_map(
+            "f", "r1", 2 * version, after, since=before, base_version=2 * version - 1
+        )
+        assert decode(manifest).is_delta
         touched = set()
         for msg in map(decode, tiles):
             touched |= {t.index for t in msg.tiles}
