@@ -55,7 +55,9 @@ def warp(
         offset=offset,
         output_shape=tuple(int(s) for s in out_shape),
         order=order,
-        mode="constant",
+        # 'grid-constant': cells are squares around integer centres, so B's border cells
+        # blend into cval instead of dropping out on a rounding error ('constant' does that)
+        mode="grid-constant",
         cval=cval,
         prefilter=order > 1,
     )

@@ -131,8 +131,9 @@ def _polar_geometry(
     per-bin total weight of all pixels, and the number of rings.
     """
     h, w = shape
-    dx = np.arange(w, dtype=np.float32)[None, :] - np.float32(center[0])
-    dy = np.arange(h, dtype=np.float32)[:, None] - np.float32(center[1])
+    # offsets in float64 first: the same pixel gets the same bins whichever window it is in
+    dx = (np.arange(w) - center[0]).astype(np.float32)[None, :]
+    dy = (np.arange(h) - center[1]).astype(np.float32)[:, None]
     r = np.hypot(dx, dy).ravel()
     r *= np.float32(1.0 / _RING_PX)
     ring = np.floor(r)
@@ -313,9 +314,8 @@ def propagate(
     (rows, cols) float32 array: B in the output frame, blurred by eq. (8).
     """
     c = _check_cov3(cov3)
-    cb = np.asarray(center, dtype=np.float64)
-    moved = warp(image, matrix, out_shape, order=1, cval=cval).astype(np.float32)
-    center_out = (np.asarray(matrix, dtype=np.float64) @ np.append(cb, 1.0))[:2]
+    m = np.asarray(matrix, dtype=np.float64)
+    center_out = (m @ np.append(np.asarray(center, dtype=np.float64), 1.0))[:2]
     s_pp = c[2, 2]
     cov_t = c[:2, :2]
     if s_pp > 0:
@@ -324,6 +324,23 @@ def propagate(
         # the Schur complement is PSD; clip the rounding that could make it not so
         evals, evecs = np.linalg.eigh(cov_t - np.outer(k, k) * s_pp)
         cov_t = (evecs * np.clip(evals, 0.0, None)) @ evecs.T
-        # blur deviations from cval so the canvas outside B stays exactly cval
-        moved = rotation_blur(moved - cval, math.sqrt(s_pp), tuple(center_out)) + cval
-    return translation_blur(moved - cval, cov_t) + cval
+    # Work in the window around B's footprint that the blurs can reach: beyond it the
+    # output is exactly cval, and the union canvas of a merge is often much larger than B.
+    h, w = np.shape(image)
+    corners = (m @ np.array([[0, w - 1, 0, w - 1], [0, 0, h - 1, h - 1], [1, 1, 1, 1]]))[:2].T
+    r_far = float(np.max(np.linalg.norm(corners - center_out, axis=1)))
+    sigma_t = math.sqrt(max(float(np.linalg.eigvalsh(cov_t).max()), 0.0))
+    reach = 3.0 + 3.5 * r_far * math.sqrt(s_pp) + 4.0 * sigma_t
+    lo = np.maximum(np.floor(corners.min(axis=0) - reach), 0).astype(int)
+    hi = np.minimum(np.ceil(corners.max(axis=0) + reach) + 1, out_shape[::-1]).astype(int)
+    out = np.full(out_shape, cval, dtype=np.float32)
+    if (hi <= lo).any():
+        return out  # B lands outside the output
+    shift = np.array([[1.0, 0.0, -lo[0]], [0.0, 1.0, -lo[1]], [0.0, 0.0, 1.0]])
+    window = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
+    # deviations from cval are blurred, so that cells outside B stay exactly cval
+    moved = warp(image, shift @ m, window, order=1, cval=cval).astype(np.float32) - cval
+    if s_pp > 0:
+        moved = rotation_blur(moved, math.sqrt(s_pp), tuple(center_out - lo))
+    out[lo[1] : hi[1], lo[0] : hi[0]] = translation_blur(moved, cov_t) + cval
+    return out

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pgvd.grid import matrix_to_pose, rigid_matrix
+from pgvd.transform import warp
 from pgvd.uncertainty import (
     compose_covariance,
     inverse_covariance,
@@ -148,6 +149,23 @@ def test_propagate_spreads_each_cell_by_eq4() -> None:
     # propagate with cval: the canvas outside B stays exactly cval
     out = propagate(np.full((50, 50), 0.5, np.float32), np.eye(3), cov, (80, 80), cval=0.5)
     assert np.allclose(out[60:, 60:], 0.5)
+
+
+def test_propagate_window_equals_blurring_the_whole_canvas() -> None:
+    """propagate blurs only around B's footprint; on the whole canvas the result is the same."""
+    rng = np.random.default_rng(5)
+    b = (rng.random((120, 90)) < 0.2).astype(np.float32) * 0.8 + 0.1
+    m = rigid_matrix(0.7, 300.0, 100.0)
+    # sigma_psi large enough that both polar grids get the same angle bins (they are capped
+    # at one pixel per bin at the far corner, which differs between window and canvas)
+    cov = np.diag([2.0, 0.5, 0.05**2])
+    cov[0, 1] = cov[1, 0] = 0.4
+    got = propagate(b, m, cov, (500, 600), center=(10.0, 20.0), cval=0.5)
+    whole = warp(b, m, (500, 600), cval=0.5) - 0.5
+    whole = rotation_blur(whole, 0.05, tuple((m @ [10.0, 20.0, 1.0])[:2]))
+    whole = translation_blur(whole, cov[:2, :2]) + 0.5
+    np.testing.assert_allclose(got, whole, atol=1e-5)
+    assert (got != 0.5).sum() > 0.5 * b.size
 
 
 def _pose(m: np.ndarray) -> np.ndarray:
