@@ -114,9 +114,10 @@ def errors(pair: MapPair, matrix: np.ndarray) -> tuple[float, float]:
     return float(heading), cell
 
 
-def evaluate(pair: MapPair, accepted: bool, matrix: np.ndarray) -> dict:
-    """One row of the per-pair record: accept, errors and success."""
+def evaluate(pair: MapPair, accepted: bool, matrix: np.ndarray, cell_scale: float = 1.0) -> dict:
+    """One row of the per-pair record: accept, errors (cells / ``cell_scale``) and success."""
     heading, cell = errors(pair, matrix)
+    cell /= cell_scale
     overlapping = pair.overlap > 0
     ok = accepted and overlapping and heading <= MAX_HEADING_DEG and cell <= MAX_CELL_ERROR
     return {"accepted": accepted, "heading_deg": heading, "cell_err": cell, "success": ok}
@@ -133,12 +134,13 @@ def build_pairs(
     seed: int,
     resolution: float,
     cache: Path | None,
+    odom_noise: tuple[float, float] | None = None,
 ) -> list[MapPair]:
     """The bench pairs of every log, optionally cached (pickle) between runs."""
     shared = ROOT.parent / "shared" / "logs"
     pairs: list[MapPair] = []
     for name in logs:
-        key = f"{name}-{n_overlap}-{n_disjoint}-{seed}-{resolution}.pkl"
+        key = f"{name}-{n_overlap}-{n_disjoint}-{seed}-{resolution}-{odom_noise}.pkl"
         if cache is not None and (cache / key).exists():
             pairs += pickle.loads((cache / key).read_bytes())
             _log(f"[pairs] {name}: loaded from {cache / key}")
@@ -146,7 +148,7 @@ def build_pairs(
         t0 = time.perf_counter()
         scans = read_carmen(shared / LOGS[name])
         _log(f"[pairs] {name}: {len(scans)} scans; rendering {n_overlap}+{n_disjoint} pairs")
-        made = make_pairs(scans, n_overlap, n_disjoint, seed, name, resolution)
+        made = make_pairs(scans, n_overlap, n_disjoint, seed, name, resolution, odom_noise)
         for p in made:
             _log(f"[pairs]   {p.name}: {p.a.shape} {p.b.shape} overlap {p.overlap:.2f}")
         _log(f"[pairs] {name}: done in {time.perf_counter() - t0:.0f} s")
@@ -211,7 +213,8 @@ def run_scaling(table: dict[str, Method], seed: int, repeats: int) -> list[dict]
                 t0 = time.perf_counter()
                 accepted, matrix = method(pair.a, pair.b)
                 times.append(time.perf_counter() - t0)
-            rec = evaluate(pair, accepted, matrix)
+            # Success judged in cells of the ~500^2 base map: upsampling scales pixel errors.
+            rec = evaluate(pair, accepted, matrix, cell_scale=factor)
             rec.update(method=name, cells=cells, seconds=float(np.median(times)))
             records.append(rec)
             _log(f"[scale] {cells}^2 {name}: {rec['seconds']:.2f} s success={rec['success']}")
@@ -340,6 +343,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--exhaustive-coarse", type=int, default=4, help="pooling factor")
     parser.add_argument("--no-scaling", action="store_true", help="skip the map-size run")
     parser.add_argument("--repeats", type=int, default=1, help="timing repeats per size")
+    parser.add_argument(
+        "--odom-noise",
+        type=float,
+        nargs=2,
+        metavar=("M_PER_M", "RAD_PER_RAD"),
+        help="extra odometry noise on both robots (pgvd.integrate.perturb_odometry)",
+    )
     parser.add_argument("--cache", type=Path, default=None, help="pickle the pairs here")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
@@ -348,7 +358,8 @@ def main(argv: list[str] | None = None) -> int:
     table = methods(args.exhaustive_step, args.exhaustive_coarse)
     notes = [
         f"Pairs: segments of {', '.join(args.logs)} (pgvd.pairs, seed {args.seed}, "
-        f"{args.resolution} m cells), each map in its own random frame.",
+        f"{args.resolution} m cells, extra odometry noise {args.odom_noise}), "
+        "each map in its own random frame.",
         "Success: accepted, heading within 2 deg and mean error of B's occupied cells "
         "within 3 cells. Errors are medians over successes. Times: wall clock, one process.",
         f"Scaling: one intel pair at {SCALE_RESOLUTION} m (~500^2), upsampled x2 and x4 "
@@ -359,8 +370,9 @@ def main(argv: list[str] | None = None) -> int:
             "pgvd-det (plain GVD, the paper's Gamma_det) is missing: pgvd.merge.MergeParams "
             "has no switch for it."
         )
+    noise = tuple(args.odom_noise) if args.odom_noise else None
     pairs = build_pairs(
-        args.logs, args.overlap, args.disjoint, args.seed, args.resolution, args.cache
+        args.logs, args.overlap, args.disjoint, args.seed, args.resolution, args.cache, noise
     )
     records = run_pairs(pairs, table)
     scaling = [] if args.no_scaling else run_scaling(table, args.seed, args.repeats)

@@ -33,7 +33,7 @@ from pgvd.integrate import (
 from pgvd.io import LaserScan, write_map
 
 #: Segment lengths (fractions of the log) drawn for overlapping pairs.
-OVERLAP_LENGTHS = (0.12, 0.5)
+OVERLAP_LENGTHS = (0.05, 0.5)
 #: Segment lengths drawn for disjoint pairs: short, so that two can see disjoint parts.
 DISJOINT_LENGTHS = (0.03, 0.12)
 #: Overlapping pairs below this overlap are redrawn: they are rejection cases, not merges.
