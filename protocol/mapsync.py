@@ -171,9 +171,12 @@ class MapReassembler:
         return None if self._manifest is None else self._manifest.version
 
     def missing(self) -> list[int]:
-        """Tile indices to fetch: those the pending manifest lacks, else every index when a
-        delta manifest waits for a base version this receiver does not hold (it cannot
-        tell which tiles exist), else none."""
+        """Tile indices to fetch, ascending.
+
+        Those the pending manifest lacks; else every index while a delta manifest
+        waits for a base version this receiver does not hold (which tiles exist is
+        then unknown: fetch the full latest version); else none.
+        """
         if self._manifest is not None and self._assembler is not None:
             return self._assembler.missing(self._manifest)
         if self._orphans:
@@ -187,7 +190,8 @@ class MapReassembler:
         ------
         ProtocolError
             If ``msg`` is not a map message of this robot and fleet, contradicts
-            the manifest of its version, or a delta fails its checksum.
+            the manifest of its version, a delta tile fails its checksum, or a
+            delta manifest does not rebuild onto the held base version.
         """
         if not isinstance(msg, (MapTiles, Manifest)):
             raise ProtocolError(f"a {type(msg).__name__} is not a map message")
