@@ -90,12 +90,14 @@ class MergeParams:
         clear free space is strong evidence against, a wall on a wall weak evidence for
         (walls are everywhere in a building), so a large overlap with some conflicts
         must not outrank a smaller, consistent one.
+    finalists : best coarse hypotheses refined and compared at full resolution.
+    refine_points : wall cells per map used when refining and scoring the finalists.
     occupied, free : probability thresholds of walls and free space.
     diagnostics : fill :attr:`MergeResult.diagnostics`.
     """
 
     coarse_resolution: float = 0.2
-    max_candidates: int = 4
+    max_candidates: int = 6
     rho: float = 0.7
     edge_tolerance: int = 1
     min_edge_length: float = 1.6
@@ -106,6 +108,8 @@ class MergeParams:
     min_agreement: float = 0.85
     min_overlap: float = 15.0
     disagreement_weight: float = 4.0
+    finalists: int = 8
+    refine_points: int = 1500
     occupied: float = OCCUPIED
     free: float = 0.3
     diagnostics: bool = True
@@ -331,6 +335,22 @@ def _search_heading(
     return out
 
 
+def _finalists(hyps: list[_Hypothesis], n: int) -> list[_Hypothesis]:
+    """The ``n`` best hypotheses by evidence, skipping near-duplicates of better ones."""
+    out: list[_Hypothesis] = []
+    for h in sorted(hyps, key=lambda h: (-h.evidence, -h.ratio)):
+        same = any(
+            abs(np.angle(np.exp(1j * (h.heading.psi - o.heading.psi)))) < np.radians(2.0)
+            and np.hypot(*(h.coarse_matrix[:2, 2] - o.coarse_matrix[:2, 2])) < 3.0
+            for o in out
+        )
+        if not same:
+            out.append(h)
+        if len(out) == n:
+            break
+    return out
+
+
 def _edge_mask(graph: EdgeGraph, idx: np.ndarray) -> np.ndarray:
     mask = np.zeros(graph.labels.shape, bool)
     for i in np.unique(idx):
@@ -459,12 +479,21 @@ def merge(
             else (f"no translation is supported by {params.min_pairs} edge pairs")
         )
         return _rejected(why, clock)
-    best = max(good, key=lambda h: (h.evidence, h.ratio))
     to_fine = _scale(k)
-    matrix = to_fine @ off_a @ best.coarse_matrix @ np.linalg.inv(to_fine)
     fine_a = WallMap(pa, params.occupied, params.free)
     fine_b = WallMap(pb, params.occupied, params.free)
-    matrix = refine(fine_a.tree, fine_b.walls, matrix)
+    clock.lap("verify")
+    # Coarse evidence shortlists; full resolution decides among the finalists.
+    sub_b = fine_b.walls[:: -(-len(fine_b.walls) // params.refine_points)]
+    scored = []
+    for h in _finalists(good, params.finalists):
+        m = to_fine @ off_a @ h.coarse_matrix @ np.linalg.inv(to_fine)
+        m = refine(fine_a.tree, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3)
+        ag = map_agreement(fine_a, fine_b, m, max_points=params.refine_points)
+        scored.append((ag.agree - params.disagreement_weight * ag.disagree, ag.ratio, h, m))
+    clock.lap("refine")
+    _, _, best, matrix = max(scored, key=lambda x: (x[0], x[1]))
+    matrix = refine(fine_a.tree, fine_b.walls, matrix, radii=(3.0, 2.0))
     clock.lap("refine")
     agreement = map_agreement(fine_a, fine_b, matrix)
     overlap_m = 0.5 * agreement.agree * a.resolution

@@ -107,49 +107,67 @@ def _peak_variance(c: np.ndarray, i: int, bin_rad: float) -> float:
     return float(max(floor, tau / curvature))
 
 
+def _refined_peak(c: np.ndarray, i: int, bin_rad: float) -> float:
+    """Sub-bin location (rad) of the maximum at bin ``i`` by a parabola through 3 bins."""
+    n = c.size
+    y0, y1, y2 = c[(i - 1) % n], c[i], c[(i + 1) % n]
+    denom = y0 - 2 * y1 + y2
+    offset = 0.5 * (y0 - y2) / denom if denom < 0 else 0.0
+    return (i + offset) * bin_rad
+
+
 def estimate_headings(
     a: np.ndarray,
     b: np.ndarray,
-    max_candidates: int = 4,
+    max_candidates: int = 6,
     n_angles: int = 360,
     min_separation_deg: float = 5.0,
 ) -> list[HeadingCandidate]:
     """Candidate relative headings of B with respect to A, eq. (10).
 
+    Every peak ``delta`` of the spectrum correlation (strongest first) is a
+    candidate, and so is its quarter-turn twin (the best bin within
+    ``min_separation_deg`` of ``delta + 90``): a building whose walls run two
+    ways gives a spectrum that looks alike under a quarter turn, and a
+    partial map may favour the wrong one.  Candidates are ranked by their
+    correlation and each stands for ``delta`` and ``delta + 180`` degrees.
+
     Parameters
     ----------
     a, b : occupancy probabilities of the two maps (any sizes).
-    max_candidates : number of headings returned; each spectrum-correlation peak
-        (strongest first) contributes ``delta`` and ``delta + pi``.
+    max_candidates : number of headings returned (pairs ``delta``, ``delta + pi``).
     n_angles : spectrum resolution over 180 degrees; peaks are interpolated below it.
     min_separation_deg : correlation peaks closer than this are one peak.
 
     Returns
     -------
-    Candidates sorted by decreasing score, ``psi`` in ``(-pi, pi]``.
+    Candidates, best correlation first, ``psi`` in ``(-pi, pi]``.
     """
     if max_candidates < 1:
         raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
     c = spectrum_correlation(angle_spectrum(a, n_angles), angle_spectrum(b, n_angles))
     n = c.size
     bin_rad = np.pi / n
+    sep = max(1, round(np.radians(min_separation_deg) / bin_rad))
     is_peak = (c >= np.roll(c, 1)) & (c > np.roll(c, -1))
-    order = [int(i) for i in np.argsort(-c) if is_peak[i]]
-    sep = round(np.radians(min_separation_deg) / bin_rad)
-    peaks: list[int] = []
-    for i in order:
-        if all(min((i - j) % n, (j - i) % n) >= sep for j in peaks):
-            peaks.append(i)
-        if 2 * len(peaks) >= max_candidates:
+    chosen: list[int] = []
+
+    def distinct(i: int) -> bool:
+        return all(min((i - j) % n, (j - i) % n) >= sep for j in chosen)
+
+    for i in (int(i) for i in np.argsort(-c) if is_peak[i]):
+        window = (i + n // 2 + np.arange(-sep + 1, sep)) % n
+        twin = int(window[np.argmax(c[window])])
+        for j in (i, twin):
+            if distinct(j):
+                chosen.append(j)
+        if 2 * len(chosen) >= max_candidates:
             break
+    chosen.sort(key=lambda j: -c[j])
     out: list[HeadingCandidate] = []
-    for i in peaks:
-        y0, y1, y2 = c[(i - 1) % n], c[i], c[(i + 1) % n]
-        denom = y0 - 2 * y1 + y2
-        offset = 0.5 * (y0 - y2) / denom if denom < 0 else 0.0
-        delta = (i + offset) * bin_rad
-        var = _peak_variance(c, i, bin_rad)
+    for j in chosen:
+        delta = _refined_peak(c, j, bin_rad)
+        var = _peak_variance(c, j, bin_rad)
         for psi in (delta, delta + np.pi):
-            wrapped = float(np.angle(np.exp(1j * psi)))
-            out.append(HeadingCandidate(wrapped, var, float(y1)))
+            out.append(HeadingCandidate(float(np.angle(np.exp(1j * psi))), var, float(c[j])))
     return out[:max_candidates]

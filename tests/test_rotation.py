@@ -34,13 +34,15 @@ def test_heading_recovered_on_rotated_real_map(intel_a, deg):
     # B = A rotated by +deg, so rotating B by -deg aligns it with A.
     b = _rotated(intel_a, np.radians(deg))
     cands = estimate_headings(intel_a, b)
-    assert 1 <= len(cands) <= 4
+    assert len(cands) == 6
     errors = [np.degrees(_angle_error(c.psi, -np.radians(deg))) for c in cands]
     assert min(errors) < 1.0, errors
     assert all(c.variance > 0 for c in cands)
-    # the 180 degree twin is always offered
+    # the best candidate is the top one, and its 180 and 90 degree twins are offered too
     best = cands[int(np.argmin(errors))]
+    assert best is cands[0] or best is cands[1]
     assert any(_angle_error(c.psi, best.psi + np.pi) < 1e-9 for c in cands)
+    assert any(abs(_angle_error(c.psi, best.psi) - np.pi / 2) < np.radians(5) for c in cands)
 
 
 def test_spectrum_peaks_at_wall_normal():
