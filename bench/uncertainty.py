@@ -6,7 +6,8 @@ Rotation blur (tangential, sigma = r sigma_psi) against the direct way: a
 Gaussian-weighted sum of the map rotated about the centre by many angles
 (one rotation per ~0.5 px of arc at the far corner).  Translation blur
 against ``scipy.ndimage.convolve`` with the same 2-D kernel.  Then
-propagate (warp + both blurs) and fuse (33)-(37).  Times are the best of
+propagate (warp + both blurs), fuse (33)-(37), and fuse_maps on the bundled
+example pair (B's uncertainty propagated into the union canvas, then fused).  Times are the best of
 ``--repeat`` runs in one process (``cold`` = first call, polar tables not
 yet cached), so the ratios are what counts, not the absolute milliseconds.
 """
@@ -14,6 +15,7 @@ yet cached), so the ratios are what counts, not the absolute milliseconds.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
@@ -23,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from pgvd.fusion import fuse
+from pgvd.fusion import fuse, fuse_maps
 from pgvd.grid import rigid_matrix
 from pgvd.io import read_map
 from pgvd.transform import warp
@@ -118,6 +120,15 @@ def main(argv: list[str] | None = None) -> int:
     rows.append(("warp (bilinear)", w_ms, None, ""))
     prop = best_ms(lambda: propagate(p, m, cov3, (n, n), cval=0.5), args.repeat)
     rows.append(("propagate (8)", prop, None, "warp + rotation + translation blur"))
+    ex = Path(__file__).resolve().parents[1] / "examples"
+    ga, gb = read_map(ex / "intel_a.yaml"), read_map(ex / "intel_b.yaml")
+    truth = np.array(json.loads((ex / "truth.json").read_text())["matrix"])
+    cov_m = np.diag([0.5, 0.5, math.radians(0.5) ** 2])
+    fm_ms = best_ms(lambda: fuse_maps(ga, gb, truth, cov_m), args.repeat)
+    canvas = fuse_maps(ga, gb, truth, cov_m).shape
+    rows.append(
+        ("fuse_maps (examples)", fm_ms, None, f"{gb.shape} B into {ga.shape} A, canvas {canvas}")
+    )
     other = lo[::-1].copy()
     f_ms = best_ms(lambda: fuse(lo, other), args.repeat)
     rows.append(("fuse (33)-(37)", f_ms, None, ""))
