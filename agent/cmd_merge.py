@@ -158,6 +158,9 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_NO_OVERLAP
     if args.output is not None:
         say(f"fusing into {args.output}")
-        fused = fuse_maps(a, b, result.matrix, result.covariance)
+        try:
+            fused = fuse_maps(a, b, result.matrix, result.covariance)
+        except ValueError as exc:  # e.g. a covariance that is not finite
+            raise CliError(f"cannot fuse the maps: {exc}") from None
         _write("fused map", args.output, lambda: write_map(args.output, fused))
     return EXIT_OK
