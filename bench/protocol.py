@@ -96,7 +96,7 @@ def replay(log: str, stride: int) -> tuple[list[list[str]], dict[str, np.ndarray
     scans = read_carmen(SHARED / "logs" / LOGS[log])
     frame = frame_for(scans)
     logodds = frame.empty()
-    index, delta, full = [], [], []
+    index, delta, full, changed = [], [], [], []
     for i, scan in enumerate(scans):
         measure = i % stride == stride - 1 or i == len(scans) - 1
         before = frame.grid(logodds.copy()) if measure else None
@@ -108,7 +108,8 @@ def replay(log: str, stride: int) -> tuple[list[list[str]], dict[str, np.ndarray
         index.append(i + 1)
         delta.append(sum(map(len, tiles)) + len(manifest))
         full.append(sum(full_update(before)[:2]))
-    d, f, idx = np.array(delta), np.array(full), np.array(index)
+        changed.append(int((quantise_grid(before) != quantise_grid(after)).sum()))
+    d, f, idx, c = np.array(delta), np.array(full), np.array(index), np.array(changed)
     ratio = d / f
     cells = logodds.size
     rows = []
@@ -123,10 +124,11 @@ def replay(log: str, stride: int) -> tuple[list[list[str]], dict[str, np.ndarray
         [log, f"all {len(idx)} sampled", "", f"median {int(np.median(f)):,}", "",
          f"median {int(np.median(d)):,}",
          f"median {100 * np.median(ratio):.2f}%, p90 {100 * np.percentile(ratio, 90):.2f}%, "
-         f"within 2%: {100 * np.mean(ratio <= 0.02):.0f}% of scans"]
+         f"within 2%: {100 * np.mean(ratio <= 0.02):.0f}% of scans; median {np.median(c):.0f} "
+         f"cells changed, {np.median(d / np.maximum(c, 1)):.2f} B per changed cell"]
     )  # fmt: skip
     print(f"  {log}: median delta {int(np.median(d)):,} B = {100 * np.median(ratio):.2f}% of full")
-    return rows, {"scan": idx, "delta": d, "full": f}
+    return rows, {"scan": idx, "delta": d, "full": f, "ratio": ratio}
 
 
 def best_ms(fn: Callable[[], object], repeat: int) -> float:
@@ -174,6 +176,24 @@ def speed(repeat: int) -> list[list[str]]:
     return rows
 
 
+def verdicts(maps: list[list[str]], series: dict[str, dict], speeds: list[list[str]]) -> str:
+    """The three targets of issue 4, each with its measured value and MET or MISSED."""
+    over = [r[0] + " " + r[6] for r in maps if float(r[6].rstrip("%")) > 3.0]
+    medians = {log: 100 * float(np.median(s["ratio"])) for log, s in series.items()}
+    slowest = max(max(float(r[1]), float(r[2])) for r in speeds)
+    lines = [
+        "Targets (issue 4):",
+        f"- full update <= 3% of OccupancyGrid: {len(maps) - len(over)}/{len(maps)} maps"
+        + (f"; MISSED by {', '.join(over)}" if over else "; MET"),
+        "- one-scan delta <= 2% of the full update (median over the replay): "
+        + ", ".join(f"{log} {m:.2f}%" for log, m in medians.items())
+        + ("; MET" if max(medians.values()) <= 2.0 else "; MISSED"),
+        f"- encode and decode of 1000x1000 < 50 ms: slowest {slowest:.1f} ms; "
+        + ("MET" if slowest < 50 else "MISSED"),
+    ]
+    return "\n".join(lines)
+
+
 def table(header: str, rows: list[list[str]]) -> str:
     header = header.split(",")
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -218,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     report = "\n\n".join(
         [
             "# Wire protocol bench (`python3 bench/protocol.py`)",
+            verdicts(maps, series, speeds),
             "Full update = every tile message + the manifest, no fleet key (the keyed column adds "
             "an HMAC-SHA256 per message). OccupancyGrid = 1 byte per cell. zlib(OG) = the "
             "OccupancyGrid deflated whole at level 6. Levels = distinct int8 values after "
