@@ -151,7 +151,8 @@ def evaluate(
 ) -> dict:
     """The report: links against the truth, true overlaps linked, agreement, traffic."""
     w2p = {r: np.array(s["source"]["world_to_pixel"]) for r, s in statuses.items() if s is not None}
-    last_update = max((s.get("last_update") or 0.0) for s in statuses.values() if s) or None
+    updates = [s.get("last_update") or 0.0 for s in statuses.values() if s]
+    last_update = max(updates, default=0.0) or None
     grids = {}
     for robot, agent in fleet.agents.items():
         maps, _ = StateDir(agent.state_dir).load_maps()

@@ -103,7 +103,7 @@ class LocalFleet:
 
     def __init__(self, fleet: str, workdir: Path, common_args: Sequence[str] = ()) -> None:
         self.fleet = fleet
-        self.workdir = Path(workdir)
+        self.workdir = Path(workdir).resolve()  # agents run with cwd = the project root
         self.common_args = list(common_args)
         self.agents: dict[str, AgentProcess] = {}
 
