@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from pgvd.grid import Grid
 from protocol import (
@@ -113,3 +115,17 @@ def test_check_records_nothing_and_state_survives_a_restart():
     restarted = ReplayGuard(dict(guard.state))
     with pytest.raises(ProtocolError, match="replayed"):
         restarted.admit(Heartbeat("f", "r1", 4))
+
+
+@given(st.lists(st.integers(0, 20), max_size=30))
+def test_guard_admits_exactly_the_strictly_increasing_sequence(seqs):
+    guard, last = ReplayGuard(), None
+    for seq in seqs:
+        fresh = last is None or seq > last
+        try:
+            guard.admit(Heartbeat("f", "r1", seq))
+        except ProtocolError:
+            assert not fresh
+        else:
+            assert fresh
+            last = seq

@@ -92,6 +92,13 @@ def test_every_kind_round_trips(key):
             assert out == msg
 
 
+def test_bytes_like_input_and_non_bytes():
+    wire = encode(Heartbeat("f", "r", 1))
+    assert decode(bytearray(wire)) == decode(memoryview(wire)) == Heartbeat("f", "r", 1)
+    with pytest.raises(ProtocolError, match="message must be bytes, got str"):
+        decode("PG")
+
+
 @given(
     fleet=ids, a=ids, b=ids, va=versions, vb=versions, ok=st.booleans(), m=matrices,
     cov=matrices, score=finite,
