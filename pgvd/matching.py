@@ -282,6 +282,10 @@ class Overlay:
         idx = (t[1] % self.agree.shape[0], t[0] % self.agree.shape[1])
         return Agreement(int(self.agree[idx]), int(self.disagree[idx]))
 
+    def best_evidence(self, disagreement_weight: float = 1.0) -> float:
+        """Largest ``agree - disagreement_weight * disagree`` over all translations."""
+        return float(np.max(self.agree - disagreement_weight * self.disagree))
+
     def best_near(
         self, t: tuple[int, int], radius: int, disagreement_weight: float = 1.0
     ) -> tuple[int, int]:

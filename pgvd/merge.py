@@ -54,6 +54,7 @@ from pgvd.gvd import pgvd
 from pgvd.matching import (
     EdgeCorrelator,
     MapView,
+    Overlay,
     OverlayScores,
     PairSupport,
     WallMap,
@@ -76,7 +77,10 @@ class MergeParams:
     Attributes
     ----------
     coarse_resolution : cell size (m) of the PGVD/Gamma search stages.
-    max_candidates : candidate headings tried (:func:`pgvd.rotation.estimate_headings`).
+    max_candidates : candidate headings (:func:`pgvd.rotation.estimate_headings`).
+    search_headings : candidates that go through the PGVD stages: those whose whole-map
+        overlay (best ``agree - disagreement_weight * disagree`` over all translations)
+        is largest.
     rho : matching percentage of the existence test (32).
     edge_tolerance : cells of tolerance when correlating edges (A's edges are grey-dilated).
     min_edge_length : edges shorter than this (m) are dropped (Sec. IV-E).
@@ -108,6 +112,7 @@ class MergeParams:
     min_agreement: float = 0.85
     min_overlap: float = 15.0
     disagreement_weight: float = 4.0
+    search_headings: int = 4
     finalists: int = 8
     refine_points: int = 1500
     occupied: float = OCCUPIED
@@ -271,26 +276,45 @@ def _check_inputs(a: Grid, b: Grid, pa: np.ndarray, pb: np.ndarray, params: Merg
             raise ValueError(f"map {name} has no occupied cells")
 
 
+@dataclass
+class _Rotated:
+    """B turned by one candidate heading, at the coarse scale, cropped to its known cells."""
+
+    heading: HeadingCandidate
+    prob: np.ndarray  # rotated coarse B (not yet blurred)
+    rotation: np.ndarray  # coarse B -> this crop
+    centre: tuple[float, float]  # rotation centre in the crop, (x, y)
+    overlay: Overlay
+
+
+def _rotate(
+    heading: HeadingCandidate, cb: np.ndarray, scores: OverlayScores, params: MergeParams
+) -> _Rotated:
+    """Rotate coarse B by a candidate heading (12) and overlay it on A for all translations."""
+    rot, shape = _rotation_about_centre(heading.psi, cb.shape)
+    rb = warp(cb, rot, shape, order=1, cval=0.5)
+    # The heading blur spreads walls by a few cells at most: keep that margin.
+    rows, cols = _known_box(rb, margin=2 + int(np.ceil(3 * np.sqrt(heading.variance) * shape[0])))
+    rb = rb[rows, cols]
+    centre = ((shape[1] - 1) / 2.0 - cols.start, (shape[0] - 1) / 2.0 - rows.start)
+    overlay = scores.overlay(MapView(rb, params.occupied, params.free, 1))
+    rot = _translation(-cols.start, -rows.start) @ rot
+    return _Rotated(heading, rb, rot, centre, overlay)
+
+
 def _search_heading(
-    heading: HeadingCandidate,
-    cb: np.ndarray,
+    turned: _Rotated,
     graph_a: EdgeGraph,
     correlator: EdgeCorrelator,
-    scores: OverlayScores,
     params: MergeParams,
     min_len: int,
     radius: int,
     clock: _Clock,
 ) -> list[_Hypothesis]:
     """All verified translations for one candidate heading (coarse scale)."""
-    rot, shape = _rotation_about_centre(heading.psi, cb.shape)
-    rb = warp(cb, rot, shape, order=1, cval=0.5)
-    # Blurring spreads a wall by at most a few cells: crop to the known part first.
-    rows, cols = _known_box(rb, margin=2 + int(np.ceil(3 * np.sqrt(heading.variance) * shape[0])))
-    rb = rb[rows, cols]
-    centre = ((shape[1] - 1) / 2.0 - cols.start, (shape[0] - 1) / 2.0 - rows.start)
-    rb = rotation_blur(rb, float(np.sqrt(heading.variance)), centre)
-    rot = _translation(-cols.start, -rows.start) @ rot
+    heading, rot, overlay = turned.heading, turned.rotation, turned.overlay
+    # eq. (8) with zero translation: the heading uncertainty as a tangential blur
+    rb = rotation_blur(turned.prob, float(np.sqrt(heading.variance)), turned.centre)
     s_b, sp_b = pgvd(rb, params.free)
     clock.lap("pgvd")
     graph_b = _keep_edges(build_graph(s_b, sp_b, min_len), params.max_edges)
@@ -306,7 +330,6 @@ def _search_heading(
     out: list[_Hypothesis] = []
     if not proposals:
         return out
-    overlay = scores.overlay(MapView(rb, params.occupied, params.free, 1))
     pairs = PairSupport(overlay.shape_a, graph_a.edges, graph_b.edges, params.edge_tolerance)
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
     # A straight edge pair fixes the translation only across the corridor:
@@ -466,11 +489,14 @@ def merge(
     correlator = EdgeCorrelator(graph_a.edges, params.edge_tolerance)
     radius = max(1, round(params.search_radius / coarse_res))
     clock.lap("verify")
+    turned = sorted(
+        (_rotate(h, cb, scores, params) for h in headings),
+        key=lambda r: -r.overlay.best_evidence(params.disagreement_weight),
+    )
+    clock.lap("verify")
     hyps: list[_Hypothesis] = []
-    for heading in headings:
-        hyps += _search_heading(
-            heading, cb, graph_a, correlator, scores, params, min_len, radius, clock
-        )
+    for t in turned[: params.search_headings]:
+        hyps += _search_heading(t, graph_a, correlator, params, min_len, radius, clock)
     good = [h for h in hyps if h.support >= params.min_pairs]
     if not good:
         why = (
