@@ -259,16 +259,27 @@ class Lab:
         match = re.search(r"counter packets (\d+)", out)
         return int(match.group(1)) if match else 0
 
+    def snmp(self, index: int, proto: str, field_name: str) -> int:
+        """A counter of host ``index``'s IP stack, e.g. ``snmp(0, "Udp", "OutDatagrams")``."""
+        lines = [
+            line.split()
+            for line in _cmd([*_EXEC, self.hosts[index].ns, "cat", "/proc/net/snmp"]).splitlines()
+            if line.startswith(f"{proto}:")
+        ]
+        return int(lines[1][lines[0].index(field_name)])
+
     def popen(
         self,
         index: int,
         argv: Sequence[str],
         name: str | None = None,
         env: dict[str, str] | None = None,
+        stdin: bool = False,
     ) -> subprocess.Popen:
         """Start ``argv`` inside host ``index`` (cwd = project root, own session, output logged).
 
-        stdout is a pipe (read it for results); stderr goes to ``<logdir>/<name>.err``.
+        stdout is a pipe (read it for results); stderr goes to ``<logdir>/<name>.err``; stdin
+        is a pipe if ``stdin`` (to drive the process), else empty.
         """
         err = open(self.logdir / f"{name or f'h{index}-{len(self._procs)}'}.err", "wb")  # noqa: SIM115
         full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
@@ -278,7 +289,7 @@ class Lab:
             env=full_env,
             stdout=subprocess.PIPE,
             stderr=err,
-            stdin=subprocess.DEVNULL,
+            stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
             text=True,
             start_new_session=True,
         )
@@ -305,8 +316,9 @@ class Lab:
             except subprocess.TimeoutExpired:
                 _signal_group(proc, signal.SIGKILL)
                 proc.wait(timeout=5)
-            if proc.stdout:
-                proc.stdout.close()
+            for stream in (proc.stdout, proc.stdin):
+                if stream:
+                    stream.close()
         self._procs.clear()
         for host in self.hosts:
             _delete_namespace(host.ns)

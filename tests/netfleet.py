@@ -1,0 +1,114 @@
+"""Real ``pgvd agent`` processes, one per namespace of a :class:`netns.Lab`.
+
+Each agent listens on ``tcp/<its address>:7447`` (``udp/`` too with ``udp=True``) and connects
+to every other host, so a lossy or partitioned path is the direct one between two hosts (no
+relay around it). Shared memory is off: every byte crosses the veth pairs and their loss rules.
+Status comes from each agent's ``status.json`` (the namespaces share the file system).
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from netns import Lab, pgvd_argv
+
+from agent.launcher import agreement, sources_done
+
+PORT = 7447
+INTEL = Path(__file__).resolve().parents[1] / "agent" / "data" / "intel-corrected.log.gz"
+#: Overlapping thirds of the bundled Intel log, each robot in its own random frame.
+SOURCES = {
+    "r1": (f"carmen:{INTEL}@0.0-0.5", "3,-4,20"),
+    "r2": (f"carmen:{INTEL}@0.25-0.75", "-7,2,135"),
+    "r3": (f"carmen:{INTEL}@0.5-1.0", "5,9,250"),
+}
+
+
+@dataclass
+class NetFleet:
+    """Agents r1..rN on the hosts of ``lab``; ``extra`` arguments go to every agent."""
+
+    lab: Lab
+    workdir: Path
+    fleet: str = "t"
+    extra: list[str] = field(default_factory=list)
+    udp: bool = False
+    procs: dict[str, subprocess.Popen] = field(default_factory=dict)
+    hosts: dict[str, int] = field(default_factory=dict)
+
+    def endpoints(self, host: int) -> list[str]:
+        tcp = self.lab.hosts[host].endpoint(PORT)
+        if not self.udp:
+            return [tcp]
+        # Two links per session (max_links 2): reliable traffic on TCP, best-effort on UDP.
+        return [f"{tcp}?rel=1", self.lab.hosts[host].endpoint(PORT + 1, "udp") + "?rel=0"]
+
+    def start(self, robot: str, host: int, source: str, frame: str, *args: str) -> None:
+        self.hosts[robot] = host
+        others = [h for h in range(len(self.lab.hosts)) if h != host]
+        argv = [
+            "agent", "--robot", robot, "--source", source, f"--frame={frame}",
+            "--fleet", self.fleet, "--state-dir", str(self.state_dir(robot)),
+            "--shm", "off", *self.extra, *args,
+        ]  # fmt: skip
+        for ep in self.endpoints(host):
+            argv += ["--listen", ep]
+        for h in others:
+            for ep in self.endpoints(h):
+                argv += ["--connect", ep]
+        self.procs[robot] = self.lab.popen(host, pgvd_argv(*argv), name=robot)
+
+    def state_dir(self, robot: str) -> Path:
+        return self.workdir / robot
+
+    def status(self, robot: str) -> dict | None:
+        try:
+            return json.loads((self.state_dir(robot) / "status.json").read_text())
+        except (OSError, ValueError):
+            return None
+
+    def statuses(self) -> dict[str, dict | None]:
+        return {robot: self.status(robot) for robot in self.procs}
+
+    def dead(self) -> list[str]:
+        return [r for r, p in self.procs.items() if p.poll() is not None]
+
+    def agreed(self) -> bool:
+        """All alive, sources done, and everyone settled on the same components and versions."""
+        assert not self.dead(), f"agents died: {self.dead()}: {self.lab.stderr_of(self.dead()[0])}"
+        st = self.statuses()
+        final = {r: s["own_version"] for r, s in st.items() if s}
+        return sources_done(st) and agreement(st, final)
+
+    def signal(self, robot: str, sig: int) -> None:
+        self.procs[robot].send_signal(sig)
+
+    def kill(self, robot: str) -> None:
+        self.procs[robot].send_signal(signal.SIGKILL)
+        self.procs[robot].wait(timeout=10)
+
+    def bytes_sent(self) -> int:
+        return sum((s or {}).get("bytes_sent", 0) for s in self.statuses().values())
+
+
+def wait_agreed(fleet: NetFleet, timeout: float) -> float | None:
+    """Seconds until the fleet agrees, or None after ``timeout``."""
+    start = time.monotonic()
+    while time.monotonic() - start < timeout:
+        if fleet.agreed():
+            return time.monotonic() - start
+        time.sleep(0.25)
+    return None
+
+
+def digests(statuses: dict[str, dict | None]) -> set[str]:
+    return {s["global"]["digest"] for s in statuses.values() if s and s.get("global")}
+
+
+def accepted_links(status: dict) -> set[tuple[str, str]]:
+    return {(ln["a"], ln["b"]) for ln in status["links"] if ln["current"] and ln["accepted"]}
