@@ -96,6 +96,28 @@ class EdgeCorrelator:
         self.origins = np.array([o for _, o in dil], dtype=float).reshape(-1, 2)
         self.groups = _groups(self.mats)
         self._spectra: dict[tuple[tuple[int, int], tuple[int, int]], np.ndarray] = {}
+        self._edge_map: tuple[np.ndarray, np.ndarray] | None = None
+
+    def edge_map(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """(label, value) maps of A's dilated edges over a map of ``shape`` (label -1: none).
+
+        Where dilated edges overlap, the larger value (and its edge) wins.
+        """
+        if self._edge_map is None or self._edge_map[0].shape != shape:
+            value = np.zeros(shape)
+            label = np.full(shape, -1, dtype=np.int64)
+            h, w = shape
+            for i, (m, (r0, c0)) in enumerate(
+                zip(self.mats, self.origins.astype(int), strict=True)
+            ):
+                rs = slice(max(r0, 0), min(r0 + m.shape[0], h))
+                cs = slice(max(c0, 0), min(c0 + m.shape[1], w))
+                sub = m[rs.start - r0 : rs.stop - r0, cs.start - c0 : cs.stop - c0]
+                better = sub > value[rs, cs]
+                value[rs, cs][better] = sub[better]
+                label[rs, cs][better] = i
+            self._edge_map = (label, value)
+        return self._edge_map
 
     def _spectrum(self, ka: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
         key = (ka, size)
@@ -183,21 +205,9 @@ class PairSupport:
     """
 
     def __init__(
-        self, shape_a: tuple[int, int], edges_a: list[Edge], edges_b: list[Edge], tolerance: int
+        self, correlator: EdgeCorrelator, shape_a: tuple[int, int], edges_b: list[Edge]
     ) -> None:
-        self.value = np.zeros(shape_a)
-        self.label = np.full(shape_a, -1, dtype=np.int64)
-        h, w = shape_a
-        for i, e in enumerate(edges_a):
-            m, (r0, c0) = _dilated(e, tolerance)
-            rs, cs = (
-                slice(max(r0, 0), min(r0 + m.shape[0], h)),
-                slice(max(c0, 0), min(c0 + m.shape[1], w)),
-            )
-            sub = m[rs.start - r0 : rs.stop - r0, cs.start - c0 : cs.stop - c0]
-            better = sub > self.value[rs, cs]
-            self.value[rs, cs][better] = sub[better]
-            self.label[rs, cs][better] = i
+        self.label, self.value = correlator.edge_map(shape_a)
         cells = [e.cells() for e in edges_b]
         self.rows = np.concatenate([r for r, _ in cells]) if cells else np.zeros(0, int)
         self.cols = np.concatenate([c for _, c in cells]) if cells else np.zeros(0, int)
@@ -205,7 +215,7 @@ class PairSupport:
         self.weight = (
             np.concatenate([e.matrix[e.matrix > 0] for e in edges_b]) if cells else np.zeros(0)
         )
-        self.na, self.nb = len(edges_a), len(edges_b)
+        self.na, self.nb = len(correlator.mats), len(edges_b)
 
     def correlation(self, t: tuple[int, int]) -> np.ndarray:
         """(N1, N2) matrix of ``E_(i1,i2)`` evaluated at the translation ``t = (tx, ty)``."""

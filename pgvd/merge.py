@@ -97,6 +97,8 @@ class MergeParams:
     finalists : best coarse hypotheses refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
     occupied, free : probability thresholds of walls and free space.
+    probabilistic : False matches the plain GVD (every GVD cell certain), the paper's
+        deterministic comparison Gamma_det of (41).
     diagnostics : fill :attr:`MergeResult.diagnostics`.
     """
 
@@ -117,6 +119,7 @@ class MergeParams:
     refine_points: int = 1500
     occupied: float = OCCUPIED
     free: float = 0.3
+    probabilistic: bool = True
     diagnostics: bool = True
 
 
@@ -226,6 +229,12 @@ def _rotation_about_centre(
     return rot, (side, side)
 
 
+def _pgvd(prob: np.ndarray, params: MergeParams) -> tuple[np.ndarray, np.ndarray]:
+    """PGVD (13)-(24), or the plain GVD with every cell certain when not ``probabilistic``."""
+    s, sp = pgvd(prob, params.free)
+    return (s, sp) if params.probabilistic else (s, s.astype(np.float64))
+
+
 def _known_box(p: np.ndarray, margin: int = 2) -> tuple[slice, slice]:
     """Row and column slices of the cells that are not unknown, grown by ``margin``."""
     known = np.abs(p - 0.5) > 0.05
@@ -315,7 +324,7 @@ def _search_heading(
     heading, rot, overlay = turned.heading, turned.rotation, turned.overlay
     # eq. (8) with zero translation: the heading uncertainty as a tangential blur
     rb = rotation_blur(turned.prob, float(np.sqrt(heading.variance)), turned.centre)
-    s_b, sp_b = pgvd(rb, params.free)
+    s_b, sp_b = _pgvd(rb, params)
     clock.lap("pgvd")
     graph_b = _keep_edges(build_graph(s_b, sp_b, min_len), params.max_edges)
     clock.lap("graph")
@@ -330,7 +339,7 @@ def _search_heading(
     out: list[_Hypothesis] = []
     if not proposals:
         return out
-    pairs = PairSupport(overlay.shape_a, graph_a.edges, graph_b.edges, params.edge_tolerance)
+    pairs = PairSupport(correlator, overlay.shape_a, graph_b.edges)
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
     # A straight edge pair fixes the translation only across the corridor:
     # slide each proposal to the best whole-map agreement nearby.
@@ -479,7 +488,7 @@ def merge(
     coarse_res = a.resolution * k
     min_len = max(3, round(params.min_edge_length / coarse_res))
     clock.lap("coarsen")
-    s_a, sp_a = pgvd(ca, params.free)
+    s_a, sp_a = _pgvd(ca, params)
     clock.lap("pgvd")
     graph_a = _keep_edges(build_graph(s_a, sp_a, min_len), params.max_edges)
     clock.lap("graph")

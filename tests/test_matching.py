@@ -9,6 +9,7 @@ from pgvd.graph import build_graph
 from pgvd.grid import rigid_matrix
 from pgvd.io import read_map
 from pgvd.matching import (
+    EdgeCorrelator,
     MapView,
     OverlayScores,
     PairSupport,
@@ -67,7 +68,7 @@ def test_gamma_of_edge_with_itself_has_zero_shift(graphs):
 def test_sparse_pair_support_matches_fft_gamma(graphs):
     ga, gb = graphs
     sim = similarity(ga.edges, gb.edges, 1)
-    pairs = PairSupport(ga.labels.shape, ga.edges, gb.edges, 1)
+    pairs = PairSupport(EdgeCorrelator(ga.edges, 1), ga.labels.shape, gb.edges)
     e = pairs.correlation((-7, 4))
     for i in range(3):
         j = int(np.argmax(sim.gamma[i]))
