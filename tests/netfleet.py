@@ -49,18 +49,21 @@ class NetFleet:
         return [f"{tcp}?rel=1", self.lab.hosts[host].endpoint(PORT + 1, "udp") + "?rel=0"]
 
     def start(self, robot: str, host: int, source: str, frame: str, *args: str) -> None:
+        """A peer agent listening on its host's address, connected to every other host."""
+        net = [a for ep in self.endpoints(host) for a in ("--listen", ep)]
+        for other in range(len(self.lab.hosts)):
+            if other != host:
+                net += [a for ep in self.endpoints(other) for a in ("--connect", ep)]
+        self.launch(robot, host, source, frame, *net, *args)
+
+    def launch(self, robot: str, host: int, source: str, frame: str, *args: str) -> None:
+        """An agent on ``host`` with exactly the network arguments ``args``."""
         self.hosts[robot] = host
-        others = [h for h in range(len(self.lab.hosts)) if h != host]
         argv = [
             "agent", "--robot", robot, "--source", source, f"--frame={frame}",
             "--fleet", self.fleet, "--state-dir", str(self.state_dir(robot)),
             "--shm", "off", *self.extra, *args,
         ]  # fmt: skip
-        for ep in self.endpoints(host):
-            argv += ["--listen", ep]
-        for h in others:
-            for ep in self.endpoints(h):
-                argv += ["--connect", ep]
         self.procs[robot] = self.lab.popen(host, pgvd_argv(*argv), name=robot)
 
     def state_dir(self, robot: str) -> Path:

@@ -108,8 +108,8 @@ def scenario() -> dict:
             published = version(fleet, "r3")
             fleet.kill("r3")
             maps, errors = StateDir(fleet.state_dir("r3")).load_maps()
-            out["kills"].append({"published": published, "persisted": maps["r3"].version,
-                                 "errors": errors, "maps": sorted(maps)})  # fmt: skip
+            kill = {"published": published, "persisted": maps["r3"].version}
+            out["kills"].append({**kill, "errors": errors, "maps": sorted(maps)})
             (fleet.state_dir("r3") / "status.json").unlink(missing_ok=True)
             fleet.start("r3", *hosts["r3"])
             assert wait(lambda: fleet.status("r3") is not None, 20) is not None

@@ -62,8 +62,9 @@ def attacked() -> dict:
         key.write_text("a shared secret of the test fleet\n")
         fleet = NetFleet(lab, Path(tmp), extra=["--speed", "400", "--key-file", str(key)])
         endpoints = [ep for h in range(3) for ep in fleet.endpoints(h)]
-        rogue_argv = [sys.executable, "tests/rogue.py", "--fleet", fleet.fleet, "--key-file",
-                      str(key)] + [a for ep in endpoints for a in ("--connect", ep)]  # fmt: skip
+        connect = [a for ep in endpoints for a in ("--connect", ep)]
+        rogue_argv = [sys.executable, "tests/rogue.py", "--fleet", fleet.fleet, *connect]
+        rogue_argv += ["--key-file", str(key)]
         rogue = lab.popen(3, rogue_argv, name="rogue", stdin=True)
         assert rogue.stdout.readline().strip() == "READY", lab.stderr_of("rogue")
         for host, (robot, (source, frame)) in enumerate(SOURCES.items()):
@@ -108,8 +109,8 @@ def attacked() -> dict:
         out["agreed_after"] = wait_agreed(fleet, 30)
         after = fleet.statuses()
         out["before"], out["after"] = before, after
-        status_cli = lab.popen(3, pgvd_argv("status", "--fleet", fleet.fleet, "--json",
-                                            "--connect", endpoints[0]), name="status")  # fmt: skip
+        status_argv = pgvd_argv("status", "--fleet", fleet.fleet, "--json", *connect[:2])
+        status_cli = lab.popen(3, status_argv, name="status")
         stdout, _ = status_cli.communicate(timeout=60)
         out["status_rc"], out["status"] = status_cli.returncode, stdout
         rogue.stdin.close()
