@@ -383,6 +383,31 @@ def _finalists(hyps: list[_Hypothesis], n: int) -> list[_Hypothesis]:
     return out
 
 
+def _decide(
+    finalists: list[_Hypothesis],
+    fine_a: WallMap,
+    fine_b: WallMap,
+    to_fine: np.ndarray,
+    k: int,
+    params: MergeParams,
+) -> tuple[_Hypothesis, np.ndarray]:
+    """Refine every finalist at full resolution and keep the best overlay evidence.
+
+    ``to_fine`` maps A's coarse crop to A's pixels.  Finalists are refined on
+    a subsample of B's walls and scored on subsamples (quick); the winner is
+    then refined on all wall cells.  Returns it with its B->A pixel matrix.
+    """
+    sub_b = fine_b.walls[:: -(-len(fine_b.walls) // params.refine_points)]
+    scored = []
+    for h in finalists:
+        m = to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k))
+        m = refine(fine_a.tree, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3)
+        ag = map_agreement(fine_a, fine_b, m, max_points=params.refine_points)
+        scored.append((ag.agree - params.disagreement_weight * ag.disagree, ag.ratio, h, m))
+    _, _, best, matrix = max(scored, key=lambda x: (x[0], x[1]))
+    return best, refine(fine_a.tree, fine_b.walls, matrix, radii=(3.0, 2.0))
+
+
 def _edge_mask(graph: EdgeGraph, idx: np.ndarray) -> np.ndarray:
     mask = np.zeros(graph.labels.shape, bool)
     for i in np.unique(idx):
@@ -514,21 +539,11 @@ def merge(
             else (f"no translation is supported by {params.min_pairs} edge pairs")
         )
         return _rejected(why, clock)
-    to_fine = _scale(k)
     fine_a = WallMap(pa, params.occupied, params.free)
     fine_b = WallMap(pb, params.occupied, params.free)
     clock.lap("verify")
-    # Coarse evidence shortlists; full resolution decides among the finalists.
-    sub_b = fine_b.walls[:: -(-len(fine_b.walls) // params.refine_points)]
-    scored = []
-    for h in _finalists(good, params.finalists):
-        m = to_fine @ off_a @ h.coarse_matrix @ np.linalg.inv(to_fine)
-        m = refine(fine_a.tree, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3)
-        ag = map_agreement(fine_a, fine_b, m, max_points=params.refine_points)
-        scored.append((ag.agree - params.disagreement_weight * ag.disagree, ag.ratio, h, m))
-    clock.lap("refine")
-    _, _, best, matrix = max(scored, key=lambda x: (x[0], x[1]))
-    matrix = refine(fine_a.tree, fine_b.walls, matrix, radii=(3.0, 2.0))
+    to_fine = _scale(k) @ off_a
+    best, matrix = _decide(_finalists(good, params.finalists), fine_a, fine_b, to_fine, k, params)
     clock.lap("refine")
     agreement = map_agreement(fine_a, fine_b, matrix)
     overlap_m = 0.5 * agreement.agree * a.resolution
