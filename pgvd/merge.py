@@ -134,6 +134,7 @@ class MergeDiagnostics:
     edges_a : bool mask (A frame) of A's edges in the edge pairs supporting the result.
     edges_b : bool mask (B frame) of B's edges in those pairs.
     gamma : Gamma (27) of the chosen heading.
+    support : number of distinct edge pairs passing (32) at the chosen translation.
     """
 
     pgvd_a: np.ndarray
@@ -141,6 +142,7 @@ class MergeDiagnostics:
     edges_a: np.ndarray
     edges_b: np.ndarray
     gamma: np.ndarray
+    support: int = 0
 
 
 @dataclass
@@ -454,6 +456,7 @@ def _diagnostics(
         edges_a=_paint(_edge_mask(graph_a, ia), crop_a, k, shapes[0]),
         edges_b=_paint(_edge_mask(best.graph_b, ib), back, k, shapes[1]),
         gamma=best.gamma,
+        support=best.support,
     )
 
 

@@ -94,6 +94,7 @@ def test_result_json_and_diagnostics(albert, shared):
     assert d is not None and d.pgvd_a.shape == d.edges_a.shape == (800, 1184)
     assert d.pgvd_b.shape == d.edges_b.shape == (800, 1184)
     assert d.edges_a.any() and d.edges_b.any() and d.gamma.ndim == 2
+    assert d.support >= MergeParams().min_pairs  # several edge pairs agree on the transform
     # B's matched edges, moved by the result, land on A's matched edges
     r_b, c_b = np.nonzero(d.edges_b)
     moved = np.column_stack([c_b, r_b, np.ones(r_b.size)]) @ r.matrix.T
