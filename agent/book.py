@@ -23,6 +23,7 @@ class Snapshot:
     settled: bool
     needed: list[LinkKey]
     first_needed: dict[LinkKey, float]
+    alive: frozenset[str] | None
 
 
 class FleetBook:
@@ -33,7 +34,14 @@ class FleetBook:
         self._maps: dict[str, tuple[int, Grid]] = {}
         self._links = LinkCache()
         self._first_needed: dict[LinkKey, float] = {}
+        self._alive: frozenset[str] | None = None
         self.changed = threading.Event()
+
+    def set_alive(self, robots: set[str]) -> None:
+        """The robots whose agents are up (liveliness), this one included."""
+        with self._lock:
+            self._alive = frozenset(robots)
+        self.changed.set()
 
     def version(self, robot: str) -> int | None:
         with self._lock:
@@ -86,4 +94,4 @@ class FleetBook:
             chosen, settled = select_links(versions, self._links)
             needed = needed_keys(versions, self._links)
             self._first_needed = {k: self._first_needed.get(k, now) for k in needed}
-            return Snapshot(maps, chosen, settled, needed, dict(self._first_needed))
+            return Snapshot(maps, chosen, settled, needed, dict(self._first_needed), self._alive)

@@ -47,7 +47,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--resolution", type=float, default=0.1, help="carmen map cell size (m)")
     p.add_argument("--speed", type=float, default=50.0, help="carmen replay speed x real time")
     p.add_argument(
-        "--link-timeout", type=float, default=4.0, help="s to wait for the lower id's link"
+        "--link-timeout",
+        type=float,
+        default=6.0,
+        help="s to wait for a live peer's link before registering the pair here",
     )
     p.add_argument("--announce", type=float, default=2.0, help="manifest re-announce period (s)")
     p.add_argument(
@@ -57,6 +60,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fraction of known cells changing class that makes a new map version",
     )
     p.add_argument("--min-interval", type=float, default=1.0, help="s between own versions")
+    p.add_argument(
+        "--min-agreement",
+        type=float,
+        default=0.9,
+        help="overlay agreement a link needs (stricter than a one-off merge: a false link "
+        "spreads to every agent's global map)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log every event")
     p.set_defaults(func=run)
 
@@ -79,6 +89,8 @@ def options_from_args(args: argparse.Namespace):
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
     if not 0 <= args.min_change <= 1:
         raise CliError("--min-change must be in [0, 1]")
+    if not 0 < args.min_agreement <= 1:
+        raise CliError("--min-agreement must be in (0, 1]")
     key = None
     if args.key_file is not None:
         try:
@@ -122,6 +134,7 @@ def options_from_args(args: argparse.Namespace):
         best_effort_tiles=args.best_effort_tiles,
         min_change=args.min_change,
         min_interval=args.min_interval,
+        min_agreement=args.min_agreement,
     )
 
 

@@ -58,12 +58,13 @@ class AgentOptions:
     frame: tuple[float, float, float] | None = None
     resolution: float = 0.1
     speed: float = 50.0
-    link_timeout: float = 4.0
+    link_timeout: float = 6.0
     announce_period: float = 2.0
     status_period: float = 1.0
     best_effort_tiles: bool = False
     min_change: float = 0.05
     min_interval: float = 1.0
+    min_agreement: float | None = 0.9
 
 
 class Agent:
@@ -107,7 +108,7 @@ class Agent:
         self.worker = FusionWorker(
             self.me,
             self.book,
-            register or merge_registration(),
+            register or merge_registration(opts.min_agreement),
             self._on_link,
             self._on_global,
             opts.link_timeout,
@@ -296,6 +297,7 @@ class Agent:
     def _membership(self, robot: str, joined: bool) -> None:
         was = self.alive.get(robot)
         self.alive[robot] = joined
+        self.book.set_alive({self.me} | {r for r, up in self.alive.items() if up})
         if joined and not was:
             log.info("robot %s joined", robot)
             self._fetch(robot, links=True)

@@ -14,7 +14,7 @@ twice that, in case the first went silent.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -173,18 +173,30 @@ def first_registrar(a: str, b: str, robots: Sequence[str]) -> str:
 
 
 def wait_before_computing(
-    me: str, key: LinkKey, timeout: float, robots: Sequence[str] = ()
+    me: str,
+    key: LinkKey,
+    timeout: float,
+    robots: Sequence[str] = (),
+    alive: Collection[str] | None = None,
 ) -> float:
     """Seconds an agent waits for someone else's link before registering ``key`` itself.
 
     :func:`first_registrar` computes at once, the other robot of the pair after
     ``timeout``, anyone else after ``2 * timeout``: normally one registration per pair
-    for the whole fleet.
+    for the whole fleet.  With ``alive`` (the robots whose liveliness token is up), a
+    robot that left hands its turn on at once: the other robot of the pair computes
+    immediately, and if both left, anyone after ``timeout``.
     """
     a, _, b, _ = key
-    if me == first_registrar(a, b, robots):
+    first = first_registrar(a, b, robots)
+    order = [first, b if first == a else a]
+    if alive is not None:
+        order = [r for r in order if r in alive] + [r for r in order if r not in alive]
+    if me == order[0]:
         return 0.0
-    if me in (a, b):
+    if me in order:
+        return timeout
+    if alive is not None and not (set(order) & set(alive)):
         return timeout
     return 2.0 * timeout
 
@@ -196,12 +208,13 @@ def due_keys(
     now: float,
     timeout: float,
     robots: Sequence[str] = (),
+    alive: Collection[str] | None = None,
 ) -> list[LinkKey]:
     """Of ``keys``, those this agent should register now, own pairs first, then by key."""
     due = [
         k
         for k in keys
-        if now - first_needed.get(k, now) >= wait_before_computing(me, k, timeout, robots)
+        if now - first_needed.get(k, now) >= wait_before_computing(me, k, timeout, robots, alive)
     ]
     return sorted(due, key=lambda k: (me not in (k[0], k[2]), k))
 

@@ -40,9 +40,20 @@ class Registration:
 RegisterFn = Callable[[Grid, Grid], Registration]
 
 
-def merge_registration(params: object | None = None) -> RegisterFn:
-    """:func:`pgvd.merge.merge` as a :data:`RegisterFn` (rho test (32) plus global check)."""
-    from pgvd.merge import merge
+def merge_registration(min_agreement: float | None = None) -> RegisterFn:
+    """:func:`pgvd.merge.merge` as a :data:`RegisterFn` (rho test (32) plus global check).
+
+    ``min_agreement`` overrides the merge's acceptance threshold on the overlay agreement:
+    a fleet may want it stricter than a one-off merge, because a false link corrupts the
+    global map of every agent, not one output file.
+    """
+    from dataclasses import replace
+
+    from pgvd.merge import MergeParams, merge
+
+    params = MergeParams(diagnostics=False)
+    if min_agreement is not None:
+        params = replace(params, min_agreement=min_agreement)
 
     def register(a: Grid, b: Grid) -> Registration:
         res = merge(a, b, params)
@@ -99,7 +110,6 @@ class FusionWorker:
         self.fuse = fuse
         self.merges = 0
         self.merge_seconds = 0.0
-        self.busy = False
         self._stop = threading.Event()
         self._built: tuple[object, ...] | None = None
         self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
@@ -128,7 +138,13 @@ class FusionWorker:
         now = time.monotonic() if now is None else now
         snap = self.book.snapshot(now)
         due = due_keys(
-            self.me, snap.needed, snap.first_needed, now, self.link_timeout, sorted(snap.maps)
+            self.me,
+            snap.needed,
+            snap.first_needed,
+            now,
+            self.link_timeout,
+            sorted(snap.maps),
+            snap.alive,
         )
         if due:
             self._register(snap, due[0])
@@ -145,14 +161,11 @@ class FusionWorker:
     def _register(self, snap: Snapshot, key: LinkKey) -> None:
         a, va, b, vb = key
         t0 = time.monotonic()
-        self.busy = True
         try:
             res = self.register(snap.maps[a][1], snap.maps[b][1])
         except Exception as exc:  # bad maps are an outcome (rejected), not a crash
             log.warning("registration of %s v%d / %s v%d failed: %s", a, va, b, vb, exc)
             res = Registration(False, np.eye(3), np.zeros((3, 3)), 0.0)
-        finally:
-            self.busy = False
         self.merges += 1
         self.merge_seconds += time.monotonic() - t0
         rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)

@@ -134,3 +134,15 @@ def test_select_links_prefers_exact_versions_and_reports_settled() -> None:
     assert [c.key for c in chosen] == [("r1", 2, "r2", 1)] and not settled
     _, settled = select_links({"r1": 2, "r2": 1, "r3": 1}, cache)
     assert not settled  # pairs with r3 have no link at all yet
+
+
+def test_a_robot_that_left_hands_its_turn_on_at_once() -> None:
+    ring = ["r1", "r2", "r3"]
+    key = ("r1", 1, "r2", 1)
+    first = first_registrar("r1", "r2", ring)
+    second = "r2" if first == "r1" else "r1"
+    everyone = {"r1", "r2", "r3"}
+    assert wait_before_computing(second, key, 6.0, ring, everyone) == 6.0
+    assert wait_before_computing(second, key, 6.0, ring, everyone - {first}) == 0.0
+    assert wait_before_computing("r3", key, 6.0, ring, everyone) == 12.0
+    assert wait_before_computing("r3", key, 6.0, ring, {"r3"}) == 6.0

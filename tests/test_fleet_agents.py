@@ -166,8 +166,11 @@ def test_other_building_stays_a_separate_component(scenario: dict) -> None:
 def test_kill_9_and_restart_loses_nothing(scenario: dict) -> None:
     first = scenario["r3_first_status"]
     killed = scenario["killed_versions"]
-    # The restarted agent starts from its state dir: every map it had, own version kept.
-    assert {r: v["version"] for r, v in first["robots"].items() if v["version"]} == killed
+    # The restarted agent starts from its state dir: every map it had, at least at the
+    # version it had (peers may already have sent newer ones), own version continued.
+    held = {r: v["version"] or 0 for r, v in first["robots"].items()}
+    assert all(held.get(r, 0) >= v for r, v in killed.items()), (held, killed)
+    assert first["own_version"] >= killed["r3"]
     assert first["source"]["progress"][0] >= scenario["killed_cursor"] > 0
     final = scenario["statuses4"]["r3"]
     assert final["own_version"] > killed["r3"]
