@@ -100,7 +100,7 @@ class Agent:
         self._source_pending = False
         self._load_state()
         self.source = make_source(
-            opts.source, self.me, opts.frame, opts.resolution, opts.speed, self._own_resume()
+            opts.source, self.me, opts.frame, opts.resolution, opts.speed, self._resume
         )
         self.gate = ChangeGate(opts.min_change, opts.min_interval)
         own = self.book.map_of(self.me)
@@ -131,9 +131,6 @@ class Agent:
             self.book.add_link(rec)
         if maps:
             log.info("state: loaded %d maps and %d links", len(maps), len(links))
-
-    def _own_resume(self) -> StoredMap | None:
-        return self._resume
 
     # --------------------------------------------------------------- callbacks
 
@@ -307,7 +304,7 @@ class Agent:
     def _receive(self, kind: str, key: str, data: bytes) -> None:
         sender = key.split("/")[3] if key.count("/") >= 3 else key
         try:
-            msg = self.inbound.decode(data, self.opts.key)
+            msg = self.inbound.decode(data)
         except ProtocolError as exc:
             self.counters.drop("bad_message", sender, str(exc))
             return

@@ -85,8 +85,9 @@ class Inbound:
         self.limits = limits or Limits()
         self._reassemblers: dict[str, MapReassembler] = {}
 
-    def decode(self, data: bytes, key: bytes | None) -> Message:
-        return decode(data, key, self.limits)
+    def decode(self, data: bytes) -> Message:
+        """Decode and authenticate one payload; raises only ProtocolError."""
+        return decode(data, self.key, self.limits)
 
     def feed(self, msg: MapTiles | Manifest) -> tuple[int, Grid] | None:
         """Feed a map message; ``(version, grid)`` when a version completes."""

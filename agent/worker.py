@@ -142,7 +142,7 @@ class FusionWorker:
             snap.needed,
             snap.first_needed,
             now,
-            self.link_timeout,
+            self.effective_timeout(len(snap.maps)),
             sorted(snap.maps),
             snap.alive,
         )
@@ -157,6 +157,17 @@ class FusionWorker:
             self._built = signature  # a failing rebuild is not retried until inputs change
             self._rebuild(snap)
         return False
+
+    def effective_timeout(self, n_robots: int) -> float:
+        """``link_timeout`` plus the time a peer needs for its share of a round of pairs.
+
+        When every map changes at once, the first registrar of a pair has about
+        ``(n - 1) / 2`` pairs queued; stepping in before it could finish them only
+        duplicates work on a busy machine.  This agent's own mean registration time
+        stands in for the peers'.
+        """
+        mean = self.merge_seconds / self.merges if self.merges else 0.0
+        return self.link_timeout + mean * max(n_robots - 1, 0) / 2.0
 
     def _register(self, snap: Snapshot, key: LinkKey) -> None:
         a, va, b, vb = key

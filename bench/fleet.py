@@ -50,6 +50,7 @@ def proc_sample(pid: int) -> tuple[float, int] | None:
 def run_fleet(n: int, speed: float, timeout: float, workdir: Path) -> dict:
     """One fleet of ``n`` agents until agreement; the measurements of :mod:`bench.fleet`."""
     samples: dict[str, tuple[float, int]] = {}
+    load_before = os.getloadavg()[0]
     t0 = time.time()
     agreed_at = None
     with LocalFleet(f"bench{n}", workdir, ["--speed", str(speed)]) as fleet:
@@ -96,6 +97,8 @@ def run_fleet(n: int, speed: float, timeout: float, workdir: Path) -> dict:
         "rss_mb_max_agent": round(float(np.max(rss)) / 2**20, 1),
         "merges_per_agent": round(float(np.mean(merges)), 1),
         "merge_s_mean": round(merge_s / max(sum(merges), 1), 3),
+        # Other processes share this machine: the 1-min load before and after the run.
+        "load_before_after": [round(load_before, 1), round(os.getloadavg()[0], 1)],
     }
 
 
@@ -103,9 +106,10 @@ def table(rows: list[dict]) -> str:
     head = (
         "| agents | agreed | agreement after last update (s) | sent / robot (kB) "
         "| received / robot (kB) | CPU / agent (s, mean / max) | CPU / agent (% core) "
-        "| peak RSS / agent (MB, mean / max) | registrations / agent | mean registration (s) |"
+        "| peak RSS / agent (MB, mean / max) | registrations / agent | mean registration (s) "
+        "| machine load before / after |"
     )
-    lines = [head, "|" + "---|" * 10]
+    lines = [head, "|" + "---|" * 11]
     for r in rows:
         lines.append(
             f"| {r['robots']} | {'yes' if r['agreed'] else 'NO'} | {r['agreement_s']} "
@@ -113,7 +117,7 @@ def table(rows: list[dict]) -> str:
             f"| {r['bytes_received_per_robot'] / 1000:.0f} "
             f"| {r['cpu_s_per_agent']} / {r['cpu_s_max_agent']} | {r['cpu_pct_per_agent']} "
             f"| {r['rss_mb_per_agent']} / {r['rss_mb_max_agent']} | {r['merges_per_agent']} "
-            f"| {r['merge_s_mean']} |"
+            f"| {r['merge_s_mean']} | {r['load_before_after'][0]} / {r['load_before_after'][1]} |"
         )
     return "\n".join(lines)
 
@@ -142,7 +146,9 @@ def main() -> None:
         + table(rows)
         + "\n\nAgreement: seconds from the last own-map update of any agent to every agent "
         "holding the same settled global map (polled every 0.1 s).  CPU and peak RSS are "
-        "read from /proc for each agent process over the whole run.\n"
+        "read from /proc for each agent process over the whole run.  The machine load is the "
+        "1-minute load average before and after each run: other jobs shared the 2 cores, and "
+        "registration time (hence agreement time) grows with it.\n"
     )
     (RESULTS / "fleet.md").write_text(md)
     (RESULTS / "fleet.json").write_text(json.dumps(rows, indent=1))

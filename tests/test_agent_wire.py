@@ -36,14 +36,14 @@ def test_versions_delta_and_full_reach_a_peer_identically(key: bytes | None) -> 
         tiles, manifest = out.prepare(version, g, prev)
         done = None
         for data in [*tiles, manifest]:
-            done = inbound.feed(inbound.decode(data, key)) or done
+            done = inbound.feed(inbound.decode(data)) or done
         assert done is not None and done[0] == version
         np.testing.assert_array_equal(done[1].logodds, g.logodds)
     # A late joiner gets the full latest version from the queryable's replies.
     late = wire.Inbound("f", key)
     replies = out.latest_replies(FleetKeys("f"))
     assert replies[-1][0] == "pgvd/f/latest/r1/2/m"
-    got = [late.feed(late.decode(d, key)) for _, d in replies]
+    got = [late.feed(late.decode(d)) for _, d in replies]
     np.testing.assert_array_equal(got[-1][1].logodds, v2.logodds)
 
 
@@ -54,7 +54,7 @@ def test_a_delta_without_its_base_leaves_the_map_incomplete() -> None:
     tiles, manifest = out.prepare(2, v2, (1, v1))
     inbound = wire.Inbound("f", None)
     for data in [*tiles, manifest]:
-        assert inbound.feed(inbound.decode(data, None)) is None
+        assert inbound.feed(inbound.decode(data)) is None
     assert inbound.incomplete("r1")
 
 
@@ -72,4 +72,4 @@ def test_links_round_trip_and_non_rigid_ones_are_refused() -> None:
 def test_wrong_key_is_a_protocol_error() -> None:
     tiles, _ = wire.Outbound("f", "r1", b"k1").prepare(1, grid(1), None)
     with pytest.raises(ProtocolError):
-        wire.Inbound("f", b"k2").decode(tiles[0], b"k2")
+        wire.Inbound("f", b"k2").decode(tiles[0])

@@ -91,3 +91,11 @@ def test_a_superseded_link_is_not_cached() -> None:
     book.put_map("r2", 1, tiny(2))
     old = LinkRecord("r1", 2, "r2", 1, True, np.eye(3), np.eye(3), 0.9, "r1")
     assert not book.add_link(old)
+
+
+def test_timeout_grows_with_the_fleet_and_the_cost_of_a_registration() -> None:
+    h = Harness("r1")
+    assert h.worker.effective_timeout(8) == 4.0  # nothing measured yet
+    h.worker.merges, h.worker.merge_seconds = 4, 6.0  # 1.5 s each
+    assert h.worker.effective_timeout(8) == 4.0 + 1.5 * 3.5
+    assert h.worker.effective_timeout(1) == 4.0

@@ -36,6 +36,8 @@ pytestmark = [pytest.mark.fleet, pytest.mark.slow]
 INTEL = Path(__file__).resolve().parents[1] / "agent" / "data" / "intel-corrected.log.gz"
 FRAMES = {"r1": "3,-4,20", "r2": "-7,2,135", "r3": "5,9,250", "r4": "0,0,60", "r5": "-2,-9,310"}
 SPEED = "200"
+#: The fleet runs keyed: every message carries an HMAC (protocol.auth).
+KEY = b"fleet-test-key"
 
 
 def _final(statuses: dict) -> dict[str, int]:
@@ -54,7 +56,10 @@ def scenario(shared: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     fr079 = shared / "logs" / "freiburg-079-corrected.log.gz"
     work = tmp_path_factory.mktemp("fleet")
     out: dict = {}
-    with LocalFleet("t", work, ["--speed", SPEED, "--link-timeout", "3"]) as fleet:
+    key_file = work / "fleet.key"
+    key_file.write_bytes(KEY + b"\n")
+    common = ["--speed", SPEED, "--link-timeout", "3", "--key-file", str(key_file)]
+    with LocalFleet("t", work, common) as fleet:
         sources = {
             "r1": f"carmen:{INTEL}@0.0-0.5",
             "r2": f"carmen:{INTEL}@0.25-0.75",
@@ -121,16 +126,19 @@ def _status_cli(endpoint: str) -> dict:
 
 
 def _inject_bad_messages(endpoint: str) -> list[str]:
-    """Publish garbage, a foreign fleet's manifest and a spoofed robot id into the fleet."""
+    """Publish garbage, an unkeyed map, a foreign fleet's and a spoofed robot's manifests."""
     opts = ZenohOptions(connect=(endpoint,))
-    foreign = encode_map("other", "r9", 1, Grid(np.ones((8, 8), np.float32), 0.1))[1]
-    spoofed = encode_map("t", "r1", 99, Grid(np.ones((8, 8), np.float32), 0.1))[1]
+    g = Grid(np.ones((8, 8), np.float32), 0.1)
+    foreign = encode_map("other", "r9", 1, g, KEY)[1]
+    spoofed = encode_map("t", "r1", 99, g, KEY)[1]
+    unkeyed = encode_map("t", "r9", 1, g)[1]
     with zenoh.open(build_config(opts)) as session:
         assert wait_for(lambda: list(session.info.peers_zid()), 10)
         time.sleep(0.5)  # gossip: let the other agents link to this session too
         session.put("pgvd/t/tiles/r9", b"\x00garbage")
         session.put("pgvd/t/manifest/r9", foreign)
         session.put("pgvd/t/manifest/r9", spoofed)
+        session.put("pgvd/t/manifest/r9", unkeyed)
         time.sleep(0.5)
     return ["bad_message", "foreign_fleet", "key_mismatch"]
 
