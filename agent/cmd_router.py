@@ -75,7 +75,10 @@ def run_router(config: zenoh.Config, stop: threading.Event) -> None:
     except zenoh.ZError as exc:
         raise CliError(f"cannot start the router: {zenoh_error(exc)}") from exc
     with session:
-        listener = session.info.declare_transport_events_listener(_print_transport_event)
+        # history: a router linking to us while we were opening is reported too.
+        listener = session.info.declare_transport_events_listener(
+            _print_transport_event, history=True
+        )
         endpoints = json.loads(config.get_json("listen/endpoints") or "[]")
         print(f"ready {session.info.zid()} listening on {json.dumps(endpoints)}", flush=True)
         stop.wait()

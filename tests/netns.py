@@ -24,11 +24,13 @@ import contextlib
 import itertools
 import os
 import re
+import select
 import shutil
 import signal
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -329,6 +331,26 @@ class Lab:
             print(f"lab logs kept in {self.logdir}")
         else:
             shutil.rmtree(self.logdir, ignore_errors=True)
+
+
+def read_line(proc: subprocess.Popen, timeout: float = 30.0) -> str:
+    """The next line of ``proc``'s stdout; AssertionError after ``timeout`` s (never hangs).
+
+    Reads the pipe byte by byte below Python's buffering, so that a line already read into a
+    buffer can never hide from ``select``; use it for every line read of a lab process.
+    """
+    fd = proc.stdout.fileno()
+    deadline = time.monotonic() + timeout
+    line = bytearray()
+    while not line.endswith(b"\n"):
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            raise AssertionError(f"no line from {proc.args!r} within {timeout} s: {line!r}")
+        byte = os.read(fd, 1)
+        if not byte:
+            break
+        line += byte
+    return line.decode(errors="replace")
 
 
 def _signal_group(proc: subprocess.Popen, sig: int) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from netns import ROOT, pgvd_argv
+from netns import ROOT, pgvd_argv, read_line
 
 DEPLOY = ROOT / "deploy"
 CERT_DIR = "/etc/pgvd/tls"  # where the example configs expect the certificates
@@ -91,7 +91,7 @@ def router(config: Path) -> Iterator[subprocess.Popen]:
         argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
-        line = proc.stdout.readline()
+        line = read_line(proc)
         assert line.startswith("ready "), proc.stderr.read() if proc.poll() is not None else line
         yield proc
     finally:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 from netfleet import SOURCES, NetFleet, digests, wait_agreed
-from netns import Lab, lab_or_skip, pgvd_argv
+from netns import Lab, lab_or_skip, pgvd_argv, read_line
 
 pytestmark = [pytest.mark.netns, pytest.mark.fleet, pytest.mark.slow]
 
@@ -50,7 +50,7 @@ def drops(fleet: NetFleet) -> dict[str, dict[str, int]]:
 def command(rogue: subprocess.Popen, line: str) -> str:
     rogue.stdin.write(line + "\n")
     rogue.stdin.flush()
-    return rogue.stdout.readline().strip()
+    return read_line(rogue).strip()
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ def attacked() -> dict:
         rogue_argv = [sys.executable, "tests/rogue.py", "--fleet", fleet.fleet, *connect]
         rogue_argv += ["--key-file", str(key)]
         rogue = lab.popen(3, rogue_argv, name="rogue", stdin=True)
-        assert rogue.stdout.readline().strip() == "READY", lab.stderr_of("rogue")
+        assert read_line(rogue).strip() == "READY", lab.stderr_of("rogue")
         for host, (robot, (source, frame)) in enumerate(SOURCES.items()):
             fleet.start(robot, host, source, frame)
         out["agreed_in"] = wait_agreed(fleet, 90)

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from netns import Lab, lab_or_skip
+from netns import Lab, lab_or_skip, read_line
 
 pytestmark = pytest.mark.netns
 
@@ -36,10 +36,13 @@ def zenoh_config(mode: str, listen: list[str], connect: list[str]) -> dict[str, 
 def udp_burst(lab: Lab, src: int, dst: int, n: int = 2000) -> int:
     """Datagrams of 64 B that host ``dst`` receives out of ``n`` sent by host ``src``."""
     addr = lab.hosts[dst].addr
+    # Up to 10 s for the first datagram (the sender is a fresh interpreter), then 0.5 s idle;
+    # a buffer for the whole burst (33 = SO_RCVBUFFORCE), lest a busy receiver drop datagrams.
     receive = (
         "import socket; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)\n"
-        f"s.bind(('{addr}', 9999)); s.settimeout(0.5); print('READY', flush=True); n = 0\n"
-        "try:\n  while True: s.recv(100); n += 1\nexcept TimeoutError: print(n)"
+        "s.setsockopt(socket.SOL_SOCKET, 33, 16 << 20)\n"
+        f"s.bind(('{addr}', 9999)); s.settimeout(10); print('READY', flush=True); n = 0\n"
+        "try:\n  while True: s.recv(100); n += 1; s.settimeout(0.5)\nexcept TimeoutError: print(n)"
     )
     send = (
         "import socket, time; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)\n"
@@ -47,7 +50,7 @@ def udp_burst(lab: Lab, src: int, dst: int, n: int = 2000) -> int:
         "  if i % 50 == 0: time.sleep(0.001)"
     )
     server = lab.popen(dst, [sys.executable, "-c", receive])
-    assert server.stdout.readline().strip() == "READY"
+    assert read_line(server).strip() == "READY"
     subprocess.run(lab_cmd(lab, src, [sys.executable, "-c", send]), check=True, timeout=30)
     return int(server.communicate(timeout=10)[0].split()[-1])
 
@@ -88,7 +91,7 @@ def test_reliable_tcp_delivers_everything_at_20_percent_loss_each_way(
         sub_cfg = json.dumps(zenoh_config("peer", [listen], []))
         pub_cfg = json.dumps(zenoh_config("peer", [], [listen]))
         sub = lab.popen(1, [*probe("sub", count), "--config", sub_cfg], name="sub")
-        assert sub.stdout.readline().strip() == "READY", lab.stderr_of("sub")
+        assert read_line(sub).strip() == "READY", lab.stderr_of("sub")
         start = time.monotonic()
         pub_args = ["--size", "1024", "--interval", "0.005", "--config", pub_cfg]
         pub = lab.popen(0, [*probe("pub", count), *pub_args], name="pub")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from netfleet import SOURCES, NetFleet, accepted_links, digests, wait_agreed
-from netns import ROOT, Lab, lab_or_skip, pgvd_argv
+from netns import ROOT, Lab, lab_or_skip, pgvd_argv, read_line
 
 pytestmark = [pytest.mark.netns, pytest.mark.fleet, pytest.mark.slow]
 
@@ -32,8 +32,8 @@ def test_agents_behind_two_linked_routers_converge() -> None:
             argv = pgvd_argv("router", *config, "--listen", "tcp/0.0.0.0:7447", *link)
             routers.append(lab.popen(site, argv, name=f"router{site}"))
         for site, router in enumerate(routers):
-            assert router.stdout.readline().startswith("ready "), lab.stderr_of(f"router{site}")
-        assert routers[1].stdout.readline().split()[:2] == ["open", "router"]
+            assert read_line(router).startswith("ready "), lab.stderr_of(f"router{site}")
+        assert read_line(routers[1]).split()[:2] == ["open", "router"]
         fleet = NetFleet(lab, Path(tmp), extra=["--speed", "400", "--link-timeout", "3"])
         client = [
             "--zenoh-config",

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from netns import ROOT, Lab, lab_or_skip, pgvd_argv
+from netns import ROOT, Lab, lab_or_skip, pgvd_argv, read_line
 
 ROUTER_CONFIG = ROOT / "deploy" / "router.json5"
 
@@ -50,7 +50,7 @@ def test_port_in_use_is_a_clean_error() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     first = start_router("--listen", endpoint)
     try:
-        assert first.stdout.readline().startswith("ready ")
+        assert read_line(first).startswith("ready ")
         second = run_pgvd("router", "--listen", endpoint)
         assert second.returncode == 2
         assert "Address already in use" in second.stderr and second.stderr.count("\n") == 1
@@ -67,7 +67,7 @@ def test_signal_closes_the_router_cleanly(sig: signal.Signals) -> None:
     router = start_router(
         "--config", str(ROUTER_CONFIG), "--listen", listen, "--connect", peer_site
     )
-    ready = router.stdout.readline().split()
+    ready = read_line(router).split()
     assert ready[0] == "ready" and json.loads(ready[-1]) == [f"tcp/127.0.0.1:{port}"]
     start = time.monotonic()
     router.send_signal(sig)
@@ -88,9 +88,9 @@ def test_clients_of_two_linked_routers_exchange_puts_and_liveliness() -> None:
             args = ["--config", str(ROUTER_CONFIG), "--listen", "tcp/0.0.0.0:7447", *link]
             routers.append(lab.popen(i, pgvd_argv("router", *args), name=f"router{i}"))
         for i, router in enumerate(routers):
-            assert router.stdout.readline().startswith("ready "), lab.stderr_of(f"router{i}")
+            assert read_line(router).startswith("ready "), lab.stderr_of(f"router{i}")
         # Wait for the inter-site link, so that what follows exercises router-to-router routing.
-        opened = routers[1].stdout.readline().split()
+        opened = read_line(routers[1]).split()
         assert opened[:2] == ["open", "router"], opened
         client = {
             "mode": "client",
@@ -101,7 +101,7 @@ def test_clients_of_two_linked_routers_exchange_puts_and_liveliness() -> None:
         count = 200
         args = ["--count", str(count), "--config", json.dumps(client)]
         sub = lab.popen(1, [sys.executable, "tests/zprobe.py", "sub", *args], name="sub")
-        assert sub.stdout.readline().strip() == "READY", lab.stderr_of("sub")
+        assert read_line(sub).strip() == "READY", lab.stderr_of("sub")
         args += ["--interval", "0.002"]
         pub = lab.popen(0, [sys.executable, "tests/zprobe.py", "pub", *args], name="pub")
         result = json.loads(sub.communicate(timeout=60)[0].splitlines()[-1])

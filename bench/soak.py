@@ -1,0 +1,224 @@
+"""Soak: 8 agents with continuous map updates for 10 minutes; memory, CPU, drops, lag.
+
+The agents replay overlapping segments of the bundled Intel log (as ``pgvd demo``) slowly
+enough that every robot keeps updating its map for the whole run, peer to peer on localhost.
+Every 0.5 s the agents' status files are read; every 5 s their RSS and CPU from ``/proc``.
+
+Reported:
+
+- RSS and CPU of every agent over time (``soak.png``);
+- memory growth after warm-up: mean RSS over the last minute against RSS at the end of
+  warm-up (the first quarter of the run); the target is under 10 %;
+- messages dropped, by reason, summed over agents (a clean run drops none);
+- update-to-agreement lag: for each new version of a robot's map, the seconds from its
+  publication (the owner's ``last_update``) to the first moment every agent is settled on
+  the same global map and holds that version or a newer one.
+
+Run: ``python3 -m bench.soak [--robots 8] [--minutes 10]``; writes ``bench/results/soak.md``,
+``soak.json`` and ``soak.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from agent.cmd_demo import LOG, random_frames, segments
+from agent.launcher import LocalFleet, agreement
+
+RESULTS = Path(__file__).resolve().parent / "results"
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def log_seconds(path: Path) -> float:
+    """Duration of a CARMEN log: last minus first FLASER timestamp."""
+    stamps = []
+    with gzip.open(path, "rt") as f:
+        for line in f:
+            if line.startswith("FLASER"):
+                stamps.append(float(line.split()[-3]))
+    return stamps[-1] - stamps[0]
+
+
+def proc_sample(pid: int) -> tuple[float, float] | None:
+    """(CPU seconds user+system, RSS MB) of a live process, from /proc."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        rss = next(
+            int(line.split()[1]) / 1024
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+            if line.startswith("VmRSS:")
+        )
+    except (OSError, StopIteration, IndexError, ValueError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / TICK, rss
+
+
+def soak(robots: int, minutes: float, workdir: Path) -> dict:
+    """Run the fleet for ``minutes``; the raw time series and events."""
+    segs = segments(robots)
+    # Slow enough that the longest segment lasts the whole run: updates never stop.
+    speed = max(b - a for a, b in segs) * log_seconds(LOG) / (minutes * 60)
+    print(f"{robots} agents, replay speed {speed:.2f}x for {minutes} min", flush=True)
+    series: dict[str, list[tuple[float, float, float]]] = {}
+    published: dict[tuple[str, int], float] = {}
+    agreed: list[tuple[float, dict[str, int]]] = []
+    drops: dict[str, int] = {}
+    with LocalFleet("soak", workdir, ["--speed", f"{speed:.4f}"]) as fleet:
+        for i, (seg, frame) in enumerate(zip(segs, random_frames(robots, 11), strict=True)):
+            fleet.add(
+                f"r{i + 1}",
+                f"carmen:{LOG}@{seg[0]}-{seg[1]}",
+                ["--frame=" + ",".join(f"{v:.4f}" for v in frame)],
+            )
+        t0 = time.time()
+        next_sample = next_print = t0
+        while time.time() - t0 < minutes * 60:
+            now = time.time()
+            statuses = fleet.statuses()
+            for robot, status in statuses.items():
+                if status and status.get("own_version") and status.get("last_update"):
+                    published.setdefault((robot, status["own_version"]), status["last_update"])
+            if agreement(statuses):
+                held = next(iter(statuses.values()))["robots"]  # type: ignore[index]
+                agreed.append((now, {r: v["version"] or 0 for r, v in held.items()}))
+            if now >= next_sample:
+                for robot, agent in fleet.agents.items():
+                    sample = agent.proc and proc_sample(agent.proc.pid)
+                    if sample:
+                        series.setdefault(robot, []).append((now - t0, *sample))
+                next_sample = now + 5
+            if now >= next_print:
+                dead = [r for r, a in fleet.agents.items() if not a.alive()]
+                versions = [(s or {}).get("own_version") for s in statuses.values()]
+                print(f"{now - t0:6.0f} s  versions {versions}", flush=True)
+                print(f"        agreements {len(agreed)}  dead {dead}", flush=True)
+                next_print = now + 30
+            time.sleep(0.5)
+        for status in fleet.statuses().values():
+            for reason, n in (status or {}).get("drops", {}).items():
+                drops[reason] = drops.get(reason, 0) + n
+        dead = [r for r, a in fleet.agents.items() if not a.alive()]
+    return {
+        "t0": t0,
+        "speed": speed,
+        "series": series,
+        "published": published,
+        "agreed": agreed,
+        "drops": drops,
+        "dead": dead,
+    }
+
+
+def lags(published: dict[tuple[str, int], float], agreed: list[tuple[float, dict]]) -> list:
+    """Seconds from each version's publication to the first agreement that includes it."""
+    out = []
+    for (robot, version), when in sorted(published.items(), key=lambda kv: kv[1]):
+        first = next((t for t, held in agreed if t >= when and held.get(robot, 0) >= version), None)
+        if first is not None:
+            out.append(first - when)
+    return out
+
+
+def summarise(run: dict, minutes: float) -> dict:
+    warm = minutes * 60 / 4
+    growth = {}
+    for robot, rows in run["series"].items():
+        t, _, rss = np.array(rows).T
+        at_warm = rss[np.searchsorted(t, warm)] if t[-1] > warm else rss[-1]
+        tail = rss[t >= t[-1] - 60].mean()
+        growth[robot] = float((tail - at_warm) / at_warm * 100)
+    cpu = {
+        robot: float((rows[-1][1] - rows[0][1]) / max(rows[-1][0] - rows[0][0], 1e-9) * 100)
+        for robot, rows in run["series"].items()
+    }
+    lag = lags(run["published"], run["agreed"])
+    return {
+        "robots": len(run["series"]),
+        "minutes": minutes,
+        "replay_speed": round(run["speed"], 3),
+        "versions_published": len(run["published"]),
+        "versions_agreed": len(lag),
+        "lag_s": {
+            "median": round(float(np.median(lag)), 2) if lag else None,
+            "p90": round(float(np.percentile(lag, 90)), 2) if lag else None,
+            "max": round(float(max(lag)), 2) if lag else None,
+        },
+        "rss_growth_after_warmup_pct": {r: round(g, 2) for r, g in sorted(growth.items())},
+        "rss_end_mb": {r: round(rows[-1][2], 1) for r, rows in sorted(run["series"].items())},
+        "cpu_pct_of_core": {r: round(c, 1) for r, c in sorted(cpu.items())},
+        "drops": run["drops"],
+        "dead": run["dead"],
+    }
+
+
+def plot(run: dict, summary: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_rss, ax_cpu, ax_lag) = plt.subplots(3, 1, figsize=(9, 10))
+    for robot, rows in sorted(run["series"].items()):
+        t, cpu, rss = np.array(rows).T
+        ax_rss.plot(t / 60, rss, label=robot)
+        ax_cpu.plot(t[1:] / 60, np.diff(cpu) / np.diff(t) * 100, label=robot)
+    warm = summary["minutes"] / 4
+    for ax in (ax_rss, ax_cpu):
+        ax.axvline(warm, color="gray", ls="--", lw=0.8)
+        ax.set_xlabel("minutes")
+        ax.legend(ncol=4, fontsize=7)
+    ax_rss.set_ylabel("RSS (MB)")
+    ax_rss.set_title("RSS per agent (dashed: end of warm-up)")
+    ax_cpu.set_ylabel("CPU (% of one core)")
+    lag = lags(run["published"], run["agreed"])
+    ax_lag.hist(lag, bins=30)
+    ax_lag.set_xlabel("seconds from a map update to fleet-wide agreement")
+    ax_lag.set_ylabel("updates")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", type=int, default=8)
+    parser.add_argument("--minutes", type=float, default=10.0)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="pgvd-soak-") as tmp:
+        run = soak(args.robots, args.minutes, Path(tmp))
+    summary = summarise(run, args.minutes)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "soak.json").write_text(json.dumps(summary, indent=1))
+    plot(run, summary, args.out / "soak.png")
+    growth = summary["rss_growth_after_warmup_pct"]
+    lines = [
+        "# Soak",
+        "",
+        f"`python3 -m bench.soak --robots {args.robots} --minutes {args.minutes:g}` on "
+        f"{os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        "",
+        f"- versions published: {summary['versions_published']}, of which reached fleet-wide "
+        f"agreement: {summary['versions_agreed']}",
+        f"- update-to-agreement lag (s): {summary['lag_s']}",
+        f"- RSS growth after warm-up (%): {growth} (max {max(growth.values()):.1f} %, target < 10)",
+        f"- RSS at the end (MB): {summary['rss_end_mb']}",
+        f"- CPU (% of one core): {summary['cpu_pct_of_core']}",
+        f"- messages dropped: {summary['drops'] or 'none'}",
+        f"- agents that died: {summary['dead'] or 'none'}",
+        "",
+        "![soak](soak.png)",
+    ]
+    (args.out / "soak.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
