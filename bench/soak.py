@@ -12,7 +12,9 @@ Reported:
 - messages dropped, by reason, summed over agents (a clean run drops none);
 - update-to-agreement lag: for each new version of a robot's map, the seconds from its
   publication (the owner's ``last_update``) to the first moment every agent is settled on
-  the same global map and holds that version or a newer one.
+  the same global map and holds that version or a newer one. With updates that never stop,
+  full agreement happens only in lulls, so the propagation lag is reported too: the seconds
+  until every agent holds that version or a newer one (whatever else is still moving).
 
 Run: ``python3 -m bench.soak [--robots 8] [--minutes 10]``; writes ``bench/results/soak.md``,
 ``soak.json`` and ``soak.png``.
@@ -70,6 +72,7 @@ def soak(robots: int, minutes: float, workdir: Path) -> dict:
     series: dict[str, list[tuple[float, float, float]]] = {}
     published: dict[tuple[str, int], float] = {}
     agreed: list[tuple[float, dict[str, int]]] = []
+    held_by_all: list[tuple[float, dict[str, int]]] = []
     drops: dict[str, int] = {}
     with LocalFleet("soak", workdir, ["--speed", f"{speed:.4f}"]) as fleet:
         for i, (seg, frame) in enumerate(zip(segs, random_frames(robots, 11), strict=True)):
@@ -86,6 +89,8 @@ def soak(robots: int, minutes: float, workdir: Path) -> dict:
             for robot, status in statuses.items():
                 if status and status.get("own_version") and status.get("last_update"):
                     published.setdefault((robot, status["own_version"]), status["last_update"])
+            if all(statuses.values()):
+                held_by_all.append((now, least_held(statuses)))  # type: ignore[arg-type]
             if agreement(statuses):
                 held = next(iter(statuses.values()))["robots"]  # type: ignore[index]
                 agreed.append((now, {r: v["version"] or 0 for r, v in held.items()}))
@@ -112,8 +117,18 @@ def soak(robots: int, minutes: float, workdir: Path) -> dict:
         "series": series,
         "published": published,
         "agreed": agreed,
+        "held_by_all": held_by_all,
         "drops": drops,
         "dead": dead,
+    }
+
+
+def least_held(statuses: dict[str, dict]) -> dict[str, int]:
+    """Per robot, the oldest version any agent holds (0 where an agent holds none)."""
+    robots = {r for s in statuses.values() for r in s["robots"]}
+    return {
+        r: min((s["robots"].get(r, {}).get("version") or 0) for s in statuses.values())
+        for r in robots
     }
 
 
@@ -140,6 +155,7 @@ def summarise(run: dict, minutes: float) -> dict:
         for robot, rows in run["series"].items()
     }
     lag = lags(run["published"], run["agreed"])
+    spread = lags(run["published"], run["held_by_all"])
     return {
         "robots": len(run["series"]),
         "minutes": minutes,
@@ -150,6 +166,11 @@ def summarise(run: dict, minutes: float) -> dict:
             "median": round(float(np.median(lag)), 2) if lag else None,
             "p90": round(float(np.percentile(lag, 90)), 2) if lag else None,
             "max": round(float(max(lag)), 2) if lag else None,
+        },
+        "propagation_lag_s": {
+            "median": round(float(np.median(spread)), 2) if spread else None,
+            "p90": round(float(np.percentile(spread, 90)), 2) if spread else None,
+            "max": round(float(max(spread)), 2) if spread else None,
         },
         "rss_growth_after_warmup_pct": {r: round(g, 2) for r, g in sorted(growth.items())},
         "rss_end_mb": {r: round(rows[-1][2], 1) for r, rows in sorted(run["series"].items())},
@@ -208,6 +229,7 @@ def main() -> None:
         f"- versions published: {summary['versions_published']}, of which reached fleet-wide "
         f"agreement: {summary['versions_agreed']}",
         f"- update-to-agreement lag (s): {summary['lag_s']}",
+        f"- propagation lag, update to held by every agent (s): {summary['propagation_lag_s']}",
         f"- RSS growth after warm-up (%): {growth} (max {max(growth.values()):.1f} %, target < 10)",
         f"- RSS at the end (MB): {summary['rss_end_mb']}",
         f"- CPU (% of one core): {summary['cpu_pct_of_core']}",
