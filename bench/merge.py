@@ -40,7 +40,14 @@ import numpy as np
 
 from pgvd.grid import Grid
 from pgvd.io import read_carmen
-from pgvd.pairs import MapPair, make_pair, make_pairs
+from pgvd.pairs import (
+    DISJOINT_LENGTHS,
+    MIN_OVERLAP,
+    OVERLAP_LENGTHS,
+    MapPair,
+    make_pair,
+    make_pairs,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 LOGS = {"intel": "intel-corrected.log.gz", "fr079": "freiburg-079-corrected.log.gz"}
@@ -135,12 +142,14 @@ def build_pairs(
     resolution: float,
     cache: Path | None,
     odom_noise: tuple[float, float] | None = None,
+    band: tuple[float, float] = (MIN_OVERLAP, 1.0),
 ) -> list[MapPair]:
     """The bench pairs of every log, optionally cached (pickle) between runs."""
     shared = ROOT.parent / "shared" / "logs"
     pairs: list[MapPair] = []
     for name in logs:
-        key = f"{name}-{n_overlap}-{n_disjoint}-{seed}-{resolution}-{odom_noise}.pkl"
+        lengths = f"{OVERLAP_LENGTHS}-{DISJOINT_LENGTHS}-{band}"
+        key = f"{name}-{n_overlap}-{n_disjoint}-{seed}-{resolution}-{odom_noise}-{lengths}.pkl"
         if cache is not None and (cache / key).exists():
             pairs += pickle.loads((cache / key).read_bytes())
             _log(f"[pairs] {name}: loaded from {cache / key}")
@@ -148,7 +157,9 @@ def build_pairs(
         t0 = time.perf_counter()
         scans = read_carmen(shared / LOGS[name])
         _log(f"[pairs] {name}: {len(scans)} scans; rendering {n_overlap}+{n_disjoint} pairs")
-        made = make_pairs(scans, n_overlap, n_disjoint, seed, name, resolution, odom_noise)
+        made = make_pairs(
+            scans, n_overlap, n_disjoint, seed, name, resolution, odom_noise, overlap_band=band
+        )
         for p in made:
             _log(f"[pairs]   {p.name}: {p.a.shape} {p.b.shape} overlap {p.overlap:.2f}")
         _log(f"[pairs] {name}: done in {time.perf_counter() - t0:.0f} s")
@@ -350,6 +361,14 @@ def main(argv: list[str] | None = None) -> int:
         metavar=("M_PER_M", "RAD_PER_RAD"),
         help="extra odometry noise on both robots (pgvd.integrate.perturb_odometry)",
     )
+    parser.add_argument(
+        "--overlap-band",
+        type=float,
+        nargs=2,
+        default=(MIN_OVERLAP, 1.0),
+        metavar=("LO", "HI"),
+        help="overlap fraction range of the overlapping pairs",
+    )
     parser.add_argument("--cache", type=Path, default=None, help="pickle the pairs here")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
@@ -358,8 +377,8 @@ def main(argv: list[str] | None = None) -> int:
     table = methods(args.exhaustive_step, args.exhaustive_coarse)
     notes = [
         f"Pairs: segments of {', '.join(args.logs)} (pgvd.pairs, seed {args.seed}, "
-        f"{args.resolution} m cells, extra odometry noise {args.odom_noise}), "
-        "each map in its own random frame.",
+        f"{args.resolution} m cells, extra odometry noise {args.odom_noise}, overlap of "
+        f"the overlapping pairs in {list(args.overlap_band)}), each map in its own random frame.",
         "Success: accepted, heading within 2 deg and mean error of B's occupied cells "
         "within 3 cells. Errors are medians over successes. Times: wall clock, one process.",
         f"Scaling: one intel pair at {SCALE_RESOLUTION} m (~500^2), upsampled x2 and x4 "
@@ -372,7 +391,14 @@ def main(argv: list[str] | None = None) -> int:
         )
     noise = tuple(args.odom_noise) if args.odom_noise else None
     pairs = build_pairs(
-        args.logs, args.overlap, args.disjoint, args.seed, args.resolution, args.cache, noise
+        args.logs,
+        args.overlap,
+        args.disjoint,
+        args.seed,
+        args.resolution,
+        args.cache,
+        noise,
+        tuple(args.overlap_band),
     )
     records = run_pairs(pairs, table)
     scaling = [] if args.no_scaling else run_scaling(table, args.seed, args.repeats)

@@ -160,20 +160,28 @@ def _draw_segment(rng: np.random.Generator, lengths: tuple[float, float]) -> tup
 
 
 class _Footprints:
-    """Coarse known-cell masks of segments in the log's world frame, to screen disjoint pairs."""
+    """Coarse known-cell masks of segments in the log's world frame, to screen candidates."""
 
     def __init__(self, scans: list[LaserScan], model: InverseSensorModel) -> None:
         self.scans = scans
         self.model = model
         self.frame = frame_for(scans, FOOTPRINT_RESOLUTION, model=model)
 
-    def disjoint(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> bool:
-        masks = [
+    def _masks(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> list[np.ndarray]:
+        return [
             integrate(select_segment(self.scans, s), self.frame, self.model).logodds != 0
             for s in (seg_a, seg_b)
         ]
+
+    def disjoint(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> bool:
+        a, b = self._masks(seg_a, seg_b)
         # One coarse cell of slack: a full-resolution overlap can sit across a coarse border.
-        return not np.any(ndimage.binary_dilation(masks[0]) & masks[1])
+        return not np.any(ndimage.binary_dilation(a) & b)
+
+    def overlap(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> float:
+        """The overlap fraction of the module docstring, on the coarse masks."""
+        a, b = self._masks(seg_a, seg_b)
+        return float((a & b).sum() / max(1, min(a.sum(), b.sum())))
 
 
 def make_pairs(
@@ -185,12 +193,15 @@ def make_pairs(
     resolution: float = 0.05,
     odom_noise: tuple[float, float] | None = None,
     model: InverseSensorModel = DEFAULT_MODEL,
+    overlap_band: tuple[float, float] = (MIN_OVERLAP, 1.0),
 ) -> list[MapPair]:
-    """Overlapping pairs (overlap >= MIN_OVERLAP) then disjoint pairs (overlap exactly 0).
+    """Overlapping pairs (overlap within ``overlap_band``), then disjoint pairs (overlap 0).
 
     Segments are drawn from the seed: overlapping ones with lengths in
-    :data:`OVERLAP_LENGTHS`, disjoint ones in :data:`DISJOINT_LENGTHS`, screened
-    on coarse footprints and then verified at full resolution (``overlap == 0``).
+    :data:`OVERLAP_LENGTHS`, disjoint ones in :data:`DISJOINT_LENGTHS`.  Both
+    are screened on coarse footprints before rendering (a band narrower than
+    the default is rare in real logs, where short segments tend to lie inside
+    long ones) and verified at full resolution (disjoint: ``overlap == 0``).
     Disjoint pairs keep their true matrix: it is the transform nothing should find.
 
     Raises
@@ -198,22 +209,32 @@ def make_pairs(
     RuntimeError
         If the log does not yield enough pairs of a kind within MAX_DRAWS draws.
     """
+    lo, hi = overlap_band
+    if not 0.0 < lo < hi <= 1.0:
+        raise ValueError(f"overlap band must satisfy 0 < lo < hi <= 1, got {overlap_band}")
     rng = np.random.default_rng(seed)
+    screen = lo > MIN_OVERLAP or hi < 1.0
+    footprints = _Footprints(scans, model) if n_disjoint or screen else None
     overlapping: list[MapPair] = []
     draws = 0
     while len(overlapping) < n_overlap and draws < MAX_DRAWS:
         seg_a, seg_b = _draw_segment(rng, OVERLAP_LENGTHS), _draw_segment(rng, OVERLAP_LENGTHS)
+        if screen:
+            # Coarse cells inflate the overlap; only rule out what is clearly outside the band.
+            coarse = footprints.overlap(seg_a, seg_b)
+            if not lo - 0.05 <= coarse <= hi + 0.3:
+                draws += 1
+                continue
         label = f"{name}-ov{len(overlapping):02d}"
         pair = make_pair(
             scans, seg_a, seg_b, seed * 1000 + draws, resolution, odom_noise, model, label
         )
         draws += 1
-        if pair.overlap >= MIN_OVERLAP:
+        if lo <= pair.overlap <= hi:
             overlapping.append(pair)
     if len(overlapping) < n_overlap:
         raise RuntimeError(f"{name}: only {len(overlapping)} of {n_overlap} overlapping pairs")
     disjoint: list[MapPair] = []
-    footprints = _Footprints(scans, model) if n_disjoint else None
     draws = 0
     while len(disjoint) < n_disjoint and draws < MAX_DRAWS:
         seg_a, seg_b = _draw_segment(rng, DISJOINT_LENGTHS), _draw_segment(rng, DISJOINT_LENGTHS)
