@@ -88,7 +88,9 @@ class MergeParams:
     max_hypotheses : translations proposed per heading (best Gamma first).
     search_radius : each proposal slides (m) to the best whole-map agreement within this.
     min_pairs : edge pairs that must pass (32) at an accepted translation.
-    min_agreement : minimum agreement / (agreement + disagreement) of the overlay.
+    min_agreement : minimum agreement / (agreement + disagreement) of the overlay at full
+        resolution.  On the project's real test pairs true merges score >= 0.94 and the
+        best false overlays (long look-alike corridors of disjoint halves) <= 0.89.
     min_overlap : minimum length (m) of agreeing walls, so a sliver of overlap is no match.
     disagreement_weight : hypotheses are ranked by ``agree - weight * disagree``: a wall on
         clear free space is strong evidence against, a wall on a wall weak evidence for
@@ -111,7 +113,7 @@ class MergeParams:
     max_hypotheses: int = 40
     search_radius: float = 2.4
     min_pairs: int = 2
-    min_agreement: float = 0.85
+    min_agreement: float = 0.92
     min_overlap: float = 15.0
     disagreement_weight: float = 4.0
     search_headings: int = 4
