@@ -112,6 +112,9 @@ class FusionWorker:
         self.merge_seconds = 0.0
         self._stop = threading.Event()
         self._built: tuple[object, ...] | None = None
+        self._rebuilt_at = -np.inf
+        #: Seconds between rebuilds of a global map still waiting for links.
+        self.preview_interval = 3.0
         self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
 
     def start(self) -> None:
@@ -153,8 +156,15 @@ class FusionWorker:
             tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
             tuple(ln.key for ln in snap.links),
         )
-        if snap.maps and signature != self._built:
+        # An unsettled map is only a preview: rebuilding it on every link of a round
+        # would take CPU from the registrations the settled map waits for.
+        if (
+            snap.maps
+            and signature != self._built
+            and (snap.settled or now - self._rebuilt_at >= self.preview_interval)
+        ):
             self._built = signature  # a failing rebuild is not retried until inputs change
+            self._rebuilt_at = now
             self._rebuild(snap)
         return False
 

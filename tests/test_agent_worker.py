@@ -99,3 +99,18 @@ def test_timeout_grows_with_the_fleet_and_the_cost_of_a_registration() -> None:
     h.worker.merges, h.worker.merge_seconds = 4, 6.0  # 1.5 s each
     assert h.worker.effective_timeout(8) == 4.0 + 1.5 * 3.5
     assert h.worker.effective_timeout(1) == 4.0
+
+
+def test_unsettled_previews_are_rate_limited_settled_maps_are_not() -> None:
+    h = Harness("r3")  # registers nothing itself for a while: r1-r2 is not its pair
+    h.book.put_map("r1", 1, tiny(1))
+    h.book.put_map("r2", 1, tiny(2))
+    h.worker.step(now=0.0)
+    h.book.put_map("r2", 2, tiny(3))
+    h.worker.step(now=1.0)
+    assert len(h.globals) == 1  # a second preview within 3 s is skipped
+    h.worker.step(now=3.5)
+    assert len(h.globals) == 2 and not h.globals[-1].settled
+    h.book.add_link(LinkRecord("r1", 1, "r2", 2, True, np.eye(3), np.eye(3), 0.9, "r1"))
+    h.worker.step(now=3.6)
+    assert len(h.globals) == 3 and h.globals[-1].settled
