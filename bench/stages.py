@@ -168,7 +168,7 @@ def _plot(results: list[dict], path: Path) -> None:
         labels += [(2 * row, res["pair"]), (2 * row + 0.8, "baseline")]
     ax.set_yticks([y for y, _ in labels], [t for _, t in labels])
     ax.set_xlabel("CPU ms (median, one thread)")
-    ax.legend(ncol=5, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.35))
+    ax.legend(ncol=5, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.3))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
