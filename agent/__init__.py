@@ -1,1 +1,18 @@
-"""The per-robot daemon and the CLI: the only package that touches Zenoh, files and time."""
+"""The per-robot daemon and the CLI: the only package that touches Zenoh, files and time.
+
+Modules, by what they hold:
+
+- :mod:`agent.daemon` -- one robot's agent: Zenoh session, declarations, publish/receive,
+  membership, queryables, persistence, status (``pgvd agent``, :mod:`agent.cmd_agent`);
+- :mod:`agent.worker` -- pairwise registration and global-map rebuilds off the Zenoh threads;
+- :mod:`agent.globalmap` -- the global maps as a pure function of local maps and links;
+- :mod:`agent.links` -- link cache, pairs still to register, whose turn it is;
+- :mod:`agent.book` -- the latest map of each robot and the links, shared between threads;
+- :mod:`agent.wire` -- the thin adapter over :mod:`protocol`;
+- :mod:`agent.sources` -- ``carmen:`` log replay and ``map:`` file following;
+- :mod:`agent.state` -- atomic persistence in ``--state-dir``;
+- :mod:`agent.keys`, :mod:`agent.zenoh_config`, :mod:`agent.counters`;
+- :mod:`agent.launcher`, :mod:`agent.evaluate` -- local fleets and their ground truth, for
+  ``pgvd demo`` (:mod:`agent.cmd_demo`), the fleet tests and ``bench/fleet.py``;
+- :mod:`agent.cmd_status` -- ``pgvd status``.
+"""
