@@ -14,6 +14,18 @@ from agent.links import LinkCache, LinkKey, LinkRecord, needed_keys, select_link
 from pgvd.grid import Grid
 
 
+def next_version(held: int | None, now: float) -> int:
+    """The version of a robot's next own map: past ``held`` and not below wall-clock ms.
+
+    Versions only move forward per robot, and peers drop anything not newer than what
+    they hold.  Counting 1, 2, 3... would leave a robot whose state directory was lost
+    unheard forever; a millisecond clock floor makes a fresh start newer than anything
+    it published before (given a clock that did not jump back).
+    """
+    floor = int(now * 1000)
+    return floor if held is None else max(held + 1, floor)
+
+
 @dataclass(frozen=True)
 class Snapshot:
     """A consistent view: ``maps`` ``{robot: (version, grid)}``, the links to use, settled."""

@@ -135,7 +135,8 @@ def _progress(statuses: dict[str, dict | None]) -> str:
         glob = s.get("global") or {}
         links = sum(1 for ln in s.get("links", []) if ln["accepted"])
         parts.append(
-            f"{robot}: {100 * done // max(total, 1):3d}% v{s.get('own_version')} "
+            f"{robot}: {100 * done // max(total, 1):3d}% "
+            f"{s.get('counts', {}).get('versions_published', 0)} versions "
             f"knows {len(s.get('robots', {}))} links {links} "
             f"map {str(glob.get('digest', '-'))[:6]}{'*' if s.get('settled') else ''}"
         )

@@ -27,7 +27,7 @@ import numpy as np
 import zenoh
 
 from agent import wire
-from agent.book import FleetBook
+from agent.book import FleetBook, next_version
 from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, component_of
 from agent.keys import FleetKeys
@@ -399,13 +399,18 @@ class Agent:
             return
         self._source_pending = False
         held = self.book.version(self.me)
-        version = 1 if held is None else held + 1
+        version = next_version(held, time.time())
         previous = self.book.map_of(self.me)
+        try:
+            sent = wire.on_the_wire(grid)
+            tiles, manifest = self.outbound.prepare(version, sent, previous)
+        except ProtocolError as exc:  # e.g. a map beyond the wire's limits: keep serving
+            self.counters.drop("own_map_unencodable", self.me, str(exc))
+            return
+        # Persist before publishing: a peer never holds a version this agent could lose.
         self.state.save_map(self.me, StoredMap(version, grid, self.source.resume_state()))
-        grid = wire.on_the_wire(grid)
-        self.book.put_map(self.me, version, grid)
+        self.book.put_map(self.me, version, sent)
         self._last_update = time.time()
-        tiles, manifest = self.outbound.prepare(version, grid, previous)
         for data in tiles:
             self.tiles_pub.put(data)
             self.counters.add("bytes_sent", len(data))
