@@ -9,6 +9,8 @@ import sys
 import threading
 from pathlib import Path
 
+import zenoh
+
 from agent.cli import EXIT_OK, CliError
 from agent.keys import check_name
 from agent.sources import parse_frame, parse_source
@@ -156,7 +158,13 @@ def run(args: argparse.Namespace) -> int:
     def on_signal(signum: int, _frame: object) -> None:
         stop.set()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    agent.run(stop)
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        agent.run(stop)
+    except zenoh.ZError as exc:  # e.g. the listen port is taken: one line, not a traceback
+        first = (str(exc).strip().splitlines() or ["unknown error"])[0]
+        raise CliError(f"cannot open the Zenoh session: {first}") from None
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return EXIT_OK

@@ -1,0 +1,46 @@
+"""``pgvd agent`` refuses bad input with one line and exit code 2, before serving."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from agent.cli import main
+
+LOG = Path(__file__).resolve().parents[1] / "agent" / "data" / "intel-corrected.log.gz"
+
+
+def agent(tmp_path: Path, *extra: str) -> list[str]:
+    src = f"carmen:{LOG}@0.0-0.05"
+    return ["agent", "--robot", "r1", "--source", src, "--state-dir", str(tmp_path), *extra]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--robot", "r/1"], "robot id"),
+        (["--source", "carmen:/nonexistent.log"], "source file not found"),
+        (["--source", "tape:x"], "source must be"),
+        (["--frame", "1,2"], "frame must be"),
+        (["--key-file", "/nonexistent.key"], "cannot read key file"),
+        (["--speed", "0"], "--speed"),
+        (["--min-agreement", "1.5"], "--min-agreement"),
+        (["--zenoh-config", "/nonexistent.json5"], "bad Zenoh config"),
+    ],
+)
+def test_bad_arguments(tmp_path: Path, capsys, extra: list[str], message: str) -> None:
+    assert main(agent(tmp_path, *extra)) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+
+
+def test_taken_listen_port_is_one_line(tmp_path: Path, capsys) -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        assert main(agent(tmp_path, "--listen", f"tcp/127.0.0.1:{port}")) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot open the Zenoh session" in err
