@@ -65,9 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--min-agreement",
         type=float,
-        default=0.9,
-        help="overlay agreement a link needs (stricter than a one-off merge: a false link "
-        "spreads to every agent's global map)",
+        help="overlay agreement a link needs (default: the merge's own threshold)",
     )
     p.add_argument("-v", "--verbose", action="store_true", help="log every event")
     p.set_defaults(func=run)
@@ -91,7 +89,7 @@ def options_from_args(args: argparse.Namespace):
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
     if not 0 <= args.min_change <= 1:
         raise CliError("--min-change must be in [0, 1]")
-    if not 0 < args.min_agreement <= 1:
+    if args.min_agreement is not None and not 0 < args.min_agreement <= 1:
         raise CliError("--min-agreement must be in (0, 1]")
     key = None
     if args.key_file is not None:

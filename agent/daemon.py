@@ -64,7 +64,7 @@ class AgentOptions:
     best_effort_tiles: bool = False
     min_change: float = 0.05
     min_interval: float = 1.0
-    min_agreement: float | None = 0.9
+    min_agreement: float | None = None
 
 
 class Agent:

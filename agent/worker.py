@@ -43,9 +43,9 @@ RegisterFn = Callable[[Grid, Grid], Registration]
 def merge_registration(min_agreement: float | None = None) -> RegisterFn:
     """:func:`pgvd.merge.merge` as a :data:`RegisterFn` (rho test (32) plus global check).
 
-    ``min_agreement`` overrides the merge's acceptance threshold on the overlay agreement:
-    a fleet may want it stricter than a one-off merge, because a false link corrupts the
-    global map of every agent, not one output file.
+    ``min_agreement`` overrides the merge's acceptance threshold on the overlay agreement
+    (None keeps the merge's own): a fleet may want it stricter than a one-off merge,
+    because a false link corrupts the global map of every agent, not one output file.
     """
     from dataclasses import replace
 
