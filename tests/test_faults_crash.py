@@ -3,11 +3,11 @@
 One scenario (3 agents replaying overlapping Intel segments, lease 2 s):
 
 1. r2 is frozen with SIGSTOP until its peers declare it gone (past the lease), then resumed;
-2. the network is split into {r1} and {r2, r3} until each side sees the other gone, while every
-   robot keeps mapping; then the split heals;
-3. r3 is killed with SIGKILL three times, each a few ms after it published a new version (while
+2. r3 is killed with SIGKILL three times, each a few ms after it published a new version (while
    it sends and persists), and restarted; its state directory must load without a single error
    and hold at least what it had published;
+3. the network is split into {r1} and {r2, r3} until each side sees the other gone, while every
+   robot keeps mapping; then the split heals;
 4. everybody must end with the same global map, the three true links, every final version.
 """
 
@@ -59,6 +59,11 @@ def version(fleet: NetFleet, robot: str) -> int:
     return (fleet.status(robot) or {}).get("own_version") or 0
 
 
+def published(fleet: NetFleet, robot: str) -> int:
+    """Versions ``robot`` published since it (re)started (versions are timestamps, not counts)."""
+    return (fleet.status(robot) or {}).get("counts", {}).get("versions_published", 0)
+
+
 def progress(fleet: NetFleet, robot: str) -> float:
     done, total = (fleet.status(robot) or {}).get("source", {}).get("progress", (0, 1))
     return done / total
@@ -80,39 +85,39 @@ def scenario() -> dict:
         # 1. freeze r2 past the lease
         assert wait(lambda: progress(fleet, "r2") >= 0.1, 60) is not None
         fleet.signal("r2", signal.SIGSTOP)
-        frozen_at = version(fleet, "r1")
+        frozen_at = published(fleet, "r1")
         out["freeze_detected_s"] = wait(
             lambda: sees(fleet, "r1", "r2") is False and sees(fleet, "r3", "r2") is False, 20
         )
-        out["versions_while_frozen"] = version(fleet, "r1") - frozen_at
+        out["versions_while_frozen"] = published(fleet, "r1") - frozen_at
         fleet.signal("r2", signal.SIGCONT)
         out["rejoin_s"] = wait(lambda: sees(fleet, "r1", "r2") and sees(fleet, "r2", "r1"), 20)
 
-        # 2. split {r1} | {r2, r3}, both halves keep mapping, then heal
-        lab.partition([0], [1, 2])
-        before = {r: version(fleet, r) for r in SOURCES}
-        out["split_detected_s"] = wait(
-            lambda: sees(fleet, "r1", "r2") is False and sees(fleet, "r2", "r1") is False, 20
-        )
-        time.sleep(1.0)
-        out["versions_during_split"] = {r: version(fleet, r) - before[r] for r in SOURCES}
-        lab.heal()
-        out["heal_s"] = wait(lambda: sees(fleet, "r1", "r2") and sees(fleet, "r3", "r1"), 20)
-
-        # 3. kill -9 r3 right after it publishes (sending, persisting), restart, three times
+        # 2. kill -9 r3 right after it publishes (sending, persisting), restart, three times
         for _ in range(3):
             held = version(fleet, "r3")
             if wait(lambda held=held: version(fleet, "r3") > held, 20) is None:
                 break  # r3's replay is over: no more versions to interrupt
             time.sleep(rng.uniform(0.0, 0.05))
-            published = version(fleet, "r3")
+            shown = version(fleet, "r3")
             fleet.kill("r3")
             maps, errors = StateDir(fleet.state_dir("r3")).load_maps()
-            kill = {"published": published, "persisted": maps["r3"].version}
+            kill = {"published": shown, "persisted": maps["r3"].version}
             out["kills"].append({**kill, "errors": errors, "maps": sorted(maps)})
             (fleet.state_dir("r3") / "status.json").unlink(missing_ok=True)
             fleet.start("r3", *hosts["r3"])
             assert wait(lambda: fleet.status("r3") is not None, 20) is not None
+
+        # 3. split {r1} | {r2, r3}, both halves keep mapping, then heal
+        lab.partition([0], [1, 2])
+        before = {r: published(fleet, r) for r in SOURCES}
+        out["split_detected_s"] = wait(
+            lambda: sees(fleet, "r1", "r2") is False and sees(fleet, "r2", "r1") is False, 20
+        )
+        time.sleep(1.0)
+        out["versions_during_split"] = {r: published(fleet, r) - before[r] for r in SOURCES}
+        lab.heal()
+        out["heal_s"] = wait(lambda: sees(fleet, "r1", "r2") and sees(fleet, "r3", "r1"), 20)
 
         out["agreed_s"] = wait_agreed(fleet, 120)
         out["statuses"] = fleet.statuses()
