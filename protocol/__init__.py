@@ -26,8 +26,10 @@ Maps (:mod:`protocol.mapsync`)
     base_version=None, max_message_bytes=60_000, tile_size=128, indices=None)
     -> (tile_messages: list[bytes], manifest: bytes)``: log-odds quantised to
     int8 (:mod:`protocol.quantize`), cut into 128x128 tiles, only tiles holding
-    knowledge sent, each deflated in the smallest of three layouts
-    (:mod:`protocol.compress`); with ``since`` (the Grid or int8 array of an
+    knowledge sent, each in the smallest of three byte layouts, the layouts of
+    one message compressed as one stream by deflate, LZMA or, for the few
+    sparse cells of a small delta, an adaptive arithmetic coder
+    (:mod:`protocol.compress`, :mod:`protocol.arith`); with ``since`` (the Grid or int8 array of an
     earlier version) only changed tiles, as differences, and with
     ``base_version`` too a delta manifest (only changed tiles' checksums plus a
     digest of the full list: bytes proportional to the change; a receiver
@@ -55,10 +57,12 @@ Replays (:mod:`protocol.auth`)
     after ``decode``; persist ``guard.state`` to refuse replays across restarts.
     Only meaningful with a fleet key: without one anybody can forge new versions.
 
-Wire layout (:mod:`protocol.codec`)
+Wire layout (:mod:`protocol.codec`, schema version 2)
     ``b"PG" | schema version | flags | msgpack body | CRC-32 or HMAC-SHA256``;
-    the trailer is checked before the body is parsed, inflating is bounded by
-    the tile shape, and every field is type-, range- and finiteness-checked.
+    the body is a positional msgpack array (kind first); the trailer is
+    checked before the body is parsed, decompressing is bounded by the tile
+    shapes of the message's tile table, and every field is type-, range- and
+    finiteness-checked.  A full tile's checksum is computed by the receiver.
 """
 
 from protocol.auth import ReplayGuard

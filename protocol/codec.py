@@ -5,25 +5,34 @@ Wire layout of every message::
     b"PG" | schema version (1 byte) | flags (1 byte) | msgpack body | trailer
 
 ``flags`` bit 0 says the trailer is an HMAC-SHA256 (32 bytes, fleet key set)
-rather than a CRC-32 (4 bytes).  The body is a msgpack map whose ``"k"``
-entry names the kind; every other entry is checked for type, range and
-finiteness before a message object is built.  Tiles are deflate streams
-(:mod:`protocol.compress`) inflated with a hard bound derived from the tile's
-own shape, so a small message can never expand into a large allocation.
-A manifest's checksums travel as a bitmap of the tiles it lists followed by
-one little-endian CRC-32 per listed tile (:func:`protocol.tiles.pack_checksums`).
+rather than a CRC-32 (4 bytes).  The body is a msgpack array whose first
+entry is the kind (a small integer) and whose other entries are the kind's
+fields in a fixed order (no field names on the wire: a one-scan delta is a
+few hundred bytes, where names would be a tenth of it); every field is checked
+for type, range and finiteness before a message object is built.
+
+A MapTiles body ends in a tile table and ONE compressed stream holding the
+layouts of all its tiles (:mod:`protocol.compress`).  Per tile the table
+holds the index and layout (LEB128 varints), a flags byte (layout id, bit 7
+set for a delta tile) and, for delta tiles only, the little-endian CRC-32s of
+the result and of its base: a full tile's checksum is computed from its cells
+by the receiver, since the trailer already covers the bytes.  The table bounds
+every layout by its tile's shape before anything is decompressed, so a small
+message can never expand into a large allocation.  A manifest's checksums
+travel as a bitmap of the tiles it lists followed by one little-endian CRC-32
+per listed tile (:func:`protocol.tiles.pack_checksums`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import msgpack
 import numpy as np
 
 from protocol.auth import check_key, seal, unseal
-from protocol.compress import pack_cells, unpack_cells
+from protocol.compress import compress, decompress, layout_bound, layout_cells, unpack_layout
 from protocol.errors import ProtocolError
 from protocol.limits import Limits
 from protocol.messages import (
@@ -37,19 +46,21 @@ from protocol.messages import (
     Tile,
     check_id,
 )
-from protocol.tiles import apply_tile, pack_checksums
+from protocol.tiles import checksum, pack_checksums
 
 MAGIC = b"PG"
-#: Bumped on any incompatible change of the body layout.
-SCHEMA_VERSION = 1
+#: Bumped on any incompatible change of the body layout (2: positional bodies, one
+#: compressed stream per tile message).
+SCHEMA_VERSION = 2
 FLAG_MAC = 0x01
 HEADER_BYTES = 4
+DELTA_BIT = 0x80
 
-KIND_TILES = "tiles"
-KIND_MANIFEST = "manifest"
-KIND_LINK = "link"
-KIND_HEARTBEAT = "heartbeat"
-KIND_STATUS = "status"
+KIND_TILES = 0
+KIND_MANIFEST = 1
+KIND_LINK = 2
+KIND_HEARTBEAT = 3
+KIND_STATUS = 4
 
 
 # ---------------------------------------------------------------- encoding
@@ -64,77 +75,90 @@ def encode(msg: Message, key: bytes | None = None) -> bytes:
         If ``msg`` is not a message of this protocol or the key is not bytes.
     """
     key = check_key(key)
-    body = msgpack.packb(_body(msg), use_bin_type=True)
+    if isinstance(msg, MapTiles):
+        return _seal_tiles(msg, [_layout(t) for t in msg.tiles], key)
+    return _seal(_body(msg), key)
+
+
+def _seal(body: list[Any], key: bytes | None) -> bytes:
     head = MAGIC + bytes((SCHEMA_VERSION, FLAG_MAC if key is not None else 0))
-    return head + body + seal(head + body, key)
+    packed = head + msgpack.packb(body, use_bin_type=True)
+    return packed + seal(packed, key)
 
 
 def _geometry(g: Geometry) -> list[Any]:
-    return [g.shape[0], g.shape[1], g.resolution, *g.origin, g.tile_size]
+    return [g.shape[0], g.shape[1], *map(_compact, (g.resolution, *g.origin)), g.tile_size]
 
 
-def _tile(t: Tile) -> list[Any]:
-    encoding, packed = pack_cells(t.cells)
-    return [t.index, t.checksum, t.base_checksum, encoding, packed]
+def _compact(x: float) -> float | int:
+    """``x`` as an int when it is one (a yaw of 0.0 packs in 1 byte, not 9), else as is.
+
+    Lossless: the decoder takes ints wherever floats travel (only the sign of
+    -0.0 is dropped, and -0.0 == 0.0).
+    """
+    return int(x) if x.is_integer() and abs(x) < 2**53 else x
 
 
-def _tiles_body(msg: MapTiles, tiles: list[Any]) -> dict[str, Any]:
-    """The body of a MapTiles message around already packed ``tiles``; "t" comes last."""
-    return {
-        "k": KIND_TILES,
-        "f": msg.fleet,
-        "r": msg.robot,
-        "v": msg.version,
-        "g": _geometry(msg.geometry),
-        "b": msg.base_version,
-        "t": tiles,
-    }
+class _Layout:
+    """One tile laid out for the wire: its layout id, table entry, layout bytes and shape."""
+
+    __slots__ = ("encoding", "entry", "layout", "shape")
+
+    def __init__(self, encoding: int, entry: bytes, layout: bytes, shape: tuple[int, int]) -> None:
+        self.encoding, self.entry, self.layout, self.shape = encoding, entry, layout, shape
 
 
-def _body(msg: Message) -> dict[str, Any]:
-    if isinstance(msg, MapTiles):
-        return _tiles_body(msg, [_tile(t) for t in msg.tiles])
+def _layout(t: Tile) -> _Layout:
+    if not t.is_delta and checksum(t.cells) != t.checksum:
+        # The wire carries no checksum for a full tile: the receiver computes it.
+        raise ProtocolError(f"tile {t.index}: checksum mismatch")
+    encoding, layout = layout_cells(t.cells)
+    entry = _varint(t.index) + bytes((encoding | (DELTA_BIT if t.is_delta else 0),))
+    entry += _varint(len(layout))
+    if t.is_delta:
+        entry += t.checksum.to_bytes(4, "little") + t.base_checksum.to_bytes(4, "little")
+    return _Layout(encoding, entry, layout, t.cells.shape)
+
+
+def _varint(n: int) -> bytes:
+    """LEB128: 7 bits per byte, low bits first, high bit set on all but the last byte."""
+    out = bytearray()
+    while n >= 0x80:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _seal_tiles(msg: MapTiles, layouts: Sequence[_Layout], key: bytes | None) -> bytes:
+    """One MapTiles message holding ``layouts`` (tiles of ``msg``) in one compressed stream."""
+    codec, stream = compress([(t.encoding, t.layout, t.shape) for t in layouts])
+    return _seal(_tiles_body(msg, b"".join(t.entry for t in layouts), codec, stream), key)
+
+
+def _tiles_body(msg: MapTiles, table: bytes, codec: int, stream: bytes) -> list[Any]:
+    return [
+        KIND_TILES, msg.fleet, msg.robot, msg.version, _geometry(msg.geometry),
+        msg.base_version, table, codec, stream,
+    ]  # fmt: skip
+
+
+def _body(msg: Message) -> list[Any]:
     if isinstance(msg, Manifest):
-        return {
-            "k": KIND_MANIFEST,
-            "f": msg.fleet,
-            "r": msg.robot,
-            "v": msg.version,
-            "g": _geometry(msg.geometry),
-            "c": pack_checksums(msg.geometry, msg.checksums),
-            "b": msg.base_version,
-            "d": msg.digest,
-        }
+        return [
+            KIND_MANIFEST, msg.fleet, msg.robot, msg.version, _geometry(msg.geometry),
+            pack_checksums(msg.geometry, msg.checksums), msg.base_version, msg.digest,
+        ]  # fmt: skip
     if isinstance(msg, Link):
-        return {
-            "k": KIND_LINK,
-            "f": msg.fleet,
-            "d": msg.decided_by,
-            "a": msg.robot_a,
-            "b": msg.robot_b,
-            "va": msg.version_a,
-            "vb": msg.version_b,
-            "ok": msg.accepted,
-            "m": [v for row in msg.matrix for v in row],
-            "cov": [v for row in msg.covariance for v in row],
-            "s": msg.score,
-        }
+        return [
+            KIND_LINK, msg.fleet, msg.decided_by, msg.robot_a, msg.robot_b, msg.version_a,
+            msg.version_b, msg.accepted, [_compact(v) for row in msg.matrix for v in row],
+            [_compact(v) for row in msg.covariance for v in row], _compact(msg.score),
+        ]  # fmt: skip
     if isinstance(msg, Heartbeat):
-        return {
-            "k": KIND_HEARTBEAT,
-            "f": msg.fleet,
-            "r": msg.robot,
-            "n": msg.seq,
-            "mv": msg.map_version,
-        }
+        return [KIND_HEARTBEAT, msg.fleet, msg.robot, msg.seq, msg.map_version]
     if isinstance(msg, Status):
-        return {
-            "k": KIND_STATUS,
-            "f": msg.fleet,
-            "r": msg.robot,
-            "n": msg.seq,
-            "c": dict(msg.counters),
-        }
+        return [KIND_STATUS, msg.fleet, msg.robot, msg.seq, dict(msg.counters)]
     raise ProtocolError(f"cannot encode a {type(msg).__name__}")
 
 
@@ -165,7 +189,9 @@ def decode(data: bytes, key: bytes | None = None, limits: Limits = Limits()) -> 
     if data[:2] != MAGIC:
         raise ProtocolError("not a pgvd message: bad magic")
     if data[2] != SCHEMA_VERSION:
-        raise ProtocolError(f"unsupported schema version {data[2]} (this decoder speaks 1)")
+        raise ProtocolError(
+            f"unsupported schema version {data[2]} (this decoder speaks {SCHEMA_VERSION})"
+        )
     flags = data[3]
     if flags & ~FLAG_MAC:
         raise ProtocolError(f"unknown flags 0x{flags:02x}")
@@ -176,27 +202,29 @@ def decode(data: bytes, key: bytes | None = None, limits: Limits = Limits()) -> 
         )
     except Exception as exc:  # msgpack raises a zoo of types on bad input
         raise ProtocolError(f"malformed msgpack body: {type(exc).__name__}") from None
-    if not isinstance(body, dict):
-        raise ProtocolError("message body must be a map")
-    kind = body.get("k")
-    parser = _PARSERS.get(kind) if isinstance(kind, str) else None
-    if parser is None:
+    if not isinstance(body, list) or not body:
+        raise ProtocolError("message body must be a non-empty array")
+    kind = body[0]
+    entry = None if isinstance(kind, bool) or not isinstance(kind, int) else _PARSERS.get(kind)
+    if entry is None:
         raise ProtocolError(f"unknown message kind {kind!r}")
-    return parser(_Fields(body, kind), limits)
+    name, parser = entry
+    return parser(_Fields(body[1:], name), limits)
 
 
 class _Fields:
-    """The entries of one body map, taken one by one; leftovers are an error."""
+    """The fields of one positional body, taken in order by name; leftovers are an error."""
 
-    def __init__(self, body: dict[str, Any], kind: str) -> None:
-        self._body = dict(body)
-        self._body.pop("k")
+    def __init__(self, values: list[Any], kind: str) -> None:
+        self._values = values
+        self._next = 0
         self.kind = kind
 
     def take(self, name: str, types: type | tuple[type, ...], nullable: bool = False) -> Any:
-        if name not in self._body:
+        if self._next >= len(self._values):
             raise ProtocolError(f"{self.kind} message lacks field {name!r}")
-        value = self._body.pop(name)
+        value = self._values[self._next]
+        self._next += 1
         if value is None and nullable:
             return None
         allowed = types if isinstance(types, tuple) else (types,)
@@ -209,9 +237,9 @@ class _Fields:
         return value
 
     def done(self) -> None:
-        if self._body:
-            names = ", ".join(sorted(map(repr, self._body)))  # keys may be str or bytes
-            raise ProtocolError(f"{self.kind} message has unknown fields {names}")
+        extra = len(self._values) - self._next
+        if extra:
+            raise ProtocolError(f"{self.kind} message has {extra} unknown trailing fields")
 
 
 def _id(fields: _Fields, name: str, what: str, limits: Limits) -> str:
@@ -222,7 +250,7 @@ def _id(fields: _Fields, name: str, what: str, limits: Limits) -> str:
 
 
 def _parse_geometry(fields: _Fields, limits: Limits) -> Geometry:
-    g = fields.take("g", list)
+    g = fields.take("geometry", list)
     if len(g) != 7:
         raise ProtocolError(f"geometry must have 7 entries, got {len(g)}")
     geometry = Geometry((g[0], g[1]), g[2], (g[3], g[4], g[5]), g[6])
@@ -238,57 +266,103 @@ def _parse_geometry(fields: _Fields, limits: Limits) -> Geometry:
     return geometry
 
 
-def _parse_tile(raw: Any, geometry: Geometry) -> Tile:
-    if not isinstance(raw, list) or len(raw) != 5:
-        raise ProtocolError("a tile must be [index, checksum, base_checksum, encoding, data]")
-    index, crc, base, encoding, packed = raw
-    if isinstance(index, bool) or not isinstance(index, int):
-        raise ProtocolError("tile index must be an integer")
-    shape = geometry.tile_shape(index)
-    if isinstance(encoding, bool) or not isinstance(encoding, int):
-        raise ProtocolError(f"tile {index}: encoding must be an integer")
-    if not isinstance(packed, bytes):
-        raise ProtocolError(f"tile {index}: data must be bytes")
-    tile = Tile(index, crc, unpack_cells(encoding, packed, shape, index), base)
-    if not tile.is_delta:
-        apply_tile(tile, None)  # a delta's checksum can only be checked against its base
-    return tile
+class _Reader:
+    """A cursor over a tile table; running out of bytes is a ProtocolError."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data, self.pos = data, 0
+
+    def __bool__(self) -> bool:
+        return self.pos < len(self.data)
+
+    def byte(self) -> int:
+        if self.pos >= len(self.data):
+            raise ProtocolError("tile table is truncated")
+        self.pos += 1
+        return self.data[self.pos - 1]
+
+    def varint(self) -> int:
+        value = 0
+        for shift in range(0, 64, 7):
+            b = self.byte()
+            value |= (b & 0x7F) << shift
+            if not b & 0x80:
+                return value
+        raise ProtocolError("tile table holds a varint longer than 64 bits")
+
+    def crc(self) -> int:
+        if self.pos + 4 > len(self.data):
+            raise ProtocolError("tile table is truncated")
+        self.pos += 4
+        return int.from_bytes(self.data[self.pos - 4 : self.pos], "little")
 
 
-def _parse_tiles(fields: _Fields, limits: Limits) -> MapTiles:
-    fleet = _id(fields, "f", "fleet", limits)
-    robot = _id(fields, "r", "robot", limits)
-    version = fields.take("v", int)
-    geometry = _parse_geometry(fields, limits)
-    base_version = fields.take("b", int, nullable=True)
-    raw_tiles = fields.take("t", list)
-    fields.done()
-    if len(raw_tiles) > limits.max_tiles_per_message:
-        raise ProtocolError(
-            f"{len(raw_tiles)} tiles in one message exceed the limit of "
-            f"{limits.max_tiles_per_message}"
-        )
-    tiles, cells = [], 0
-    for raw in raw_tiles:
-        tile = _parse_tile(raw, geometry)
-        cells += tile.cells.size
-        # Checked after each bounded inflate: never more than one tile past the limit.
+def _parse_table(
+    table: bytes, geometry: Geometry, limits: Limits
+) -> list[tuple[int, int, int, int | None, int | None]]:
+    """``(index, encoding, layout bytes, checksum, base checksum)`` per tile, bounded."""
+    entries, cells = [], 0
+    reader = _Reader(table)
+    while reader:
+        if len(entries) >= limits.max_tiles_per_message:
+            raise ProtocolError(
+                f"more than {limits.max_tiles_per_message} tiles in one message exceed the limit"
+            )
+        index = reader.varint()
+        shape = geometry.tile_shape(index)
+        flags = reader.byte()
+        encoding = flags & ~DELTA_BIT
+        size = reader.varint()
+        if size > layout_bound(encoding, shape, index):
+            raise ProtocolError(f"tile {index}: layout of {size} bytes exceeds its bound")
+        crc, base = (reader.crc(), reader.crc()) if flags & DELTA_BIT else (None, None)
+        cells += shape[0] * shape[1]
         if cells > limits.max_message_cells:
             raise ProtocolError(
                 f"tiles of one message exceed the limit of {limits.max_message_cells} cells"
             )
-        tiles.append(tile)
+        entries.append((index, encoding, size, crc, base))
+    if not entries:
+        raise ProtocolError("a tiles message must carry at least one tile")
+    return entries
+
+
+def _tile(index: int, cells: np.ndarray, crc: int | None, base: int | None) -> Tile:
+    if crc is None:
+        if cells.min(initial=0) == -128:
+            raise ProtocolError(f"tile {index}: cell value -128 is outside the quantised range")
+        return Tile(index, checksum(cells), cells)
+    # A delta's checksum can only be checked against its base, when it is applied.
+    return Tile(index, crc, cells, base)
+
+
+def _parse_tiles(fields: _Fields, limits: Limits) -> MapTiles:
+    fleet = _id(fields, "fleet", "fleet", limits)
+    robot = _id(fields, "robot", "robot", limits)
+    version = fields.take("version", int)
+    geometry = _parse_geometry(fields, limits)
+    base_version = fields.take("base_version", int, nullable=True)
+    entries = _parse_table(fields.take("table", bytes), geometry, limits)
+    codec = fields.take("codec", int)
+    stream = fields.take("stream", bytes)
+    fields.done()
+    data = decompress(codec, stream, [(e[1], e[2], geometry.tile_shape(e[0])) for e in entries])
+    tiles, at = [], 0
+    for index, encoding, size, crc, base in entries:
+        cells = unpack_layout(encoding, data[at : at + size], geometry.tile_shape(index), index)
+        at += size
+        tiles.append(_tile(index, cells, crc, base))
     return MapTiles(fleet, robot, version, geometry, tuple(tiles), base_version)
 
 
 def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
-    fleet = _id(fields, "f", "fleet", limits)
-    robot = _id(fields, "r", "robot", limits)
-    version = fields.take("v", int)
+    fleet = _id(fields, "fleet", "fleet", limits)
+    robot = _id(fields, "robot", "robot", limits)
+    version = fields.take("version", int)
     geometry = _parse_geometry(fields, limits)
-    packed = fields.take("c", bytes)
-    base_version = fields.take("b", int, nullable=True)
-    digest = fields.take("d", int, nullable=True)
+    packed = fields.take("checksums", bytes)
+    base_version = fields.take("base_version", int, nullable=True)
+    digest = fields.take("digest", int, nullable=True)
     fields.done()
     n = geometry.n_tiles
     bitmap = -(-n // 8)
@@ -315,16 +389,16 @@ def _matrix(fields: _Fields, name: str) -> list[list[Any]]:
 
 
 def _parse_link(fields: _Fields, limits: Limits) -> Link:
-    fleet = _id(fields, "f", "fleet", limits)
-    decided_by = _id(fields, "d", "decided_by", limits)
-    robot_a = _id(fields, "a", "robot_a", limits)
-    robot_b = _id(fields, "b", "robot_b", limits)
-    version_a = fields.take("va", int)
-    version_b = fields.take("vb", int)
-    accepted = fields.take("ok", bool)
-    matrix = _matrix(fields, "m")
-    covariance = _matrix(fields, "cov")
-    score = fields.take("s", (int, float))
+    fleet = _id(fields, "fleet", "fleet", limits)
+    decided_by = _id(fields, "decided_by", "decided_by", limits)
+    robot_a = _id(fields, "robot_a", "robot_a", limits)
+    robot_b = _id(fields, "robot_b", "robot_b", limits)
+    version_a = fields.take("version_a", int)
+    version_b = fields.take("version_b", int)
+    accepted = fields.take("accepted", bool)
+    matrix = _matrix(fields, "matrix")
+    covariance = _matrix(fields, "covariance")
+    score = fields.take("score", (int, float))
     fields.done()
     return Link(
         fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted, matrix, covariance,
@@ -333,19 +407,19 @@ def _parse_link(fields: _Fields, limits: Limits) -> Link:
 
 
 def _parse_heartbeat(fields: _Fields, limits: Limits) -> Heartbeat:
-    fleet = _id(fields, "f", "fleet", limits)
-    robot = _id(fields, "r", "robot", limits)
-    seq = fields.take("n", int)
-    map_version = fields.take("mv", int, nullable=True)
+    fleet = _id(fields, "fleet", "fleet", limits)
+    robot = _id(fields, "robot", "robot", limits)
+    seq = fields.take("seq", int)
+    map_version = fields.take("map_version", int, nullable=True)
     fields.done()
     return Heartbeat(fleet, robot, seq, map_version)
 
 
 def _parse_status(fields: _Fields, limits: Limits) -> Status:
-    fleet = _id(fields, "f", "fleet", limits)
-    robot = _id(fields, "r", "robot", limits)
-    seq = fields.take("n", int)
-    counters = fields.take("c", dict)
+    fleet = _id(fields, "fleet", "fleet", limits)
+    robot = _id(fields, "robot", "robot", limits)
+    seq = fields.take("seq", int)
+    counters = fields.take("counters", dict)
     fields.done()
     if len(counters) > limits.max_status_entries:
         raise ProtocolError(
@@ -354,19 +428,21 @@ def _parse_status(fields: _Fields, limits: Limits) -> Status:
     return Status(fleet, robot, seq, counters)
 
 
-_PARSERS: dict[str, Callable[[_Fields, Limits], Message]] = {
-    KIND_TILES: _parse_tiles,
-    KIND_MANIFEST: _parse_manifest,
-    KIND_LINK: _parse_link,
-    KIND_HEARTBEAT: _parse_heartbeat,
-    KIND_STATUS: _parse_status,
+_PARSERS: dict[int, tuple[str, Callable[[_Fields, Limits], Message]]] = {
+    KIND_TILES: ("tiles", _parse_tiles),
+    KIND_MANIFEST: ("manifest", _parse_manifest),
+    KIND_LINK: ("link", _parse_link),
+    KIND_HEARTBEAT: ("heartbeat", _parse_heartbeat),
+    KIND_STATUS: ("status", _parse_status),
 }
 
 
 def encode_tiles(msg: MapTiles, key: bytes | None, max_message_bytes: int) -> list[bytes]:
     """Encode the tiles of ``msg`` as several MapTiles messages, each under ``max_message_bytes``.
 
-    Every tile is compressed once; tiles are packed greedily in index order.
+    Every tile is laid out once; tiles are batched in their order up to the
+    cells and tiles a decoder with default :class:`Limits` accepts in one
+    message, and a batch whose message comes out too large is split in two.
 
     Raises
     ------
@@ -374,39 +450,27 @@ def encode_tiles(msg: MapTiles, key: bytes | None, max_message_bytes: int) -> li
         If one tile alone does not fit in ``max_message_bytes``.
     """
     key = check_key(key)
-    head = MAGIC + bytes((SCHEMA_VERSION, FLAG_MAC if key is not None else 0))
-    trailer = len(seal(b"", key))
-    # Packed once with an empty tile list, whose 1-byte array header ends the body.
-    prefix = msgpack.packb(_tiles_body(msg, []), use_bin_type=True)[:-1]
-    # Stay within what a decoder with default limits accepts.
     limits = Limits()
-    # The array header takes at most 3 bytes for up to 2**16 tiles.
-    fixed = len(head) + len(prefix) + 3 + trailer
-    batches: list[list[bytes]] = [[]]
-    size, cells = fixed, 0
+    batches: list[list[_Layout]] = [[]]
+    cells = 0
     for tile in msg.tiles:
-        entry = msgpack.packb(_tile(tile), use_bin_type=True)
-        if fixed + len(entry) >= max_message_bytes:
-            raise ProtocolError(
-                f"a tile of {len(entry)} bytes does not fit in {max_message_bytes}-byte messages"
-            )
-        if (
-            size + len(entry) >= max_message_bytes
-            or cells + tile.cells.size > limits.max_message_cells
+        if batches[-1] and (
+            cells + tile.cells.size > limits.max_message_cells
             or len(batches[-1]) >= limits.max_tiles_per_message
         ):
             batches.append([])
-            size, cells = fixed, 0
-        batches[-1].append(entry)
-        size += len(entry)
+            cells = 0
+        batches[-1].append(_layout(tile))
         cells += tile.cells.size
-    out = []
-    for batch in batches:
-        body = prefix + _array_header(len(batch)) + b"".join(batch)
-        out.append(head + body + seal(head + body, key))
-    return out
+    return [wire for batch in batches for wire in _fit(msg, batch, key, max_message_bytes)]
 
 
-def _array_header(n: int) -> bytes:
-    """msgpack array header for ``n < 2**16`` elements."""
-    return bytes((0x90 | n,)) if n < 16 else b"\xdc" + n.to_bytes(2, "big")
+def _fit(msg: MapTiles, batch: list[_Layout], key: bytes | None, limit: int) -> list[bytes]:
+    """``batch`` as one message, or split in halves until every message is under ``limit``."""
+    wire = _seal_tiles(msg, batch, key)
+    if len(wire) < limit:
+        return [wire]
+    if len(batch) == 1:
+        raise ProtocolError(f"a tile of {len(wire)} bytes does not fit in {limit}-byte messages")
+    half = len(batch) // 2
+    return _fit(msg, batch[:half], key, limit) + _fit(msg, batch[half:], key, limit)

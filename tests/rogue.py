@@ -91,7 +91,8 @@ class Rogue:
         return Grid(cells, 0.05, (0.0, 0.0, 0.0))
 
     def _geometry(self, body: dict) -> list:
-        return next(v for v in body.values() if isinstance(v, list) and len(v) == 7)
+        fields = body.values() if isinstance(body, dict) else body  # schema 2: positional
+        return next(v for v in fields if isinstance(v, list) and len(v) == 7)
 
     def oversized(self, n: int = 5, size: int = 0) -> int:
         def huge(body: dict) -> None:

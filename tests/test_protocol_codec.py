@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import lzma
 import math
 import tracemalloc
 import zlib
@@ -13,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from pgvd.io import read_map
 from protocol import (
     Geometry,
     Heartbeat,
@@ -25,9 +27,20 @@ from protocol import (
     Tile,
     decode,
     encode,
+    quantise_grid,
 )
 from protocol.auth import seal
-from protocol.codec import MAGIC, SCHEMA_VERSION, encode_tiles
+from protocol.codec import (
+    KIND_HEARTBEAT,
+    KIND_LINK,
+    KIND_MANIFEST,
+    KIND_STATUS,
+    KIND_TILES,
+    MAGIC,
+    SCHEMA_VERSION,
+    encode_tiles,
+)
+from protocol.compress import ARITH, DEFLATE, LZMA, RAW, SPARSE
 from protocol.tiles import checksum
 
 KEY = b"fleet-key-for-tests-0123456789ab"
@@ -38,27 +51,40 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 matrices = st.lists(finite, min_size=9, max_size=9).map(lambda v: np.array(v).reshape(3, 3))
 
 
-def raw(body: dict, key: bytes | None = None, schema: int = SCHEMA_VERSION) -> bytes:
+def raw(body: list, key: bytes | None = None, schema: int = SCHEMA_VERSION) -> bytes:
     """A sealed message around a hand-made body, to reach the checks behind the trailer."""
     head = MAGIC + bytes((schema, 1 if key else 0))
     payload = head + msgpack.packb(body, use_bin_type=True)
     return payload + seal(payload, key)
 
 
-def tile_body(cells: np.ndarray, crc: int | None = None, shape=(20, 30), ts=16) -> dict:
-    """A tiles body holding tile 0 (deflated ``cells``) of a map of ``shape``."""
+def entry(index: int, encoding: int, size: int, delta: tuple[int, int] | None = None) -> bytes:
+    """One tile-table entry (index, flags, layout size and a delta's two CRC-32s)."""
+    out = bytes((index, encoding | (0x80 if delta else 0), *_leb128(size)))
+    if delta:
+        out += delta[0].to_bytes(4, "little") + delta[1].to_bytes(4, "little")
+    return out
+
+
+def _leb128(n: int) -> bytes:
+    out = bytearray()
+    while n >= 0x80:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    return bytes((*out, n))
+
+
+def tile_body(cells: np.ndarray, shape=(20, 30), ts=16, table: bytes | None = None) -> list:
+    """A tiles body holding tile 0 (``cells`` as a RAW layout, deflated) of a map of ``shape``."""
     packer = zlib.compressobj(6, zlib.DEFLATED, -15)
-    packed = packer.compress(cells.tobytes()) + packer.flush()
-    crc = checksum(cells) if crc is None else crc
-    return {
-        "k": "tiles",
-        "f": "fleet",
-        "r": "r1",
-        "v": 3,
-        "g": [shape[0], shape[1], 0.05, 0.0, 0.0, 0.0, ts],
-        "b": None,
-        "t": [[0, crc, None, 0, packed]],
-    }
+    stream = packer.compress(cells.tobytes()) + packer.flush()
+    table = entry(0, RAW, cells.size) if table is None else table
+    geometry = [shape[0], shape[1], 0.05, 0.0, 0.0, 0.0, ts]
+    return [KIND_TILES, "fleet", "r1", 3, geometry, None, table, DEFLATE, stream]
+
+
+def heartbeat(*fields) -> list:
+    return [KIND_HEARTBEAT, *(fields or ("f", "r", 1, None))]
 
 
 def sample_messages() -> list:
@@ -209,8 +235,10 @@ def raw_bytes(body: bytes) -> bytes:
 
 
 def test_wrong_schema_version():
-    with pytest.raises(ProtocolError, match="unsupported schema version 2"):
-        decode(raw({"k": "heartbeat", "f": "f", "r": "r", "n": 1, "mv": None}, schema=2))
+    with pytest.raises(
+        ProtocolError, match=r"unsupported schema version 1 \(this decoder speaks 2\)"
+    ):
+        decode(raw(heartbeat(), schema=1))
 
 
 def test_truncated_message():
@@ -228,44 +256,62 @@ def test_corrupted_message():
         decode(bytes(wire))
 
 
-def test_tile_checksum_mismatch():
+def test_full_tiles_carry_the_checksum_of_their_cells():
+    """The wire has no checksum for a full tile: the receiver computes it, the sender checks it."""
     cells = np.ones((16, 16), np.int8)
+    g = Geometry((20, 30), 0.05, tile_size=16)
+    assert decode(raw(tile_body(cells))).tiles[0].checksum == checksum(cells)
+    wrong = MapTiles("f", "r", 1, g, (Tile(0, checksum(cells) ^ 1, cells),))
     with pytest.raises(ProtocolError, match="tile 0: checksum mismatch"):
-        decode(raw(tile_body(cells, crc=checksum(cells) ^ 1)))
+        encode(wrong)
+
+
+def test_delta_tiles_carry_both_checksums():
+    diff = np.zeros((16, 16), np.int8)
+    diff[3, 4] = -3
+    g = Geometry((20, 30), 0.05, tile_size=16)
+    msg = MapTiles("f", "r", 2, g, (Tile(0, 11, diff, base_checksum=22),), base_version=1)
+    tile = decode(encode(msg)).tiles[0]
+    assert (tile.checksum, tile.base_checksum, tile.cells.tolist()) == (11, 22, diff.tolist())
 
 
 def test_nan_is_refused_everywhere_a_float_travels():
-    link = {
-        "k": "link", "f": "f", "d": "a", "a": "a", "b": "b", "va": 1, "vb": 2, "ok": True,
-        "m": [1.0, 0, 0, 0, 1, 0, 0, 0, 1], "cov": [1.0, 0, 0, 0, 1, 0, 0, 0, 1], "s": 0.5,
-    }  # fmt: skip
-    for field, value in [("s", math.nan), ("m", [math.nan, *link["m"][1:]])]:
+    eye = [1.0, 0, 0, 0, 1, 0, 0, 0, 1]
+    link = [KIND_LINK, "f", "a", "a", "b", 1, 2, True, eye, eye, 0.5]
+    for at, value in [(10, math.nan), (8, [math.nan, *eye[1:]])]:
         with pytest.raises(ProtocolError, match="finite"):
-            decode(raw({**link, field: value}))
+            decode(raw([*link[:at], value, *link[at + 1 :]]))
     with pytest.raises(ProtocolError, match="finite"):
-        decode(raw({"k": "status", "f": "f", "r": "r", "n": 1, "c": {"x": math.inf}}))
+        decode(raw([KIND_STATUS, "f", "r", 1, {"x": math.inf}]))
     body = tile_body(np.ones((16, 16), np.int8))
-    body["g"][2] = math.nan
+    body[4][2] = math.nan
     with pytest.raises(ProtocolError, match="resolution must be finite"):
         decode(raw(body))
 
 
 def test_tile_shape_mismatch():
-    # Tile 0 of a 20x30 map with 16-cell tiles is 16x16; 15x16 cells inflate short.
-    with pytest.raises(ProtocolError, match="inflates to 240 bytes, expected 256"):
-        decode(raw(tile_body(np.ones((15, 16), np.int8))))
+    # Tile 0 of a 20x30 map with 16-cell tiles is 16x16; 15x16 cells make a short layout.
+    with pytest.raises(ProtocolError, match=r"raw tile of 240 bytes, shape \(16, 16\)"):
+        decode(raw(tile_body(np.ones((15, 16), np.int8), table=entry(0, RAW, 240))))
     with pytest.raises(ProtocolError, match="tile index 6 outside"):
-        body = tile_body(np.ones((16, 16), np.int8))
-        body["t"][0][0] = 6
-        decode(raw(body))
+        decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(6, RAW, 256))))
+    with pytest.raises(ProtocolError, match="stream decompresses to 200 bytes, the tiles need 256"):
+        decode(raw(tile_body(np.ones((10, 20), np.int8), table=entry(0, RAW, 256))))
+    with pytest.raises(ProtocolError, match="stream expands past its bound of 200 bytes"):
+        decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, RAW, 200))))
+    with pytest.raises(ProtocolError, match="layout of 257 bytes exceeds its bound"):
+        decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, RAW, 257))))
+    with pytest.raises(ProtocolError, match="tile table is truncated"):
+        decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, RAW, 256)[:-1])))
+    with pytest.raises(ProtocolError, match="unknown encoding 5"):
+        decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, 5, 256))))
     g = [20, 30, 0.05, 0.0, 0.0, 0.0, 16]  # 2x2 tiles
-    manifest = {"k": "manifest", "f": "f", "r": "r", "v": 1, "g": g, "b": None, "d": None}
     beyond = np.packbits([0, 0, 0, 0, 1, 0, 0, 0]).tobytes() + bytes(4)
     with pytest.raises(ProtocolError, match="bits beyond the last tile"):
-        decode(raw({**manifest, "c": beyond}))
+        decode(raw([KIND_MANIFEST, "f", "r", 1, g, beyond, None, None]))
     short = np.packbits([1, 1, 0, 0, 0, 0, 0, 0]).tobytes() + bytes(4)
     with pytest.raises(ProtocolError, match="lists 2 tiles but carries 4 checksum bytes"):
-        decode(raw({**manifest, "c": short}))
+        decode(raw([KIND_MANIFEST, "f", "r", 1, g, short, None, None]))
 
 
 def test_too_many_cells():
@@ -280,9 +326,10 @@ def test_too_many_tiles():
         decode(raw(tile_body(np.ones((16, 16), np.int8))), limits=limits)
     msg = MapTiles(
         "f", "r", 1, Geometry((64, 64), 0.05, tile_size=16),
-        tuple(Tile(i, 0, np.zeros((16, 16), np.int8)) for i in range(3)),
+        tuple(Tile(i, checksum(np.zeros((16, 16), np.int8)), np.zeros((16, 16), np.int8))
+              for i in range(3)),
     )  # fmt: skip
-    with pytest.raises(ProtocolError, match="3 tiles in one message exceed the limit of 2"):
+    with pytest.raises(ProtocolError, match="more than 2 tiles in one message exceed the limit"):
         decode(encode(msg), limits=Limits(max_tiles_per_message=2))
 
 
@@ -292,12 +339,21 @@ def test_too_many_bytes():
         decode(wire, limits=Limits(max_message_bytes=len(wire) - 1))
 
 
-def test_decompression_bomb_is_bounded():
-    """A ~10 KB message whose tile inflates to 10 MB: refused, with a small allocation."""
+def _bomb(codec: int) -> bytes:
+    """~10 KB that would decompress to 10 MB."""
+    if codec == LZMA:
+        filters = [{"id": lzma.FILTER_LZMA2, "dict_size": 1 << 18}]
+        return lzma.compress(bytes(10_000_000), format=lzma.FORMAT_RAW, filters=filters)
     bomb = zlib.compressobj(9, zlib.DEFLATED, -15)
-    packed = bomb.compress(bytes(10_000_000)) + bomb.flush()
+    return bomb.compress(bytes(10_000_000)) + bomb.flush()
+
+
+@pytest.mark.parametrize("codec", [DEFLATE, LZMA])
+def test_decompression_bomb_is_bounded(codec):
+    """A ~10 KB message whose stream decompresses to 10 MB: refused, with a small allocation."""
     body = tile_body(np.zeros((16, 16), np.int8), shape=(256, 256), ts=256)
-    body["t"][0][4] = packed
+    body[6] = entry(0, RAW, 65536)
+    body[7:] = [codec, _bomb(codec)]
     wire = raw(body)
     assert len(wire) < 12_000
     tracemalloc.start()
@@ -310,27 +366,55 @@ def test_decompression_bomb_is_bounded():
     assert peak < 1_000_000
 
 
-def test_unknown_kind_and_fields():
-    with pytest.raises(ProtocolError, match="unknown message kind 'gossip'"):
-        decode(raw({"k": "gossip"}))
-    body = {"k": "heartbeat", "f": "f", "r": "r", "n": 1, "mv": None, "extra": 1, b"x": 2}
-    with pytest.raises(ProtocolError, match="unknown fields 'extra', b'x'"):
+def test_codecs_are_chosen_by_size(shared):
+    """Building-map cells go to LZMA, a few sparse cells to the arithmetic coder, and
+    streams too long for LZMA's time budget (here noise) to deflate."""
+    rng = np.random.default_rng(3)
+    g = Geometry((640, 640), 0.05, tile_size=128)
+    willow = read_map(shared / "maps" / "willow" / "willow-2010-02-18-0.10.yaml")
+    building = [np.ascontiguousarray(quantise_grid(willow)[256:384, 128:256])]
+    sparse = [np.zeros((128, 128), np.int8)]
+    sparse[0][rng.integers(0, 128, 40), rng.integers(0, 128, 40)] = -3
+    noise = list(rng.integers(-127, 128, (20, 128, 128)).astype(np.int8))
+    for tiles, codec in [(building, LZMA), (sparse, ARITH), (noise, DEFLATE)]:
+        msg = MapTiles("f", "r", 1, g, tuple(Tile(i, checksum(c), c) for i, c in enumerate(tiles)))
+        wire = encode(msg)
+        assert msgpack.unpackb(wire[4:-4])[7] == codec
+        out = decode(wire, limits=Limits(max_message_bytes=10**6)).tiles
+        assert all(np.array_equal(a.cells, b) for a, b in zip(out, tiles, strict=True))
+
+
+def test_arithmetic_coded_stream_of_non_sparse_tiles_is_refused():
+    body = tile_body(np.ones((16, 16), np.int8))
+    body[7] = ARITH
+    with pytest.raises(ProtocolError, match="sparse tiles only"):
         decode(raw(body))
-    with pytest.raises(ProtocolError, match="lacks field 'n'"):
-        decode(raw({"k": "heartbeat", "f": "f", "r": "r", "mv": None}))
+    body[6] = entry(0, SPARSE, 3)
+    with pytest.raises(ProtocolError, match="arithmetic-coded stream"):
+        decode(raw(body))
+
+
+def test_unknown_kind_and_fields():
+    with pytest.raises(ProtocolError, match="unknown message kind 9"):
+        decode(raw([9, "f"]))
+    with pytest.raises(ProtocolError, match="unknown message kind 'gossip'"):
+        decode(raw(["gossip"]))
+    with pytest.raises(ProtocolError, match="body must be a non-empty array"):
+        decode(raw({"k": "heartbeat"}))
+    with pytest.raises(ProtocolError, match="heartbeat message has 2 unknown trailing fields"):
+        decode(raw(heartbeat("f", "r", 1, None, 1, b"x")))
+    with pytest.raises(ProtocolError, match="lacks field 'map_version'"):
+        decode(raw(heartbeat("f", "r", 1)))
     with pytest.raises(ProtocolError, match="wrong type bool"):
-        decode(raw({"k": "heartbeat", "f": "f", "r": "r", "n": True, "mv": None}))
+        decode(raw(heartbeat("f", "r", True, None)))
 
 
 def test_bad_ids():
     for robot, why in [("a/b", "characters outside"), ("x" * 65, "1..64"), ("", "1..64")]:
         with pytest.raises(ProtocolError, match=why):
-            decode(raw({"k": "heartbeat", "f": "f", "r": robot, "n": 1, "mv": None}))
+            decode(raw(heartbeat("f", robot, 1, None)))
     with pytest.raises(ProtocolError, match="longer than 8"):
-        decode(
-            raw({"k": "heartbeat", "f": "f", "r": "r" * 9, "n": 1, "mv": None}),
-            limits=Limits(max_id_length=8),
-        )
+        decode(raw(heartbeat("f", "r" * 9, 1, None)), limits=Limits(max_id_length=8))
 
 
 def test_out_of_range_cell_value():

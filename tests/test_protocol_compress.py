@@ -1,7 +1,8 @@
-"""protocol.compress: the three tile layouts are exact, and inflating is always bounded."""
+"""protocol.compress and protocol.arith: layouts and codecs are exact, decoding is bounded."""
 
 from __future__ import annotations
 
+import lzma
 import tracemalloc
 import zlib
 
@@ -10,18 +11,26 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocol import ProtocolError
-from protocol.compress import ENCODINGS, PALETTE, RAW, SPARSE, pack_cells, unpack_cells
-
-
-def deflate(data: bytes) -> bytes:
-    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
-    return packer.compress(data) + packer.flush()
+from protocol import ProtocolError, arith
+from protocol.compress import (
+    ARITH,
+    CODECS,
+    DEFLATE,
+    ENCODINGS,
+    LZMA,
+    PALETTE,
+    RAW,
+    SPARSE,
+    compress,
+    decompress,
+    layout_cells,
+    unpack_layout,
+)
 
 
 @st.composite
-def tiles(draw):
-    h, w = draw(st.integers(1, 128)), draw(st.integers(1, 128))
+def tiles(draw, max_side=128):
+    h, w = draw(st.integers(1, max_side)), draw(st.integers(1, max_side))
     k = draw(st.integers(1, 20))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     values = rng.choice(np.arange(-128, 128), k, replace=False).astype(np.int8)
@@ -30,12 +39,53 @@ def tiles(draw):
     return cells
 
 
+def round_trip(cells_list: list[np.ndarray]) -> tuple[int, list[np.ndarray]]:
+    laid = [(*layout_cells(c), c.shape) for c in cells_list]
+    codec, stream = compress(laid)
+    data = decompress(codec, stream, [(e, len(b), shape) for e, b, shape in laid])
+    out, at = [], 0
+    for (e, b, _), c in zip(laid, cells_list, strict=True):
+        out.append(unpack_layout(e, data[at : at + len(b)], c.shape, 0))
+        at += len(b)
+    return codec, out
+
+
 @settings(max_examples=150, deadline=None)
-@given(tiles())
-def test_pack_unpack_is_exact(cells):
-    encoding, packed = pack_cells(cells)
-    assert encoding in ENCODINGS
-    assert np.array_equal(unpack_cells(encoding, packed, cells.shape, 0), cells)
+@given(st.lists(tiles(), min_size=1, max_size=3))
+def test_layouts_and_codecs_are_exact(cells_list):
+    codec, out = round_trip(cells_list)
+    assert codec in CODECS
+    assert all(np.array_equal(a, b) for a, b in zip(out, cells_list, strict=True))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(tiles(max_side=40), min_size=1, max_size=4), st.integers(0, 2**32 - 1))
+def test_arithmetic_coder_is_exact_on_sparse_layouts(cells_list, seed):
+    rng = np.random.default_rng(seed)
+    sparse = []
+    for cells in cells_list:
+        cells = cells.copy()
+        cells[rng.random(cells.shape) < 0.8] = 0
+        sparse.append(cells)
+    tiles = [
+        (b, c.shape) for b, c in zip(map(_sparse, sparse), sparse, strict=True) if b is not None
+    ]
+    if not tiles or sum(len(b) for b, _ in tiles) // 3 > arith.MAX_CELLS:
+        return
+    stream = arith.encode_sparse(tiles)
+    assert not stream.endswith(b"\x00")
+    sizes = [(len(b), shape) for b, shape in tiles]
+    assert arith.decode_sparse(stream, sizes) == b"".join(b for b, _ in tiles)
+
+
+def _sparse(cells: np.ndarray) -> bytes | None:
+    """The SPARSE layout of ``cells`` if they are less than a quarter full."""
+    if np.count_nonzero(cells) * 4 >= cells.size:
+        return None
+    flat = cells.ravel()
+    where = np.flatnonzero(flat)
+    gaps = np.diff(where, prepend=0).astype("<u2")
+    return gaps.view(np.uint8).reshape(-1, 2).T.tobytes() + flat[where].tobytes()
 
 
 def test_each_layout_wins_where_it_should():
@@ -43,44 +93,105 @@ def test_each_layout_wins_where_it_should():
     trinary = rng.choice(np.array([-14, 0, 14], np.int8), (128, 128))
     sparse = np.zeros((128, 128), np.int8)
     sparse[rng.integers(0, 128, 60), rng.integers(0, 128, 60)] = rng.integers(-50, 50, 60)
-    sparse[sparse == 0] = 0
     dense = rng.integers(-127, 128, (128, 128)).astype(np.int8)
-    assert pack_cells(trinary)[0] == PALETTE
-    assert pack_cells(sparse)[0] == SPARSE
-    assert pack_cells(dense)[0] == RAW
+    assert layout_cells(trinary)[0] == PALETTE
+    assert layout_cells(sparse)[0] == SPARSE
+    assert layout_cells(dense)[0] == RAW
+
+
+@settings(max_examples=200)
+@given(
+    st.sampled_from((*CODECS, 3, -1)),
+    st.binary(max_size=600),
+    st.lists(
+        st.tuples(
+            st.sampled_from((*ENCODINGS, 7)),
+            st.integers(0, 700),
+            st.tuples(st.integers(1, 40), st.integers(1, 40)),
+        ),
+        max_size=3,
+    ),
+)
+def test_arbitrary_streams_raise_protocol_error_only(codec, data, layouts):
+    try:
+        out = decompress(codec, data, layouts)
+    except ProtocolError:
+        return
+    assert len(out) == sum(n for _, n, _ in layouts)
 
 
 @settings(max_examples=200)
 @given(st.sampled_from((*ENCODINGS, 3, -1)), st.binary(max_size=600), st.integers(1, 40))
-def test_arbitrary_streams_raise_protocol_error_only(encoding, data, side):
+def test_arbitrary_layouts_raise_protocol_error_only(encoding, data, side):
     try:
-        cells = unpack_cells(encoding, data, (side, side), 0)
+        cells = unpack_layout(encoding, data, (side, side), 0)
     except ProtocolError:
         return
     assert cells.shape == (side, side) and cells.dtype == np.int8
 
 
-@pytest.mark.parametrize("encoding", ENCODINGS)
-def test_decompression_bomb_is_refused_for_every_layout(encoding):
-    packed = deflate(bytes(10_000_000))  # ~10 KB that would inflate to 10 MB
+def deflate(data: bytes) -> bytes:
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
+    return packer.compress(data) + packer.flush()
+
+
+def _lzma(data: bytes) -> bytes:
+    filters = [{"id": lzma.FILTER_LZMA2, "dict_size": 1 << 18}]
+    return lzma.compress(data, format=lzma.FORMAT_RAW, filters=filters)
+
+
+@pytest.mark.parametrize(("codec", "pack"), [(DEFLATE, deflate), (LZMA, _lzma)])
+def test_decompression_bomb_is_refused_for_every_codec(codec, pack):
+    packed = pack(bytes(10_000_000))  # ~10 KB that would decompress to 10 MB
+    assert len(packed) < 12_000
     tracemalloc.start()
     try:
-        with pytest.raises(ProtocolError, match="expands past its bound"):
-            unpack_cells(encoding, packed, (256, 256), 4)
+        with pytest.raises(ProtocolError, match="expands past its bound of 65536 bytes"):
+            decompress(codec, packed, [(RAW, 65536, (256, 256))])
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
     assert peak < 1_000_000
 
 
+def test_arithmetic_coder_work_is_bounded():
+    cells = arith.MAX_CELLS + 1
+    with pytest.raises(ProtocolError, match=f"more than {arith.MAX_CELLS} cells"):
+        decompress(ARITH, b"\x01" * 100, [(SPARSE, 3 * cells, (256, 256))])
+    with pytest.raises(ProtocolError, match="sparse layouts of 3 bytes per cell"):
+        decompress(ARITH, b"\x01" * 100, [(SPARSE, 4, (8, 8))])
+    with pytest.raises(ProtocolError, match="sparse tiles only"):
+        decompress(ARITH, b"\x01" * 100, [(RAW, 3, (1, 3))])
+    with pytest.raises(ProtocolError, match="number longer than a tile side"):
+        decompress(ARITH, b"\xff" * 8, [(SPARSE, 3, (4, 4))])
+    cells = np.zeros((16, 16), np.int8)
+    cells[10, 3] = 5
+    stream = arith.encode_sparse([(_sparse(cells), (16, 16))])
+    with pytest.raises(ProtocolError, match=r"cell \(10, 3\) outside its 4x4 tile"):
+        decompress(ARITH, stream, [(SPARSE, 3, (4, 4))])
+
+
+def test_arithmetic_stream_must_end_with_its_last_cell():
+    cells = np.zeros((16, 16), np.int8)
+    cells[[1, 5, 9], [2, 3, 4]] = [-3, -2, 6]
+    layout = _sparse(cells)
+    tiles = [(SPARSE, len(layout), (16, 16))]
+    stream = arith.encode_sparse([(layout, (16, 16))])
+    assert decompress(ARITH, stream, tiles) == layout
+    with pytest.raises(ProtocolError, match="ends at byte"):
+        decompress(ARITH, stream + b"\x07" * 5, tiles)
+    with pytest.raises(ProtocolError, match="ends in a zero byte"):
+        decompress(ARITH, stream + b"\x00", tiles)
+
+
 def test_malformed_palette_tiles():
     def palette(layout: bytes, shape=(2, 4)):
-        return unpack_cells(PALETTE, deflate(layout), shape, 7)
+        return unpack_layout(PALETTE, layout, shape, 7)
 
     with pytest.raises(ProtocolError, match="palette of 0 values"):
         palette(b"\x00")
     with pytest.raises(ProtocolError, match="palette of 17 values"):
-        palette(bytes([17]) + bytes(17))
+        palette(bytes([17]) + bytes(7))
     with pytest.raises(ProtocolError, match="strictly increasing"):
         palette(bytes([2, 5, 5, 0, 0]))  # 2 values, 1 bit, 1 byte per row
     with pytest.raises(ProtocolError, match="nonzero padding"):
@@ -89,18 +200,16 @@ def test_malformed_palette_tiles():
         palette(bytes([3, 1, 2, 5, 0b11000000, 0]))
     with pytest.raises(ProtocolError, match="palette tile of 4 bytes"):
         palette(bytes([2, 1, 5, 0]))
-    with pytest.raises(ProtocolError, match="trailing bytes"):
-        unpack_cells(PALETTE, deflate(bytes([1, 5, 0, 0])) + b"xx", (2, 4), 7)
 
 
 def test_malformed_sparse_tiles():
     def sparse(low: list[int], high: list[int], values: list[int], shape=(2, 4)):
         layout = bytes(low) + bytes(high) + np.array(values, np.int8).tobytes()
-        return unpack_cells(SPARSE, deflate(layout), shape, 9)
+        return unpack_layout(SPARSE, layout, shape, 9)
 
     with pytest.raises(ProtocolError, match="sparse tile of 2 bytes for 8 cells"):
-        unpack_cells(SPARSE, deflate(b"ab"), (2, 4), 9)
-    with pytest.raises(ProtocolError, match="expands past its bound of 3 bytes"):
+        unpack_layout(SPARSE, b"ab", (2, 4), 9)
+    with pytest.raises(ProtocolError, match="layout of 6 bytes exceeds its bound"):
         sparse([0, 1], [0, 0], [1, 1])  # two of eight cells is not < a quarter
     with pytest.raises(ProtocolError, match="repeats a cell"):
         sparse([3, 0], [0, 0], [1, 1], shape=(4, 4))
@@ -115,14 +224,21 @@ def test_malformed_sparse_tiles():
 def test_sparse_reaches_the_last_cell_of_the_largest_tile():
     cells = np.zeros((256, 256), np.int8)
     cells[-1, -1] = 7
-    encoding, packed = pack_cells(cells)
-    assert encoding == SPARSE
-    assert np.array_equal(unpack_cells(encoding, packed, cells.shape, 0), cells)
+    assert np.array_equal(round_trip([cells])[1][0], cells)
+    layout = layout_cells(cells)[1]
+    assert layout_cells(cells)[0] == SPARSE
+    stream = arith.encode_sparse([(layout, cells.shape)])
+    assert decompress(ARITH, stream, [(SPARSE, len(layout), cells.shape)]) == layout
 
 
-def test_truncated_stream_and_unknown_encoding():
-    packed = deflate(bytes(64))
-    with pytest.raises(ProtocolError, match="truncated"):
-        unpack_cells(RAW, packed[:-2], (8, 8), 1)
+def test_truncated_stream_unknown_encoding_and_codec():
+    for codec, pack in ((DEFLATE, deflate), (LZMA, _lzma)):
+        packed = pack(bytes(64))
+        with pytest.raises(ProtocolError, match="truncated"):
+            decompress(codec, packed[:-2], [(RAW, 64, (8, 8))])
+        with pytest.raises(ProtocolError, match="trailing bytes"):
+            decompress(codec, packed + b"xx", [(RAW, 64, (8, 8))])
     with pytest.raises(ProtocolError, match="unknown encoding 5"):
-        unpack_cells(5, packed, (8, 8), 1)
+        unpack_layout(5, bytes(64), (8, 8), 1)
+    with pytest.raises(ProtocolError, match="unknown compression codec 9"):
+        decompress(9, deflate(bytes(64)), [(RAW, 64, (8, 8))])

@@ -1,0 +1,280 @@
+"""An adaptive binary range coder for the sparse cells of small deltas.
+
+A one-scan delta changes a few hundred cells.  Deflate then spends a good part
+of the stream on its Huffman tables and whole bits per symbol; this coder
+needs no table and spends fractions of a bit, and on the intel and
+freiburg-079 replays it codes one-scan deltas in ~15-20% fewer bytes.
+
+What is coded is a list of SPARSE tile layouts (:mod:`protocol.compress`),
+each the row-major nonzero cells of one tile, row by row (see
+:func:`encode_sparse`): small numbers as Elias-gamma codes (bit length in
+unary, then the lower bits, the top two with a context per length and
+position), values as the 8 bits of their byte down an adaptive binary tree.
+
+The probabilities start uniform and follow the counts seen so far
+(Krichevsky-Trofimov), one model shared by all tiles of the message.  The
+range coder is LZMA's (32-bit range, carries through a cached byte).  Pure
+Python, about 10 decisions per cell, so :data:`MAX_CELLS` bounds what a
+message may ask a decoder to do.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from protocol.errors import ProtocolError
+from protocol.messages import TILE_SIZES
+
+#: Cells one stream may hold (a decoder's work is ~1 microsecond per decision).
+MAX_CELLS = 4096
+_TOP = 1 << 24
+_MASK32 = 0xFFFFFFFF
+#: Counts are halved past this total so the model keeps following the data.
+_RESCALE = 1 << 12
+#: Elias-gamma lengths above this cannot come from a row or column of a tile.
+_MAX_LENGTH = max(TILE_SIZES).bit_length()
+
+
+class _Model:
+    """Adaptive bit probabilities by context: counts of zeros and ones, doubled, from 1 each."""
+
+    __slots__ = ("counts",)
+
+    def __init__(self) -> None:
+        self.counts: dict[object, list[int]] = {}
+
+    def p0(self, ctx: object) -> tuple[list[int], int]:
+        c = self.counts.get(ctx)
+        if c is None:
+            c = self.counts[ctx] = [1, 1]
+        return c, min(max((c[0] << 11) // (c[0] + c[1]), 1), 2047)
+
+    @staticmethod
+    def update(c: list[int], bit: int) -> None:
+        c[bit] += 2
+        if c[0] + c[1] > _RESCALE:
+            c[0], c[1] = (c[0] + 1) >> 1, (c[1] + 1) >> 1
+
+
+class _Encoder:
+    def __init__(self) -> None:
+        self.low, self.range, self.cache, self.pending = 0, _MASK32, 0, 1
+        self.out = bytearray()
+        self.model = _Model()
+
+    def bit(self, ctx: object, bit: int) -> None:
+        c, p0 = self.model.p0(ctx)
+        bound = (self.range >> 11) * p0
+        if bit:
+            self.low += bound
+            self.range -= bound
+        else:
+            self.range = bound
+        _Model.update(c, bit)
+        while self.range < _TOP:
+            self.range = (self.range << 8) & _MASK32
+            self._shift()
+
+    def _shift(self) -> None:
+        if self.low < 0xFF000000 or self.low > _MASK32:
+            carry = self.low >> 32
+            byte = self.cache
+            while True:
+                self.out.append((byte + carry) & 0xFF)
+                byte = 0xFF
+                self.pending -= 1
+                if not self.pending:
+                    break
+            self.cache = (self.low >> 24) & 0xFF
+        self.pending += 1
+        self.low = (self.low & 0x00FFFFFF) << 8
+
+    def finish(self) -> bytes:
+        """The coded bytes, without what a decoder can infer.
+
+        The first byte is always 0 and the decoder reads zeros past the end, so
+        the final value is rounded up to the roundest number in the current
+        interval, whose trailing zero bytes are then dropped.
+        """
+        for unit in (1 << 32, 1 << 24, 1 << 16, 1 << 8, 1):
+            value = -(-self.low // unit) * unit
+            if value < self.low + self.range:
+                self.low = value
+                break
+        for _ in range(5):
+            self._shift()
+        return bytes(self.out[1:]).rstrip(b"\x00")
+
+
+class _Decoder:
+    def __init__(self, data: bytes) -> None:
+        if data.endswith(b"\x00"):
+            raise ProtocolError("arithmetic-coded stream ends in a zero byte")
+        self.data, self.pos = data, 4
+        self.code, self.range = int.from_bytes(data[:4].ljust(4, b"\x00"), "big"), _MASK32
+        self.model = _Model()
+
+    def bit(self, ctx: object) -> int:
+        c, p0 = self.model.p0(ctx)
+        bound = (self.range >> 11) * p0
+        if self.code < bound:
+            self.range, bit = bound, 0
+        else:
+            self.code -= bound
+            self.range -= bound
+            bit = 1
+        _Model.update(c, bit)
+        while self.range < _TOP:
+            self.range = (self.range << 8) & _MASK32
+            # Past the end the stream reads as zeros; how far is checked in finish().
+            byte = self.data[self.pos] if self.pos < len(self.data) else 0
+            self.code = ((self.code << 8) | byte) & _MASK32
+            self.pos += 1
+        return bit
+
+    def finish(self) -> None:
+        # The decoder reads up to 4 bytes ahead, dropped zeros included; unread
+        # bytes would be trailing garbage.
+        if self.pos < len(self.data):
+            raise ProtocolError(
+                f"arithmetic-coded stream of {len(self.data)} bytes ends at byte {self.pos}"
+            )
+
+
+def _put_number(enc: _Encoder, ctx: str, n: int) -> None:
+    """Elias-gamma of ``n + 1``: its bit length in unary, then its lower bits."""
+    n += 1
+    length = n.bit_length() - 1
+    for i in range(length):
+        enc.bit((ctx, i), 1)
+    enc.bit((ctx, length), 0)
+    for i in range(length - 1, -1, -1):
+        enc.bit((ctx, length, i if i >= length - 2 else -1), (n >> i) & 1)
+
+
+def _get_number(dec: _Decoder, ctx: str) -> int:
+    length = 0
+    while dec.bit((ctx, length)):
+        length += 1
+        if length > _MAX_LENGTH:
+            raise ProtocolError("arithmetic-coded number longer than a tile side")
+    n = 1
+    for i in range(length - 1, -1, -1):
+        n = (n << 1) | dec.bit((ctx, length, i if i >= length - 2 else -1))
+    return n - 1
+
+
+def _put_signed(enc: _Encoder, ctx: str, n: int) -> None:
+    _put_number(enc, ctx, abs(n))
+    if n:
+        enc.bit((ctx, "sign"), int(n < 0))
+
+
+def _get_signed(dec: _Decoder, ctx: str) -> int:
+    n = _get_number(dec, ctx)
+    return -n if n and dec.bit((ctx, "sign")) else n
+
+
+def _put_value(enc: _Encoder, value: int) -> None:
+    node = 1
+    for i in range(7, -1, -1):
+        bit = (value >> i) & 1
+        enc.bit(node, bit)
+        node = (node << 1) | bit
+
+
+def _get_value(dec: _Decoder) -> int:
+    node = 1
+    for _ in range(8):
+        node = (node << 1) | dec.bit(node)
+    return node & 0xFF
+
+
+def encode_sparse(tiles: list[tuple[bytes, tuple[int, int]]]) -> bytes:
+    """Arithmetic-code SPARSE layouts, each given with the shape of its tile.
+
+    A layout is ``[gap low bytes][gap high bytes][values]`` (see
+    :mod:`protocol.compress`); the cells are coded row by row: a flag for
+    "same row as the previous cell" (in the context of whether the previous
+    cell touched its own predecessor), then the columns skipped in that row,
+    or else the rows skipped and the column relative to where the previous
+    row's cells began (the edges of a scan's fan move little from row to row).
+    """
+    enc = _Encoder()
+    for layout, (_, w) in tiles:
+        _code_cells(enc, *_cells(layout, w))
+    return enc.finish()
+
+
+def _code_cells(enc: _Encoder, rows: list[int], cols: list[int], values: list[int]) -> None:
+    prev_r = prev_c = start = -1
+    touching = False
+    for r, c, v in zip(rows, cols, values, strict=True):
+        if prev_r < 0:
+            _put_number(enc, "r0", r)
+            _put_number(enc, "c0", c)
+            start = c
+        else:
+            same = r == prev_r
+            enc.bit(("same", touching), int(same))
+            if same:
+                _put_number(enc, "gap", c - prev_c - 1)
+            else:
+                _put_number(enc, "rows", r - prev_r - 1)
+                _put_signed(enc, "col", c - start)
+                start = c
+            touching = same and c == prev_c + 1
+        _put_value(enc, v)
+        prev_r, prev_c = r, c
+
+
+def decode_sparse(stream: bytes, tiles: list[tuple[int, tuple[int, int]]]) -> bytes:
+    """The concatenated SPARSE layouts that ``stream`` codes, given each one's size and shape.
+
+    Raises
+    ------
+    ProtocolError
+        If a size is not a whole number of cells, the cells exceed
+        :data:`MAX_CELLS`, a cell falls outside its tile, or the stream is
+        malformed or does not end where the last cell does.
+    """
+    if any(size % 3 for size, _ in tiles):
+        raise ProtocolError("arithmetic-coded tiles must be sparse layouts of 3 bytes per cell")
+    if sum(size for size, _ in tiles) // 3 > MAX_CELLS:
+        raise ProtocolError(f"arithmetic-coded stream of more than {MAX_CELLS} cells")
+    dec = _Decoder(stream)
+    out = []
+    for size, (h, w) in tiles:
+        k = size // 3
+        where = np.empty(k, np.int64)
+        values = np.empty(k, np.uint8)
+        r = c = start = -1
+        touching = False
+        for j in range(k):
+            if j == 0:
+                r = _get_number(dec, "r0")
+                c = start = _get_number(dec, "c0")
+            elif dec.bit(("same", touching)):
+                skipped = _get_number(dec, "gap")
+                c += skipped + 1
+                touching = skipped == 0
+            else:
+                r += _get_number(dec, "rows") + 1
+                c = start = start + _get_signed(dec, "col")
+                touching = False
+            if not (0 <= c < w and r < h):
+                raise ProtocolError(f"arithmetic-coded cell ({r}, {c}) outside its {h}x{w} tile")
+            where[j] = r * w + c
+            values[j] = _get_value(dec)
+        gaps = np.diff(where, prepend=0).astype("<u2")
+        out.append(gaps.view(np.uint8).reshape(-1, 2).T.tobytes() + values.tobytes())
+    dec.finish()
+    return b"".join(out)
+
+
+def _cells(layout: bytes, w: int) -> tuple[list[int], list[int], list[int]]:
+    """Rows, columns and value bytes of the cells of a SPARSE layout of a ``w``-wide tile."""
+    k = len(layout) // 3
+    raw = np.frombuffer(layout, np.uint8)
+    where = np.cumsum(raw[:k].astype(np.int64) | (raw[k : 2 * k].astype(np.int64) << 8))
+    return (where // w).tolist(), (where % w).tolist(), raw[2 * k :].tolist()
