@@ -1,7 +1,6 @@
 """Tile cells to byte layouts, layouts to one compressed stream, and back with hard bounds.
 
-Each tile is laid out in one of three byte layouts, the smallest after deflate
-is kept:
+Each tile is laid out in the shortest of three byte layouts:
 
 * ``RAW``: the row-major int8 cells.
 * ``PALETTE``: up to 16 distinct values, then each cell's palette index packed
@@ -14,7 +13,8 @@ is kept:
   replays this codes them in ~20% fewer bytes than RAW or a bit mask.
 
 The layouts of all tiles of one message are then compressed as ONE stream, so
-that tiles share context (and one stream's overhead), in the smaller of:
+that tiles share context (and one stream's overhead), by the codec that gives
+the fewest bytes of:
 
 * ``DEFLATE``: raw deflate (zlib, ``wbits=-15``, level 6).
 * ``LZMA``: raw LZMA2 (standard-library :mod:`lzma`, no header), literal
@@ -25,6 +25,9 @@ that tiles share context (and one stream's overhead), in the smaller of:
   8.5 KB).  It costs ~10 ms of CPU per 100 KB of layout, so it is only tried
   on streams up to :data:`LZMA_MAX_INPUT` bytes (trinary maps of up to ~1M
   cells; a 1000x1000 map of many log-odds levels stays with deflate).
+* ``ARITH``: the adaptive arithmetic coder of :mod:`protocol.arith`, for
+  messages of SPARSE tiles only (one-scan deltas), up to
+  :data:`protocol.arith.MAX_CELLS` cells.
 
 Measured on real maps before picking zlib: see the commit introducing
 :mod:`protocol.codec` (zstd saved <3% at level 9, lz4 doubled the size);

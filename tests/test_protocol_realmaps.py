@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import random
 
+import msgpack
 import numpy as np
 import pytest
 
 from pgvd.integrate import frame_for, integrate_scan
 from pgvd.io import read_carmen, read_map
 from protocol import MapReassembler, ReplayGuard, decode, encode_map, quantise_grid
+from protocol.compress import ARITH
 
 KEY = b"real-maps-fleet-key-0123456789ab"
 MAPS = [
@@ -76,6 +78,8 @@ def test_intel_log_replay_stages_and_one_scan_deltas(shared):
             "f", "r1", 2 * version, after, since=before, base_version=2 * version - 1
         )
         assert decode(manifest).is_delta
+        # A scan's few hundred changed cells take the arithmetic coder (protocol.arith).
+        assert [msgpack.unpackb(w[4:-4])[7] for w in tiles] == [ARITH] * len(tiles)
         touched = set()
         for msg in map(decode, tiles):
             touched |= {t.index for t in msg.tiles}
