@@ -25,8 +25,9 @@ import numpy as np
 from protocol.errors import ProtocolError
 from protocol.messages import TILE_SIZES
 
-#: Cells one stream may hold (a decoder's work is ~1 microsecond per decision).
-MAX_CELLS = 4096
+#: Cells one stream may hold: a decoder's work is ~10 us per cell in pure Python, so a
+#: hostile message costs at most ~20-40 ms (a one-scan delta holds ~350-700 cells).
+MAX_CELLS = 2048
 _TOP = 1 << 24
 _MASK32 = 0xFFFFFFFF
 #: Counts are halved past this total so the model keeps following the data.
@@ -35,42 +36,59 @@ _RESCALE = 1 << 12
 _MAX_LENGTH = max(TILE_SIZES).bit_length()
 
 
-class _Model:
+# Contexts are indices into flat count lists: value-tree nodes 1..255, then a
+# block of 64 per kind of number (unary bits, mantissa bits, sign), then the
+# two "same row" flags.
+_VALUE = 0
+_NUMBER = 256
+_R0, _C0, _GAP, _ROWS, _COL = (_NUMBER + 64 * k for k in range(5))
+_SAME = _NUMBER + 64 * 5
+_CONTEXTS = _SAME + 2
+
+
+def _mantissa(length: int, i: int) -> int:
+    """Offset of mantissa bit ``i`` of a ``length``-bit number: the top two bits apart."""
+    return 16 + 3 * length + min(length - 1 - i, 2)
+
+
+class _Coder:
     """Adaptive bit probabilities by context: counts of zeros and ones, doubled, from 1 each."""
 
-    __slots__ = ("counts",)
-
     def __init__(self) -> None:
-        self.counts: dict[object, list[int]] = {}
+        self.zeros = [1] * _CONTEXTS
+        self.ones = [1] * _CONTEXTS
+        self.range = _MASK32
 
-    def p0(self, ctx: object) -> tuple[list[int], int]:
-        c = self.counts.get(ctx)
-        if c is None:
-            c = self.counts[ctx] = [1, 1]
-        return c, min(max((c[0] << 11) // (c[0] + c[1]), 1), 2047)
+    def bound(self, ctx: int) -> int:
+        """Where the range splits for ``ctx``: P(0) = zeros / (zeros + ones), 11 bits, >= 1/2048."""
+        z = self.zeros[ctx]
+        return (self.range >> 11) * max((z << 11) // (z + self.ones[ctx]), 1)
 
-    @staticmethod
-    def update(c: list[int], bit: int) -> None:
-        c[bit] += 2
-        if c[0] + c[1] > _RESCALE:
-            c[0], c[1] = (c[0] + 1) >> 1, (c[1] + 1) >> 1
+    def learn(self, ctx: int, bit: int) -> None:
+        z, o = self.zeros[ctx], self.ones[ctx]
+        if bit:
+            o += 2
+        else:
+            z += 2
+        if z + o > _RESCALE:
+            z, o = (z + 1) >> 1, (o + 1) >> 1
+        self.zeros[ctx], self.ones[ctx] = z, o
 
 
-class _Encoder:
+class _Encoder(_Coder):
     def __init__(self) -> None:
+        super().__init__()
         self.low, self.range, self.cache, self.pending = 0, _MASK32, 0, 1
         self.out = bytearray()
-        self.model = _Model()
 
-    def bit(self, ctx: object, bit: int) -> None:
-        c, p0 = self.model.p0(ctx)
-        bound = (self.range >> 11) * p0
+    def bit(self, ctx: int, bit: int) -> None:
+        bound = self.bound(ctx)
+        self.learn(ctx, bit)
         if bit:
             self.low += bound
             self.range -= bound
         else:
             self.range = bound
-        _Model.update(c, bit)
         while self.range < _TOP:
             self.range = (self.range << 8) & _MASK32
             self._shift()
@@ -106,24 +124,23 @@ class _Encoder:
         return bytes(self.out[1:]).rstrip(b"\x00")
 
 
-class _Decoder:
+class _Decoder(_Coder):
     def __init__(self, data: bytes) -> None:
+        super().__init__()
         if data.endswith(b"\x00"):
             raise ProtocolError("arithmetic-coded stream ends in a zero byte")
         self.data, self.pos = data, 4
         self.code, self.range = int.from_bytes(data[:4].ljust(4, b"\x00"), "big"), _MASK32
-        self.model = _Model()
 
-    def bit(self, ctx: object) -> int:
-        c, p0 = self.model.p0(ctx)
-        bound = (self.range >> 11) * p0
-        if self.code < bound:
-            self.range, bit = bound, 0
-        else:
+    def bit(self, ctx: int) -> int:
+        bound = self.bound(ctx)
+        bit = int(self.code >= bound)
+        self.learn(ctx, bit)
+        if bit:
             self.code -= bound
             self.range -= bound
-            bit = 1
-        _Model.update(c, bit)
+        else:
+            self.range = bound
         while self.range < _TOP:
             self.range = (self.range << 8) & _MASK32
             # Past the end the stream reads as zeros; how far is checked in finish().
@@ -141,52 +158,52 @@ class _Decoder:
             )
 
 
-def _put_number(enc: _Encoder, ctx: str, n: int) -> None:
+def _put_number(enc: _Encoder, ctx: int, n: int) -> None:
     """Elias-gamma of ``n + 1``: its bit length in unary, then its lower bits."""
     n += 1
     length = n.bit_length() - 1
     for i in range(length):
-        enc.bit((ctx, i), 1)
-    enc.bit((ctx, length), 0)
+        enc.bit(ctx + i, 1)
+    enc.bit(ctx + length, 0)
     for i in range(length - 1, -1, -1):
-        enc.bit((ctx, length, i if i >= length - 2 else -1), (n >> i) & 1)
+        enc.bit(ctx + _mantissa(length, i), (n >> i) & 1)
 
 
-def _get_number(dec: _Decoder, ctx: str) -> int:
+def _get_number(dec: _Decoder, ctx: int) -> int:
     length = 0
-    while dec.bit((ctx, length)):
+    while dec.bit(ctx + length):
         length += 1
         if length > _MAX_LENGTH:
             raise ProtocolError("arithmetic-coded number longer than a tile side")
     n = 1
     for i in range(length - 1, -1, -1):
-        n = (n << 1) | dec.bit((ctx, length, i if i >= length - 2 else -1))
+        n = (n << 1) | dec.bit(ctx + _mantissa(length, i))
     return n - 1
 
 
-def _put_signed(enc: _Encoder, ctx: str, n: int) -> None:
+def _put_signed(enc: _Encoder, ctx: int, n: int) -> None:
     _put_number(enc, ctx, abs(n))
     if n:
-        enc.bit((ctx, "sign"), int(n < 0))
+        enc.bit(ctx + 63, int(n < 0))
 
 
-def _get_signed(dec: _Decoder, ctx: str) -> int:
+def _get_signed(dec: _Decoder, ctx: int) -> int:
     n = _get_number(dec, ctx)
-    return -n if n and dec.bit((ctx, "sign")) else n
+    return -n if n and dec.bit(ctx + 63) else n
 
 
 def _put_value(enc: _Encoder, value: int) -> None:
     node = 1
     for i in range(7, -1, -1):
         bit = (value >> i) & 1
-        enc.bit(node, bit)
+        enc.bit(_VALUE + node, bit)
         node = (node << 1) | bit
 
 
 def _get_value(dec: _Decoder) -> int:
     node = 1
     for _ in range(8):
-        node = (node << 1) | dec.bit(node)
+        node = (node << 1) | dec.bit(_VALUE + node)
     return node & 0xFF
 
 
@@ -211,17 +228,17 @@ def _code_cells(enc: _Encoder, rows: list[int], cols: list[int], values: list[in
     touching = False
     for r, c, v in zip(rows, cols, values, strict=True):
         if prev_r < 0:
-            _put_number(enc, "r0", r)
-            _put_number(enc, "c0", c)
+            _put_number(enc, _R0, r)
+            _put_number(enc, _C0, c)
             start = c
         else:
             same = r == prev_r
-            enc.bit(("same", touching), int(same))
+            enc.bit(_SAME + touching, int(same))
             if same:
-                _put_number(enc, "gap", c - prev_c - 1)
+                _put_number(enc, _GAP, c - prev_c - 1)
             else:
-                _put_number(enc, "rows", r - prev_r - 1)
-                _put_signed(enc, "col", c - start)
+                _put_number(enc, _ROWS, r - prev_r - 1)
+                _put_signed(enc, _COL, c - start)
                 start = c
             touching = same and c == prev_c + 1
         _put_value(enc, v)
@@ -252,15 +269,15 @@ def decode_sparse(stream: bytes, tiles: list[tuple[int, tuple[int, int]]]) -> by
         touching = False
         for j in range(k):
             if j == 0:
-                r = _get_number(dec, "r0")
-                c = start = _get_number(dec, "c0")
-            elif dec.bit(("same", touching)):
-                skipped = _get_number(dec, "gap")
+                r = _get_number(dec, _R0)
+                c = start = _get_number(dec, _C0)
+            elif dec.bit(_SAME + touching):
+                skipped = _get_number(dec, _GAP)
                 c += skipped + 1
                 touching = skipped == 0
             else:
-                r += _get_number(dec, "rows") + 1
-                c = start = start + _get_signed(dec, "col")
+                r += _get_number(dec, _ROWS) + 1
+                c = start = start + _get_signed(dec, _COL)
                 touching = False
             if not (0 <= c < w and r < h):
                 raise ProtocolError(f"arithmetic-coded cell ({r}, {c}) outside its {h}x{w} tile")
