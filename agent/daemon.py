@@ -98,6 +98,7 @@ class Agent:
         self._last_update: float | None = None
         self._settled_at: float | None = None
         self._source_pending = False
+        self._status_due = threading.Event()  # a new global map: refresh the status now
         self._load_state()
         self.source = make_source(
             opts.source, self.me, opts.frame, opts.resolution, opts.speed, self._resume
@@ -201,6 +202,7 @@ class Agent:
             self._settled_at = time.time()
         elif not state.settled:
             self._settled_at = None
+        self._status_due.set()
 
     def _write_global(self, comp: Component) -> None:
         from pgvd.io import write_map, write_png
@@ -266,14 +268,15 @@ class Agent:
     def _loop(self, stop: threading.Event) -> None:
         next_announce = next_status = 0.0
         while not stop.is_set():
-            self._drain_inbox(deadline=time.monotonic() + 0.05)
+            self._drain_inbox(deadline=time.monotonic() + 0.1)
             now = time.monotonic()
             self._step_source(now)
             self._fetch_due(now)
             if now >= next_announce:
                 self._announce()
                 next_announce = now + self.opts.announce_period
-            if now >= next_status:
+            if now >= next_status or self._status_due.is_set():
+                self._status_due.clear()
                 self._persist_links()
                 self._refresh_status()
                 next_status = now + self.opts.status_period
@@ -283,7 +286,7 @@ class Agent:
     def _drain_inbox(self, deadline: float) -> None:
         while time.monotonic() < deadline:
             try:
-                kind, key, data = self.inbox.get(timeout=0.01)
+                kind, key, data = self.inbox.get(timeout=0.05)
             except queue.Empty:
                 return
             if kind == "alive":
