@@ -8,6 +8,7 @@ listens on its own free port and uses all earlier agents as seeds; gossip links 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import json
 import os
 import signal
@@ -20,6 +21,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: SIGTERM it if the launcher dies (Linux), so that a
+    killed demo or test run never leaves agents holding ports behind."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 def free_port() -> int:
@@ -62,7 +73,12 @@ class AgentProcess:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
         log = log_path.open("ab")
         self.proc = subprocess.Popen(
-            self.argv(fleet), cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT
+            self.argv(fleet),
+            cwd=ROOT,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_die_with_parent,
         )
         log.close()
 
