@@ -32,6 +32,7 @@ def test_tiny_bench_run(shared, tmp_path):
     assert main(argv) == 0
     doc = json.loads((tmp_path / "merge.json").read_text())
     names = list(methods())
+    assert "pgvd-det" in names  # MergeParams(probabilistic=False): the paper's Gamma_det
     assert [r["method"] for r in doc["rows"]] == names
     assert len(doc["records"]) == 3 * len(names)
     for r in doc["records"]:
@@ -40,6 +41,7 @@ def test_tiny_bench_run(shared, tmp_path):
     for row in doc["rows"]:
         assert row["n_overlap"] == 2 and row["n_disjoint"] == 1
         assert 0 <= row["success"] <= 1 and 0 <= row["false_accept"] <= 1
+        assert row["success"] + row["wrong_accept"] <= 1
     # The exhaustive reference finds the truth of an overlapping real pair.
     exhaustive = [r for r in doc["records"] if r["method"] == "exhaustive" and r["overlap"] > 0]
     assert any(r["success"] for r in exhaustive)
