@@ -7,9 +7,13 @@ the intel and freiburg-079 laser logs (``../shared/logs``):
   ``OccupancyGrid`` (one byte per cell), raw float32 log-odds, and the
   ``OccupancyGrid`` deflated whole with zlib level 6 (a naive compressed sender);
 * the delta after one new scan (tiles changed by that scan plus the manifest),
-  at every ``--stride``-th scan of the replay, against the full update then;
+  at every ``--stride``-th scan of the replay, against the full update then,
+  with the CPU time of encoding and decoding it;
 * encode and decode (decode + reassembly) time of 1000x1000 maps, best of
-  ``--repeat``, with zlib of the whole ``OccupancyGrid`` timed in the same run.
+  ``--repeat`` by wall clock and by CPU time (the machine is shared: CPU time
+  is what the work costs, wall time what it took under the load at the time,
+  which the report states), with zlib of the whole ``OccupancyGrid`` timed in
+  the same run.
 
 Targets (issue 4): full update <= 3% of OccupancyGrid; one-scan delta <= 2% of
 the full update; encode and decode of 1000x1000 < 50 ms each.
