@@ -1,7 +1,8 @@
 """Soak: 8 agents with continuous map updates for 10 minutes; memory, CPU, drops, lag.
 
-The agents replay overlapping segments of the bundled Intel log (as ``pgvd demo``) slowly
-enough that every robot keeps updating its map for the whole run, peer to peer on localhost.
+Agents run peer to peer on localhost. Their sources (``--sources``) keep changing for the whole
+run: ``cycle`` rewrites fixed-size map files (the memory check), ``replay`` replays overlapping
+segments of the bundled Intel log slowly (realistic, but the maps grow as robots explore).
 Every 0.5 s the agents' status files are read; every 5 s their RSS and CPU from ``/proc``.
 
 Reported:
@@ -17,8 +18,8 @@ Reported:
   full agreement happens only in lulls, so the propagation lag is reported too: the seconds
   until every agent holds that version or a newer one (whatever else is still moving).
 
-Run: ``python3 -m bench.soak [--robots 8] [--minutes 10]``; writes ``bench/results/soak.md``,
-``soak.json`` and ``soak.png``.
+Run: ``python3 -m bench.soak [--robots 8] [--minutes 10] [--sources cycle|replay]``; writes
+``bench/results/soak-<sources>.md``, ``.json`` and ``.png``.
 """
 
 from __future__ import annotations
@@ -35,8 +36,10 @@ import numpy as np
 
 from agent.cmd_demo import LOG, random_frames, segments
 from agent.launcher import LocalFleet, agreement
+from pgvd.grid import Grid
 
 RESULTS = Path(__file__).resolve().parent / "results"
+INTEL_MAP = Path(__file__).resolve().parents[2] / "shared" / "maps" / "intel" / "intel.yaml"
 TICK = os.sysconf("SC_CLK_TCK")
 
 
@@ -64,28 +67,97 @@ def proc_sample(pid: int) -> tuple[float, float] | None:
     return (int(fields[11]) + int(fields[12])) / TICK, rss
 
 
-def soak(robots: int, minutes: float, workdir: Path) -> dict:
+class ReplaySources:
+    """Overlapping segments of the Intel log, replayed so slowly that they last the whole run.
+
+    The maps grow while the robots explore: memory growth here is partly the data.
+    """
+
+    def __init__(self, robots: int, minutes: float) -> None:
+        self.segments = segments(robots)
+        longest = max(b - a for a, b in self.segments)
+        self.speed = longest * log_seconds(LOG) / (minutes * 60)
+        self.frames = random_frames(robots, 11)
+
+    def agents(self, workdir: Path) -> list[tuple[str, list[str]]]:
+        return [
+            (
+                f"carmen:{LOG}@{a}-{b}",
+                ["--speed", f"{self.speed:.4f}", "--frame=" + ",".join(f"{v:.4f}" for v in f)],
+            )
+            for (a, b), f in zip(self.segments, self.frames, strict=True)
+        ]
+
+    def step(self, elapsed: float) -> None:
+        """Nothing to do: the agents replay on their own."""
+
+
+class CycleSources:
+    """Map files an external "SLAM" rewrites every ``period`` s, alternating two versions.
+
+    Robot i follows a fixed crop of the Intel map; every other version a band of its known
+    cells is blanked (unknown), so each rewrite is a new version of the same size: continuous
+    updates with no data growth, the setting in which memory must stay flat.
+    """
+
+    def __init__(self, robots: int, period: float = 10.0) -> None:
+        from pgvd.io import read_map
+
+        self.base = read_map(INTEL_MAP)
+        self.robots, self.period = robots, period
+        self.paths: list[Path] = []
+        self.written = [-1] * robots
+
+    def variant(self, i: int, blank: bool) -> Grid:
+        h, w = self.base.shape
+        side = int(min(h, w) * 0.6)
+        y0 = (h - side) * i // max(self.robots - 1, 1)
+        x0 = (w - side) * (self.robots - 1 - i) // max(self.robots - 1, 1)
+        cells = self.base.logodds[y0 : y0 + side, x0 : x0 + side].copy()
+        if blank:
+            band = side // 8
+            top = side // 2 - band // 2
+            cells[top : top + band] = 0.0
+        # Origin of the crop in the Intel map's world frame (row 0 is the image top).
+        ox = self.base.origin[0] + x0 * self.base.resolution
+        oy = self.base.origin[1] + (h - y0 - side) * self.base.resolution
+        return Grid(cells, self.base.resolution, (ox, oy, 0.0))
+
+    def agents(self, workdir: Path) -> list[tuple[str, list[str]]]:
+        self.paths = [workdir / f"map{i + 1}" / "map.yaml" for i in range(self.robots)]
+        for i, path in enumerate(self.paths):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._write(i, 0)
+        return [(f"map:{path}", []) for path in self.paths]
+
+    def step(self, elapsed: float) -> None:
+        for i in range(self.robots):
+            turn = int((elapsed + i * self.period / self.robots) // self.period)
+            if turn != self.written[i]:
+                self._write(i, turn)
+
+    def _write(self, i: int, turn: int) -> None:
+        from pgvd.io import write_map
+
+        write_map(self.paths[i], self.variant(i, blank=turn % 2 == 1))
+        self.written[i] = turn
+
+
+def soak(sources: ReplaySources | CycleSources, minutes: float, workdir: Path) -> dict:
     """Run the fleet for ``minutes``; the raw time series and events."""
-    segs = segments(robots)
-    # Slow enough that the longest segment lasts the whole run: updates never stop.
-    speed = max(b - a for a, b in segs) * log_seconds(LOG) / (minutes * 60)
-    print(f"{robots} agents, replay speed {speed:.2f}x for {minutes} min", flush=True)
     series: dict[str, list[tuple[float, float, float]]] = {}
     published: dict[tuple[str, int], float] = {}
     agreed: list[tuple[float, dict[str, int]]] = []
     held_by_all: list[tuple[float, dict[str, int]]] = []
     drops: dict[str, int] = {}
-    with LocalFleet("soak", workdir, ["--speed", f"{speed:.4f}"]) as fleet:
-        for i, (seg, frame) in enumerate(zip(segs, random_frames(robots, 11), strict=True)):
-            fleet.add(
-                f"r{i + 1}",
-                f"carmen:{LOG}@{seg[0]}-{seg[1]}",
-                ["--frame=" + ",".join(f"{v:.4f}" for v in frame)],
-            )
+    with LocalFleet("soak", workdir / "fleet") as fleet:
+        for i, (source, args) in enumerate(sources.agents(workdir)):
+            fleet.add(f"r{i + 1}", source, args)
         t0 = time.time()
         next_sample = next_print = t0
         while time.time() - t0 < minutes * 60:
             now = time.time()
+            sources.step(now - t0)
             statuses = fleet.statuses()
             for robot, status in statuses.items():
                 if status and status.get("own_version") and status.get("last_update"):
@@ -108,7 +180,7 @@ def soak(robots: int, minutes: float, workdir: Path) -> dict:
                 print(f"        agreements {len(agreed)}  dead {dead}", flush=True)
                 next_print = now + 30
             time.sleep(0.5)
-        # Updates stop with the sources: give the fleet up to 90 s to agree on the last ones.
+        # Updates stop here: give the fleet up to 90 s to agree on the last ones.
         deadline = time.time() + 90
         while time.time() < deadline and not agreement(fleet.statuses()):
             time.sleep(0.5)
@@ -122,7 +194,6 @@ def soak(robots: int, minutes: float, workdir: Path) -> dict:
         dead = [r for r, a in fleet.agents.items() if not a.alive()]
     return {
         "t0": t0,
-        "speed": speed,
         "series": series,
         "published": published,
         "agreed": agreed,
@@ -171,7 +242,6 @@ def summarise(run: dict, minutes: float) -> dict:
     return {
         "robots": len(run["series"]),
         "minutes": minutes,
-        "replay_speed": round(run["speed"], 3),
         "versions_published": len(run["published"]),
         "versions_agreed": len(lag),
         "lag_s": {
@@ -225,21 +295,37 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", type=int, default=8)
     parser.add_argument("--minutes", type=float, default=10.0)
+    parser.add_argument(
+        "--sources",
+        choices=("cycle", "replay"),
+        default="cycle",
+        help="cycle: map files rewritten every 10 s, same size (memory must stay flat); "
+        "replay: the Intel log, maps growing as the robots explore",
+    )
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
+    if args.sources == "cycle":
+        sources: ReplaySources | CycleSources = CycleSources(args.robots)
+    else:
+        sources = ReplaySources(args.robots, args.minutes)
+    print(f"{args.robots} agents, {args.sources} sources, {args.minutes:g} min", flush=True)
     with tempfile.TemporaryDirectory(prefix="pgvd-soak-") as tmp:
-        run = soak(args.robots, args.minutes, Path(tmp))
+        run = soak(sources, args.minutes, Path(tmp))
     summary = summarise(run, args.minutes)
+    name = f"soak-{args.sources}"
     args.out.mkdir(parents=True, exist_ok=True)
     raw = {"series": run["series"], "published": [[*k, v] for k, v in run["published"].items()]}
-    (args.out / "soak.json").write_text(json.dumps({"summary": summary, "raw": raw}))
-    plot(run, summary, args.out / "soak.png")
+    (args.out / f"{name}.json").write_text(json.dumps({"summary": summary, "raw": raw}))
+    plot(run, summary, args.out / f"{name}.png")
     growth = summary["rss_growth_after_warmup_pct"]
     lines = [
-        "# Soak",
+        f"# Soak ({args.sources} sources)",
         "",
-        f"`python3 -m bench.soak --robots {args.robots} --minutes {args.minutes:g}` on "
-        f"{os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        f"`python3 -m bench.soak --robots {args.robots} --minutes {args.minutes:g} --sources "
+        f"{args.sources}` on {os.cpu_count()} cores, "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        "",
+        (sources.__doc__ or "").strip().replace("\n    ", " "),
         "",
         f"- versions published: {summary['versions_published']}, of which reached fleet-wide "
         f"agreement: {summary['versions_agreed']}",
@@ -253,9 +339,9 @@ def main() -> None:
         f"- messages dropped: {summary['drops'] or 'none'}",
         f"- agents that died: {summary['dead'] or 'none'}",
         "",
-        "![soak](soak.png)",
+        f"![soak]({name}.png)",
     ]
-    (args.out / "soak.md").write_text("\n".join(lines) + "\n")
+    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
