@@ -10,20 +10,33 @@ import threading
 import time
 from dataclasses import dataclass
 
-from agent.links import LinkCache, LinkKey, LinkRecord, needed_keys, select_links
+from agent.links import (
+    EPOCH_SHIFT,
+    LinkCache,
+    LinkKey,
+    LinkRecord,
+    epoch_of,
+    needed_keys,
+    select_links,
+)
 from pgvd.grid import Grid
 
+#: The minor part of a version (:func:`next_version`).
+MINOR_MASK = (1 << EPOCH_SHIFT) - 1
 
-def next_version(held: int | None, now: float) -> int:
-    """The version of a robot's next own map: past ``held`` and not below wall-clock ms.
 
-    Versions only move forward per robot, and peers drop anything not newer than what
-    they hold.  Counting 1, 2, 3... would leave a robot whose state directory was lost
-    unheard forever; a millisecond clock floor makes a fresh start newer than anything
-    it published before (given a clock that did not jump back).
+def next_version(held: int | None, now: float, new_epoch: bool) -> int:
+    """The version of a robot's next own map: ``epoch << 31 | minor``.
+
+    A new registration epoch (:mod:`agent.links`) starts at ``max(now in s, previous
+    epoch + 1)``; otherwise the minor part counts up.  Versions thus only move forward,
+    and a robot whose state directory was lost starts an epoch newer than anything it
+    published before (given a clock that did not jump back), so peers hear it again.
     """
-    floor = int(now * 1000)
-    return floor if held is None else max(held + 1, floor)
+    if held is None or new_epoch or (held & MINOR_MASK) == MINOR_MASK:
+        epoch = int(now) if held is None else max(int(now), epoch_of(held) + 1)
+        return epoch << EPOCH_SHIFT
+    return held + 1
 
 
 @dataclass(frozen=True)
@@ -80,18 +93,20 @@ class FleetBook:
         return True
 
     def add_link(self, rec: LinkRecord) -> bool:
-        """Cache ``rec`` unless a link of the same versions is known; True if new."""
+        """Cache ``rec``; True if it is now the link used for its epochs."""
         with self._lock:
-            held = self._maps
-            if (
-                rec.version_a < held.get(rec.a, (-1, None))[0]
-                or rec.version_b < held.get(rec.b, (-1, None))[0]
-            ):
+            held = {r: epoch_of(v) for r, (v, _) in self._maps.items()}
+            if rec.key[1] < held.get(rec.a, -1) or rec.key[3] < held.get(rec.b, -1):
                 return False  # superseded already: useless, and must not be re-chosen
             new = self._links.add(rec)
         if new:
             self.changed.set()
         return new
+
+    def link_candidates(self) -> list[LinkRecord]:
+        """Every link held (all candidates), for persistence and peers' queries."""
+        with self._lock:
+            return self._links.candidates()
 
     def links(self) -> list[LinkRecord]:
         with self._lock:

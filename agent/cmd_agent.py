@@ -63,6 +63,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--min-interval", type=float, default=1.0, help="s between own versions")
     p.add_argument(
+        "--epoch-change",
+        type=float,
+        default=0.15,
+        help="fraction of known cells changing class since the last registration epoch that "
+        "makes peers register this map again",
+    )
+    p.add_argument(
         "--min-agreement",
         type=float,
         help="overlay agreement a link needs (default: the merge's own threshold)",
@@ -87,8 +94,8 @@ def options_from_args(args: argparse.Namespace):
     for name in ("resolution", "speed", "link_timeout", "announce", "min_interval"):
         if not getattr(args, name) > 0:
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
-    if not 0 <= args.min_change <= 1:
-        raise CliError("--min-change must be in [0, 1]")
+    if not 0 <= args.min_change <= 1 or not 0 <= args.epoch_change <= 1:
+        raise CliError("--min-change and --epoch-change must be in [0, 1]")
     if args.min_agreement is not None and not 0 < args.min_agreement <= 1:
         raise CliError("--min-agreement must be in (0, 1]")
     key = None
@@ -135,6 +142,7 @@ def options_from_args(args: argparse.Namespace):
         min_change=args.min_change,
         min_interval=args.min_interval,
         min_agreement=args.min_agreement,
+        epoch_change=args.epoch_change,
     )
 
 

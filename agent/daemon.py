@@ -32,10 +32,11 @@ from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, component_of
 from agent.keys import FleetKeys
 from agent.links import LinkRecord
-from agent.sources import ChangeGate, SourceSpec, make_source
+from agent.sources import ChangeGate, SourceSpec, epoch_due, make_source
 from agent.state import StateDir, StoredMap, atomic_write_bytes
 from agent.worker import FusionWorker, GlobalState, RegisterFn, merge_registration
 from agent.zenoh_config import ZenohOptions, build_config
+from pgvd.grid import Grid
 from protocol.errors import ProtocolError
 
 log = logging.getLogger("pgvd.agent")
@@ -65,6 +66,7 @@ class AgentOptions:
     min_change: float = 0.05
     min_interval: float = 1.0
     min_agreement: float | None = None
+    epoch_change: float = 0.15
 
 
 class Agent:
@@ -98,6 +100,7 @@ class Agent:
         self._last_update: float | None = None
         self._settled_at: float | None = None
         self._source_pending = False
+        self._epoch_base: Grid | None = None  # own map when the current epoch began
         self._status_due = threading.Event()  # a new global map: refresh the status now
         self._load_state()
         self.source = make_source(
@@ -172,7 +175,7 @@ class Agent:
             self.counters.add("bytes_sent", len(data))
 
     def _answer_links(self, query: zenoh.Query) -> None:
-        for i, rec in enumerate(self.book.links()):
+        for i, rec in enumerate(self.book.link_candidates()):
             data = wire.encode_link(self.opts.fleet, rec, self.opts.key)
             query.reply(self.keys.links_reply(self.me, i), data)
             self.counters.add("bytes_sent", len(data))
@@ -402,14 +405,20 @@ class Agent:
             return
         self._source_pending = False
         held = self.book.version(self.me)
-        version = next_version(held, time.time())
         previous = self.book.map_of(self.me)
         try:
             sent = wire.on_the_wire(grid)
+            # A finished source's last map is registered afresh: it is the one that stays.
+            new_epoch = self.source.done or epoch_due(
+                self._epoch_base, sent, self.opts.epoch_change
+            )
+            version = next_version(held, time.time(), new_epoch)
             tiles, manifest = self.outbound.prepare(version, sent, previous)
         except ProtocolError as exc:  # e.g. a map beyond the wire's limits: keep serving
             self.counters.drop("own_map_unencodable", self.me, str(exc))
             return
+        if new_epoch:
+            self._epoch_base = sent
         # Persist before publishing: a peer never holds a version this agent could lose.
         self.state.save_map(self.me, StoredMap(version, grid, self.source.resume_state()))
         self.book.put_map(self.me, version, sent)
@@ -431,7 +440,7 @@ class Agent:
     def _persist_links(self) -> None:
         if self._links_dirty:
             self._links_dirty = False
-            self.state.save_links(self.book.links())
+            self.state.save_links(self.book.link_candidates())
 
     # ---------------------------------------------------------------- status
 
@@ -505,8 +514,8 @@ def _link_json(rec: LinkRecord, versions: dict[str, int]) -> dict[str, object]:
         "rotation_deg": round(psi, 3),
         "matrix": rec.matrix.tolist(),
         "decided_by": rec.decided_by,
-        # False for a superseded link that stands in while the latest is computed.
-        "current": versions.get(rec.a) == rec.version_a and versions.get(rec.b) == rec.version_b,
+        # False for a link of older epochs that stands in while the current one is computed.
+        "current": rec.current(versions),
     }
 
 

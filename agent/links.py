@@ -1,10 +1,17 @@
 """Pairwise links: the cache, which pairs still need registering, and who registers them first.
 
-The merge is deterministic, so the link of ``(a, version_a, b, version_b)`` computed by
-any agent *is* the link of those versions: it is cached under that key, published, and
-reused by everyone.  A robot bumps its map version only when its map changed enough
-(:class:`agent.sources.ChangeGate`), so "new pair or changed map" is exactly "no link for
-the latest versions yet".
+A map version is ``epoch << 31 | minor`` (:func:`agent.book.next_version`).  The robot
+that owns a map starts a new *registration epoch* when its map changed enough since the
+epoch began (or its canvas moved); other versions only add detail in the same pixel
+frame, so a link stays valid for every version of the epochs it was computed in.  Links
+are therefore keyed by ``(a, epoch_a, b, epoch_b)``: "new pair or changed enough" is
+exactly "no link for the current epochs yet", and a robot mapping continuously costs a
+registration per epoch, not per version.
+
+Two agents may register the same key (a timeout, a partition), possibly on different
+minor versions; every agent keeps all candidates and uses the same one
+(:meth:`LinkCache.get`: least ``decided_by``, then versions), so agents that have seen
+the same links agree.
 
 To bound CPU on a small machine, one agent of the pair (:func:`first_registrar`) registers
 it first; the other robot's agent steps in after ``timeout`` and any third agent after
@@ -19,7 +26,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: ``(a, epoch_a, b, epoch_b)``.
 LinkKey = tuple[str, int, str, int]
+#: Bits of a version below its epoch.
+EPOCH_SHIFT = 31
+
+
+def epoch_of(version: int) -> int:
+    """The registration epoch of a map version."""
+    return int(version) >> EPOCH_SHIFT
 
 
 @dataclass(frozen=True)
@@ -53,7 +68,16 @@ class LinkRecord:
 
     @property
     def key(self) -> LinkKey:
-        return (self.a, self.version_a, self.b, self.version_b)
+        """The epochs this link is valid in (see the module docstring)."""
+        return (self.a, epoch_of(self.version_a), self.b, epoch_of(self.version_b))
+
+    def current(self, versions: Mapping[str, int]) -> bool:
+        """True if the link is of the epochs of ``versions`` (the latest maps)."""
+        return (
+            self.a in versions
+            and self.b in versions
+            and self.key == (self.a, epoch_of(versions[self.a]), self.b, epoch_of(versions[self.b]))
+        )
 
     @property
     def pair(self) -> tuple[str, str]:
@@ -91,64 +115,72 @@ class LinkRecord:
             raise ValueError(f"malformed link record: {exc}") from None
 
 
-def ordered(r1: str, r2: str) -> tuple[str, str]:
-    return (r1, r2) if r1 < r2 else (r2, r1)
+def _preference(rec: LinkRecord) -> tuple[str, int, int]:
+    return (rec.decided_by, rec.version_a, rec.version_b)
 
 
 class LinkCache:
-    """Links by ``(a, version_a, b, version_b)``; old versions are pruned, never consulted."""
+    """Links by ``(a, epoch_a, b, epoch_b)``, every candidate kept; old epochs are pruned."""
 
     def __init__(self, records: Iterable[LinkRecord] = ()) -> None:
-        self._by_key: dict[LinkKey, LinkRecord] = {}
+        self._by_key: dict[LinkKey, list[LinkRecord]] = {}
         for rec in records:
             self.add(rec)
 
     def add(self, rec: LinkRecord) -> bool:
-        """Store ``rec``; True if it was not known (the first decision for a key stays)."""
-        if rec.key in self._by_key:
+        """Store ``rec``; True if it is the link now used for its key (it changed)."""
+        held = self._by_key.setdefault(rec.key, [])
+        if any(_preference(r) == _preference(rec) for r in held):
             return False
-        self._by_key[rec.key] = rec
-        return True
+        held.append(rec)
+        return min(held, key=_preference) is rec
 
     def get(self, key: LinkKey) -> LinkRecord | None:
-        return self._by_key.get(key)
+        """The link used for ``key``: the same on every agent that saw the same candidates."""
+        held = self._by_key.get(key)
+        return min(held, key=_preference) if held else None
 
     def __len__(self) -> int:
         return len(self._by_key)
 
     def records(self) -> list[LinkRecord]:
-        return sorted(self._by_key.values(), key=lambda r: r.key)
+        """The link used for each key, sorted by key."""
+        return [self.get(k) for k in sorted(self._by_key)]  # type: ignore[misc]
+
+    def candidates(self) -> list[LinkRecord]:
+        """Every link held, for persistence and for peers' queries."""
+        return [r for k in sorted(self._by_key) for r in sorted(self._by_key[k], key=_preference)]
 
     def prune(self, versions: Mapping[str, int]) -> None:
-        """Drop links of superseded versions, but keep per pair the newest of those.
+        """Drop links of superseded epochs, but keep per pair the newest of those.
 
-        A link of versions not yet seen (it can arrive before the maps) is kept.  The
+        A link of epochs not yet seen (it can arrive before the maps) is kept.  The
         newest superseded link stands in for the pair (:func:`select_links`) while the
-        link of the latest versions is being computed.
+        link of the current epochs is being computed.
         """
-        keep: dict[LinkKey, LinkRecord] = {}
-        newest: dict[tuple[str, str], LinkRecord] = {}
-        for rec in self._by_key.values():
-            if rec.version_a >= versions.get(rec.a, -1) and rec.version_b >= versions.get(
-                rec.b, -1
-            ):
-                keep[rec.key] = rec
+        epochs = {r: epoch_of(v) for r, v in versions.items()}
+        keep: dict[LinkKey, list[LinkRecord]] = {}
+        newest: dict[tuple[str, str], LinkKey] = {}
+        for key, held in self._by_key.items():
+            a, ea, b, eb = key
+            if ea >= epochs.get(a, -1) and eb >= epochs.get(b, -1):
+                keep[key] = held
                 continue
-            old = newest.get(rec.pair)
-            if old is None or (rec.version_a, rec.version_b) > (old.version_a, old.version_b):
-                newest[rec.pair] = rec
-        for rec in newest.values():
-            keep.setdefault(rec.key, rec)
+            old = newest.get((a, b))
+            if old is None or (ea, eb) > (old[1], old[3]):
+                newest[(a, b)] = key
+        for key in newest.values():
+            keep.setdefault(key, self._by_key[key])
         self._by_key = keep
 
 
 def needed_keys(versions: Mapping[str, int], cache: LinkCache) -> list[LinkKey]:
-    """Keys of the latest versions of every pair of robots that no link covers yet."""
+    """Keys of the current epochs of every pair of robots that no link covers yet."""
     robots = sorted(versions)
     keys = []
     for i, a in enumerate(robots):
         for b in robots[i + 1 :]:
-            key = (a, versions[a], b, versions[b])
+            key = (a, epoch_of(versions[a]), b, epoch_of(versions[b]))
             if cache.get(key) is None:
                 keys.append(key)
     return keys
@@ -220,39 +252,30 @@ def due_keys(
 
 
 def select_links(versions: Mapping[str, int], cache: LinkCache) -> tuple[list[LinkRecord], bool]:
-    """The one link per pair the global map uses, and whether all are of the latest versions.
+    """The one link per pair the global map uses, and whether all are of the current epochs.
 
-    The link of the latest versions when known; otherwise the newest older link of the
+    The link of the current epochs when known; otherwise the newest older link of the
     pair stands in, and the result is not *settled*: agents agree on the global map only
     once every pair is settled (fleet invariant 2).
     """
     chosen: dict[tuple[str, str], LinkRecord] = {}
-    settled = True
     for rec in cache.records():
         if rec.a not in versions or rec.b not in versions:
             continue
-        exact = versions[rec.a] == rec.version_a and versions[rec.b] == rec.version_b
         old = chosen.get(rec.pair)
         if (
-            exact
+            rec.current(versions)
             or old is None
-            or (
-                not _is_exact(old, versions)
-                and (rec.version_a, rec.version_b) > (old.version_a, old.version_b)
-            )
+            or (not old.current(versions) and rec.key > old.key)
         ):
             chosen[rec.pair] = rec
     robots = sorted(versions)
-    for i, a in enumerate(robots):
-        for b in robots[i + 1 :]:
-            rec = chosen.get((a, b))
-            if rec is None or not _is_exact(rec, versions):
-                settled = False
+    settled = all(
+        (a, b) in chosen and chosen[(a, b)].current(versions)
+        for i, a in enumerate(robots)
+        for b in robots[i + 1 :]
+    )
     return [chosen[p] for p in sorted(chosen)], settled
-
-
-def _is_exact(rec: LinkRecord, versions: Mapping[str, int]) -> bool:
-    return versions.get(rec.a) == rec.version_a and versions.get(rec.b) == rec.version_b
 
 
 def dumps(records: Iterable[LinkRecord]) -> str:

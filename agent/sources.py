@@ -115,6 +115,22 @@ class ChangeGate:
         return True
 
 
+def epoch_due(base: Grid | None, grid: Grid, min_fraction: float) -> bool:
+    """Whether ``grid`` starts a new registration epoch after the epoch begun by ``base``.
+
+    Yes when there is no base, the canvas moved (shape, resolution or origin: pixel
+    frames differ, so links of the old epoch do not apply), or at least ``min_fraction``
+    of the known cells changed class since the base.
+    """
+    if base is None or base.shape != grid.shape:
+        return True
+    if base.resolution != grid.resolution or tuple(base.origin) != tuple(grid.origin):
+        return True
+    cls = _classes(grid.logodds)
+    changed = int(np.count_nonzero(cls != _classes(base.logodds)))
+    return changed >= min_fraction * max(int(np.count_nonzero(cls)), 1)
+
+
 def _classes(logodds: np.ndarray) -> np.ndarray:
     """-1 free, 0 unknown, 1 occupied: what registration sees of a map."""
     return np.sign(logodds).astype(np.int8)

@@ -180,7 +180,8 @@ class FusionWorker:
         return self.link_timeout + mean * max(n_robots - 1, 0) / 2.0
 
     def _register(self, snap: Snapshot, key: LinkKey) -> None:
-        a, va, b, vb = key
+        a, _, b, _ = key  # epochs; the link records the versions it was computed on
+        va, vb = snap.maps[a][0], snap.maps[b][0]
         t0 = time.monotonic()
         try:
             res = self.register(snap.maps[a][1], snap.maps[b][1])

@@ -5,15 +5,19 @@ from __future__ import annotations
 import numpy as np
 
 from agent.book import FleetBook, next_version
+from agent.links import EPOCH_SHIFT, epoch_of
 from pgvd.grid import Grid
 
 
-def test_versions_move_forward_even_after_a_lost_state_dir() -> None:
-    assert next_version(None, 1000.0) == 1_000_000
-    assert next_version(1_000_000, 1000.0) == 1_000_001  # same millisecond
-    assert next_version(5_000_000, 1000.0) == 5_000_001  # clock behind: still forward
-    before_crash = next_version(next_version(None, 1000.0), 1001.0)
-    assert next_version(None, 1002.0) > before_crash  # fresh start outranks the old maps
+def test_versions_are_epochs_and_minors_and_only_move_forward() -> None:
+    first = next_version(None, 1000.7, new_epoch=False)
+    assert first == 1000 << EPOCH_SHIFT and epoch_of(first) == 1000
+    minor = next_version(first, 1005.0, new_epoch=False)
+    assert minor == first + 1 and epoch_of(minor) == 1000
+    assert epoch_of(next_version(minor, 1005.0, new_epoch=True)) == 1005
+    assert epoch_of(next_version(minor, 900.0, new_epoch=True)) == 1001  # clock behind
+    # A restart that lost its state dir starts an epoch newer than all it published.
+    assert next_version(None, 1006.0, new_epoch=True) > next_version(minor, 1005.0, True)
 
 
 def test_book_keeps_only_newer_maps() -> None:

@@ -11,10 +11,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from agent.links import (
+    EPOCH_SHIFT,
     LinkCache,
     LinkRecord,
     due_keys,
     dumps,
+    epoch_of,
     first_registrar,
     loads,
     needed_keys,
@@ -24,9 +26,19 @@ from agent.links import (
 from pgvd.grid import rigid_matrix
 
 
-def rec(a: str, va: int, b: str, vb: int, accepted: bool = True, score: float = 0.9) -> LinkRecord:
+def V(epoch: int, minor: int = 0) -> int:
+    """A map version of a registration epoch."""
+    return epoch << EPOCH_SHIFT | minor
+
+
+def rec(
+    a: str, ea: int, b: str, eb: int, accepted: bool = True, score: float = 0.9, **kw: object
+) -> LinkRecord:
+    """A link computed on the versions ``V(ea, ma)`` and ``V(eb, mb)`` (minors default 0)."""
+    va, vb = V(ea, int(kw.get("ma", 0))), V(eb, int(kw.get("mb", 0)))
+    by = str(kw.get("by", a))
     return LinkRecord(
-        a, va, b, vb, accepted, rigid_matrix(0.1, 3.0, -2.0), np.eye(3) * 0.01, score, a
+        a, va, b, vb, accepted, rigid_matrix(0.1, 3.0, -2.0), np.eye(3) * 0.01, score, by
     )
 
 
@@ -76,25 +88,33 @@ def test_loads_of_json_garbage_raises_only_value_error(items: list) -> None:
         loads(json.dumps(items))
 
 
-def test_first_decision_for_a_key_stays() -> None:
-    cache = LinkCache([rec("r1", 1, "r2", 1, score=0.9)])
-    assert not cache.add(rec("r1", 1, "r2", 1, score=0.1))
-    assert cache.get(("r1", 1, "r2", 1)).score == 0.9
+def test_a_link_holds_for_every_version_of_its_epochs() -> None:
+    link = rec("r1", 3, "r2", 5, ma=7)
+    assert link.key == ("r1", 3, "r2", 5) and epoch_of(link.version_a) == 3
+    assert link.current({"r1": V(3, 9), "r2": V(5, 1)})
+    assert not link.current({"r1": V(4), "r2": V(5)})
 
 
-def test_prune_keeps_latest_future_and_newest_superseded() -> None:
-    cache = LinkCache(
-        [rec("r1", 1, "r2", 1), rec("r1", 2, "r2", 1), rec("r1", 3, "r2", 2), rec("r1", 4, "r2", 2)]
-    )
-    cache.prune({"r1": 4, "r2": 2})
+def test_every_agent_uses_the_same_candidate_whatever_the_arrival_order() -> None:
+    first, second = rec("r1", 1, "r2", 1, by="r2", ma=3), rec("r1", 1, "r2", 1, by="r1", mb=2)
+    one, other = LinkCache([first]), LinkCache([second])
+    assert other.add(first) is False and one.add(second) is True  # r1's candidate wins
+    assert one.get(("r1", 1, "r2", 1)) is second and other.get(("r1", 1, "r2", 1)) is second
+    assert not one.add(second) and len(one.candidates()) == 2
+
+
+def test_prune_keeps_current_future_and_newest_superseded_epochs() -> None:
+    cache = LinkCache([rec("r1", 1, "r2", 1), rec("r1", 2, "r2", 1), rec("r1", 3, "r2", 2)])
+    cache.add(rec("r1", 4, "r2", 2))
+    cache.prune({"r1": V(4, 6), "r2": V(2, 1)})
     assert [r.key for r in cache.records()] == [("r1", 3, "r2", 2), ("r1", 4, "r2", 2)]
-    cache.prune({"r1": 3, "r2": 2})  # a link of versions not yet seen here is kept
+    cache.prune({"r1": V(3), "r2": V(2)})  # a link of epochs not yet seen here is kept
     assert ("r1", 4, "r2", 2) in [r.key for r in cache.records()]
 
 
-def test_needed_keys_are_pairs_without_a_link_of_the_latest_versions() -> None:
+def test_needed_keys_are_pairs_without_a_link_of_the_current_epochs() -> None:
     cache = LinkCache([rec("r1", 2, "r2", 1), rec("r1", 1, "r3", 1)])
-    versions = {"r1": 2, "r2": 1, "r3": 4}
+    versions = {"r1": V(2, 5), "r2": V(1, 3), "r3": V(4)}
     assert needed_keys(versions, cache) == [("r1", 2, "r3", 4), ("r2", 1, "r3", 4)]
 
 
@@ -126,13 +146,13 @@ def test_due_keys_put_own_pairs_first() -> None:
     assert due_keys("r3", keys, first, 100.0, 1.0) == [("r3", 1, "r4", 1), ("r1", 1, "r2", 1)]
 
 
-def test_select_links_prefers_exact_versions_and_reports_settled() -> None:
+def test_select_links_prefers_current_epochs_and_reports_settled() -> None:
     cache = LinkCache([rec("r1", 1, "r2", 1), rec("r1", 2, "r2", 1)])
-    chosen, settled = select_links({"r1": 2, "r2": 1}, cache)
+    chosen, settled = select_links({"r1": V(2, 4), "r2": V(1, 9)}, cache)
     assert [c.key for c in chosen] == [("r1", 2, "r2", 1)] and settled
-    chosen, settled = select_links({"r1": 3, "r2": 1}, cache)
+    chosen, settled = select_links({"r1": V(3), "r2": V(1)}, cache)
     assert [c.key for c in chosen] == [("r1", 2, "r2", 1)] and not settled
-    _, settled = select_links({"r1": 2, "r2": 1, "r3": 1}, cache)
+    _, settled = select_links({"r1": V(2), "r2": V(1), "r3": V(1)}, cache)
     assert not settled  # pairs with r3 have no link at all yet
 
 

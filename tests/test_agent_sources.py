@@ -14,6 +14,7 @@ from agent.sources import (
     CarmenSource,
     ChangeGate,
     MapFileSource,
+    epoch_due,
     frame_for_robot,
     parse_frame,
     parse_source,
@@ -109,3 +110,15 @@ def test_map_file_source_waits_for_stable_files_and_survives_bad_ones(
     assert not source.step(3.0)
     assert source.step(4.0)
     assert source.grid().shape[0] > 100 and not source.step(5.0)
+
+
+def test_epoch_due_on_big_change_or_moved_canvas() -> None:
+    lo = np.zeros((10, 10), np.float32)
+    lo[:5] = -1.0
+    base = Grid(lo.copy(), 0.1)
+    assert epoch_due(None, base, 0.15)
+    lo[5, :5] = 1.0  # 5 of 55 known cells changed: < 15 %
+    assert not epoch_due(base, Grid(lo.copy(), 0.1), 0.15)
+    lo[6:8] = 1.0  # 25 of 75 changed
+    assert epoch_due(base, Grid(lo.copy(), 0.1), 0.15)
+    assert epoch_due(base, Grid(base.logodds, 0.1, (1.0, 0.0, 0.0)), 0.15)  # canvas moved

@@ -5,9 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from agent.book import FleetBook
-from agent.links import LinkRecord
+from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import FusionWorker, GlobalState, Registration
 from pgvd.grid import Grid, rigid_matrix
+
+
+def V(epoch: int, minor: int = 0) -> int:
+    return epoch << EPOCH_SHIFT | minor
 
 
 def tiny(seed: int) -> Grid:
@@ -38,8 +42,8 @@ class Harness:
 
 def test_lower_robot_registers_at_once_and_publishes_the_link() -> None:
     h = Harness("r1")
-    h.book.put_map("r1", 1, tiny(1))
-    h.book.put_map("r2", 1, tiny(2))
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
     assert h.worker.step(now=0.0)
     assert len(h.calls) == 1 and [ln.key for ln in h.links] == [("r1", 1, "r2", 1)]
     assert h.links[0].decided_by == "r1"
@@ -51,8 +55,8 @@ def test_lower_robot_registers_at_once_and_publishes_the_link() -> None:
 
 def test_higher_robot_waits_for_the_link_then_computes_it_itself() -> None:
     h = Harness("r2")
-    h.book.put_map("r1", 1, tiny(1))
-    h.book.put_map("r2", 1, tiny(2))
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
     assert not h.worker.step(now=10.0) and h.calls == []
     (interim,) = h.globals
     assert not interim.settled and [c.anchor for c in interim.components] == ["r1", "r2"]
@@ -61,10 +65,10 @@ def test_higher_robot_waits_for_the_link_then_computes_it_itself() -> None:
 
 def test_a_received_link_saves_the_registration() -> None:
     h = Harness("r3")
-    h.book.put_map("r1", 1, tiny(1))
-    h.book.put_map("r2", 1, tiny(2))
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
     h.worker.step(now=0.0)
-    other = LinkRecord("r1", 1, "r2", 1, True, rigid_matrix(0, 1, 2), np.eye(3), 0.9, "r1")
+    other = LinkRecord("r1", V(1), "r2", V(1), True, rigid_matrix(0, 1, 2), np.eye(3), 0.9, "r1")
     assert h.book.add_link(other)
     assert not h.worker.step(now=100.0) and h.calls == []
     assert h.globals[-1].settled and h.links == []
@@ -77,8 +81,8 @@ def test_a_failing_registration_becomes_a_rejected_link() -> None:
         raise ValueError("map without occupied cells")
 
     h.worker.register = boom
-    h.book.put_map("r1", 1, tiny(1))
-    h.book.put_map("r2", 1, tiny(2))
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
     h.worker.step(now=0.0)
     assert [ln.accepted for ln in h.links] == [False]
     h.worker.step(now=0.1)
@@ -87,9 +91,9 @@ def test_a_failing_registration_becomes_a_rejected_link() -> None:
 
 def test_a_superseded_link_is_not_cached() -> None:
     book = FleetBook()
-    book.put_map("r1", 3, tiny(1))
-    book.put_map("r2", 1, tiny(2))
-    old = LinkRecord("r1", 2, "r2", 1, True, np.eye(3), np.eye(3), 0.9, "r1")
+    book.put_map("r1", V(3), tiny(1))
+    book.put_map("r2", V(1), tiny(2))
+    old = LinkRecord("r1", V(2), "r2", V(1), True, np.eye(3), np.eye(3), 0.9, "r1")
     assert not book.add_link(old)
 
 
@@ -101,16 +105,29 @@ def test_timeout_grows_with_the_fleet_and_the_cost_of_a_registration() -> None:
     assert h.worker.effective_timeout(1) == 4.0
 
 
+def test_a_new_minor_version_needs_no_registration_a_new_epoch_does() -> None:
+    h = Harness("r1")
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    h.worker.step(now=0.0)
+    h.worker.step(now=0.1)
+    h.book.put_map("r2", V(1, 1), tiny(3))  # more detail, same epoch
+    assert not h.worker.step(now=0.2) and len(h.calls) == 1
+    assert h.globals[-1].settled and h.globals[-1].components[0].versions["r2"] == V(1, 1)
+    h.book.put_map("r2", V(2), tiny(4))  # changed enough: a new epoch
+    assert h.worker.step(now=0.3) and len(h.calls) == 2
+
+
 def test_unsettled_previews_are_rate_limited_settled_maps_are_not() -> None:
     h = Harness("r3")  # registers nothing itself for a while: r1-r2 is not its pair
-    h.book.put_map("r1", 1, tiny(1))
-    h.book.put_map("r2", 1, tiny(2))
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
     h.worker.step(now=0.0)
-    h.book.put_map("r2", 2, tiny(3))
+    h.book.put_map("r2", V(2), tiny(3))
     h.worker.step(now=1.0)
     assert len(h.globals) == 1  # a second preview within 3 s is skipped
     h.worker.step(now=3.5)
     assert len(h.globals) == 2 and not h.globals[-1].settled
-    h.book.add_link(LinkRecord("r1", 1, "r2", 2, True, np.eye(3), np.eye(3), 0.9, "r1"))
+    h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
     h.worker.step(now=3.6)
     assert len(h.globals) == 3 and h.globals[-1].settled
