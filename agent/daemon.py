@@ -408,10 +408,7 @@ class Agent:
         previous = self.book.map_of(self.me)
         try:
             sent = wire.on_the_wire(grid)
-            # A finished source's last map is registered afresh: it is the one that stays.
-            new_epoch = self.source.done or epoch_due(
-                self._epoch_base, sent, self.opts.epoch_change
-            )
+            new_epoch = epoch_due(self._epoch_base, sent, self.opts.epoch_change)
             version = next_version(held, time.time(), new_epoch)
             tiles, manifest = self.outbound.prepare(version, sent, previous)
         except ProtocolError as exc:  # e.g. a map beyond the wire's limits: keep serving
