@@ -11,6 +11,7 @@ import zenoh
 
 from agent.cli import EXIT_OK, CliError
 from agent.keys import FleetKeys
+from agent.links import EPOCH_SHIFT, epoch_of
 from agent.zenoh_config import ZenohOptions, build_config
 
 
@@ -65,6 +66,13 @@ def _neighbours(session: zenoh.Session) -> bool:
     return bool(list(info.peers_zid()) or list(info.routers_zid()))
 
 
+def _v(version: int | None) -> str:
+    """A version as ``epoch.minor`` (:func:`agent.book.next_version`)."""
+    if version is None:
+        return "-"
+    return f"{epoch_of(version)}.{version - (epoch_of(version) << EPOCH_SHIFT)}"
+
+
 def format_table(statuses: dict[str, dict]) -> str:
     """Human-readable summary: one block per agent."""
     if not statuses:
@@ -74,19 +82,19 @@ def format_table(statuses: dict[str, dict]) -> str:
         s = statuses[robot]
         glob = s.get("global") or {}
         lines.append(
-            f"{robot}: own v{s.get('own_version')}  global {str(glob.get('digest', '-'))[:12]} "
+            f"{robot}: own v{_v(s.get('own_version'))}  global {str(glob.get('digest', '-'))[:12]} "
             f"anchor {glob.get('anchor', '-')} members {','.join(glob.get('members', []))}  "
             f"{'settled' if s.get('settled') else 'converging'}"
         )
         robots = s.get("robots", {})
         seen = " ".join(
-            f"{r}:v{v.get('version')}{'' if v.get('alive') else '(gone)'}"
+            f"{r}:v{_v(v.get('version'))}{'' if v.get('alive') else '(gone)'}"
             for r, v in sorted(robots.items())
         )
         lines.append(f"  robots  {seen}")
         for ln in s.get("links", []):
             lines.append(
-                f"  link    {ln['a']} v{ln['version_a']} - {ln['b']} v{ln['version_b']}: "
+                f"  link    {ln['a']} v{_v(ln['version_a'])} - {ln['b']} v{_v(ln['version_b'])}: "
                 f"{'accepted' if ln['accepted'] else 'rejected'} score {ln['score']:.3f} "
                 f"rot {ln['rotation_deg']:.1f} deg (by {ln['decided_by']})"
             )

@@ -5,17 +5,19 @@ from __future__ import annotations
 from agent.cli import main
 from agent.cmd_status import format_table
 
+V7, V3 = (40 << 31) | 7, (41 << 31) | 3  # epoch 40 minor 7, epoch 41 minor 3
+
 STATUS = {
-    "own_version": 7,
+    "own_version": V7,
     "global": {"digest": "ab" * 32, "anchor": "r1", "members": ["r1", "r2"]},
     "settled": True,
-    "robots": {"r1": {"version": 7, "alive": True}, "r2": {"version": 3, "alive": False}},
+    "robots": {"r1": {"version": V7, "alive": True}, "r2": {"version": V3, "alive": False}},
     "links": [
         {
             "a": "r1",
-            "version_a": 7,
+            "version_a": V7,
             "b": "r2",
-            "version_b": 3,
+            "version_b": V3,
             "accepted": True,
             "score": 0.987,
             "rotation_deg": -91.5,
@@ -31,9 +33,9 @@ STATUS = {
 
 def test_table_shows_robots_versions_links_traffic_and_drops() -> None:
     text = format_table({"r1": STATUS})
-    assert "r1: own v7  global abababababab anchor r1 members r1,r2  settled" in text
-    assert "r1:v7 r2:v3(gone)" in text
-    assert "link    r1 v7 - r2 v3: accepted score 0.987 rot -91.5 deg (by r2)" in text
+    assert "r1: own v40.7  global abababababab anchor r1 members r1,r2  settled" in text
+    assert "r1:v40.7 r2:v41.3(gone)" in text
+    assert "link    r1 v40.7 - r2 v41.3: accepted score 0.987 rot -91.5 deg (by r2)" in text
     assert "sent 1200 B, received 3400 B, merges 2, drops bad_message=3" in text
     assert format_table({}) == "no agent answered"
 
