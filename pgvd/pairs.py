@@ -27,6 +27,7 @@ from pgvd.integrate import (
     InverseSensorModel,
     frame_for,
     integrate,
+    perturb_odometry,
     se2,
     select_segment,
 )
@@ -86,6 +87,17 @@ def true_matrix(a: Grid, a_from_world: np.ndarray, b: Grid, b_from_world: np.nda
     )
 
 
+def rigid_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """3x3 SE(2) minimising ``sum |R src_i + t - dst_i|^2`` (Kabsch/Umeyama, no scale)."""
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    u, _, vt = np.linalg.svd((dst - mu_d).T @ (src - mu_s))
+    r = u @ np.diag([1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    m = np.eye(3)
+    m[:2, :2] = r
+    m[:2, 2] = mu_d - r @ mu_s
+    return m
+
+
 def overlap_fraction(a: Grid, b: Grid, truth: np.ndarray) -> float:
     """Shared known cells over the smaller map's known cells (module docstring)."""
     known_a = a.logodds != 0
@@ -119,8 +131,9 @@ def make_pair(
     seg_a, seg_b : segments, as for :func:`pgvd.integrate.select_segment`.
     seed : makes the frames and the odometry noise; same seed, same pair.
     resolution : metres per cell of both maps.
-    odom_noise : optional extra odometry noise (see :func:`pgvd.integrate.perturb_odometry`);
-        the truth stays the relation of the two segments' first poses.
+    odom_noise : optional extra odometry noise (see :func:`pgvd.integrate.perturb_odometry`).
+        A drifted map has no exact rigid truth; its truth is then the best rigid
+        placement: the least-squares fit of the drifted scan positions onto the true ones.
     model : inverse sensor model.
     name : label of the pair.
     """
@@ -131,9 +144,18 @@ def make_pair(
         if not part:
             raise ValueError(f"segment {segment} of a {len(scans)}-scan log is empty")
         transform = random_frame(rng)
+        placement = transform
+        if odom_noise is not None:
+            drifted = perturb_odometry(part, odom_noise, seed * 2 + k)
+            fit = rigid_fit(
+                np.array([s.pose[:2] for s in drifted]), np.array([s.pose[:2] for s in part])
+            )
+            # Map metres = transform @ drifted world = transform @ fit^-1 @ true world.
+            placement = transform @ np.linalg.inv(fit)
+            part = drifted
         frame = frame_for(part, resolution, transform, model=model)
-        grids.append(integrate(part, frame, model, odom_noise, seed=seed * 2 + k))
-        frames.append(transform)
+        grids.append(integrate(part, frame, model))
+        frames.append(placement)
     truth = true_matrix(grids[0], frames[0], grids[1], frames[1])
     info = {
         "seg_a": _segment_json(seg_a),

@@ -98,3 +98,13 @@ def test_bundled_examples_reproduce(tmp_path):
     fresh, old = (json.loads((d / "truth.json").read_text()) for d in (tmp_path, shipped))
     np.testing.assert_allclose(fresh["matrix"], old["matrix"], atol=1e-6)
     assert fresh["overlap"] == pytest.approx(old["overlap"], abs=1e-4)
+
+
+def test_drifted_pair_truth_is_the_best_rigid_placement(intel, split):
+    noisy = make_pair(intel, (0.0, 0.55), (0.45, 1.0), seed=3, odom_noise=(0.01, 0.002))
+    assert not np.array_equal(noisy.b.logodds, split.b.logodds)
+    # Drifted walls are blurred, yet the fitted truth still lays most of them on A's walls.
+    fitted = _walls_on_walls(noisy.a, noisy.b, noisy.truth)
+    assert 0.5 < fitted < _walls_on_walls(split.a, split.b, split.truth)
+    # ...and shifting it by three cells makes that clearly worse.
+    assert _walls_on_walls(noisy.a, noisy.b, rigid_matrix(0.0, 3.0, 0.0) @ noisy.truth) < fitted
