@@ -205,6 +205,8 @@ def rotation_blur(
     idx, wts, totals, n_rings = _polar_geometry(*key)
     # nearest-bin splat and read each add the variance of a uniform bin (1/12 bin^2)
     sigma_bins = round(math.sqrt(max((sigma_psi * n_theta / (2 * math.pi)) ** 2 - 1 / 6, 0)), 9)
+    if sigma_bins == 0:  # under a bin's own quantisation: scipy would divide by 0
+        return img.copy()
     sums = np.bincount(idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=totals.size)
     sums = ndimage.gaussian_filter1d(
         sums.astype(np.float32).reshape(n_rings, n_theta),

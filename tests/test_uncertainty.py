@@ -206,3 +206,12 @@ def test_compose_and_inverse_covariance_match_numerical_jacobians() -> None:
         np.testing.assert_allclose(
             inverse_covariance(m1, c1), jac @ c1 @ jac.T, rtol=1e-5, atol=1e-8
         )
+
+
+def test_rotation_blur_below_one_angle_bin_is_identity_not_a_crash() -> None:
+    # sigma_psi * r_max = 0.35 px: above the no-op threshold, but the angle-bin
+    # quantisation alone already covers it, so the residual blur is 0 (scipy would divide
+    # by 0); found by a fleet agent fusing a link with a tiny heading variance.
+    img = np.random.default_rng(0).random((200, 200)).astype(np.float32)
+    out = rotation_blur(img, 0.0025)
+    assert out.shape == img.shape and np.isfinite(out).all()
