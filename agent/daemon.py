@@ -474,6 +474,7 @@ class Agent:
                     "tree": [list(p) for p in c.tree],
                     "digest": c.digest,
                     "shape": list(c.grid.shape),
+                    "unblurred": list(c.unblurred),
                 }
                 for c in comps
             ],

@@ -42,6 +42,8 @@ class Component:
     tree : links used, as ``(a, b)`` pairs, in the order they were chosen.
     grid : the fused map.
     digest : hex SHA-256 of the quantised fused map (see :func:`map_digest`).
+    unblurred : robots whose map had to be fused without its uncertainty blur because
+        the blur failed on these inputs (reported in the status).
     """
 
     anchor: str
@@ -51,6 +53,7 @@ class Component:
     tree: tuple[tuple[str, str], ...]
     grid: Grid
     digest: str
+    unblurred: tuple[str, ...] = ()
 
 
 def spanning_forest(
@@ -152,12 +155,20 @@ def build_components(
         members = tuple(sorted(mats))
         base = maps[anchor][1]
         fused = base
+        unblurred: list[str] = []
         for robot in members:
             if robot == anchor:
                 continue
             # The canvas of `fused` may have grown: anchor px -> fused px, then compose.
             to_fused = relative_matrix(fused, base) @ mats[robot]
-            fused = fuse(fused, maps[robot][1], to_fused, covs[robot])
+            try:
+                fused = fuse(fused, maps[robot][1], to_fused, covs[robot])
+            except (ValueError, ArithmeticError):
+                # The same inputs fail the same way on every agent, so falling back to
+                # fusion without the uncertainty blur keeps them in agreement; a global
+                # map that never settles would be worse.
+                fused = fuse(fused, maps[robot][1], to_fused, np.zeros((3, 3)))
+                unblurred.append(robot)
         out.append(
             Component(
                 anchor=anchor,
@@ -167,6 +178,7 @@ def build_components(
                 tree=tuple(ln.pair for ln in tree),
                 grid=fused,
                 digest=map_digest(fused),
+                unblurred=tuple(unblurred),
             )
         )
     return out

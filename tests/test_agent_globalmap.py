@@ -92,3 +92,16 @@ def test_digest_changes_with_the_map() -> None:
     h = Grid(np.where(np.eye(4, 5) > 0, 2.0, 0.0).astype(np.float32), 0.1)
     assert map_digest(g) != map_digest(h)
     assert map_digest(g) == map_digest(Grid(g.logodds.copy(), 0.1))
+
+
+def test_a_failing_blur_falls_back_to_plain_fusion_the_same_everywhere(halves: tuple) -> None:
+    a, b, truth = halves
+
+    def fragile(base: Grid, other: Grid, m: np.ndarray, cov: np.ndarray) -> Grid:
+        if cov.any():
+            raise ZeroDivisionError("float division by zero")
+        return fuse_maps(base, other, m, cov)
+
+    (comp,) = build_components({"r1": (1, a), "r2": (1, b)}, [link("r1", "r2", truth)], fragile)
+    assert comp.unblurred == ("r2",)
+    assert comp.digest == map_digest(fuse_maps(a, b, truth, np.zeros((3, 3))))
