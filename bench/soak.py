@@ -143,7 +143,9 @@ class CycleSources:
         self.written[i] = turn
 
 
-def soak(sources: ReplaySources | CycleSources, minutes: float, workdir: Path) -> dict:
+def soak(
+    sources: ReplaySources | CycleSources, minutes: float, workdir: Path, settle: float = 90.0
+) -> dict:
     """Run the fleet for ``minutes``; the raw time series and events."""
     series: dict[str, list[tuple[float, float, float]]] = {}
     published: dict[tuple[str, int], float] = {}
@@ -180,8 +182,8 @@ def soak(sources: ReplaySources | CycleSources, minutes: float, workdir: Path) -
                 print(f"        agreements {len(agreed)}  dead {dead}", flush=True)
                 next_print = now + 30
             time.sleep(0.5)
-        # Updates stop here: give the fleet up to 90 s to agree on the last ones.
-        deadline = time.time() + 90
+        # Updates stop here: give the fleet up to ``settle`` s to agree on the last ones.
+        deadline = time.time() + settle
         while time.time() < deadline and not agreement(fleet.statuses()):
             time.sleep(0.5)
         statuses = fleet.statuses()
@@ -285,6 +287,8 @@ def plot(run: dict, summary: dict, path: Path) -> None:
     ax_cpu.set_ylabel("CPU (% of one core)")
     lag = lags(run["published"], run["agreed"])
     ax_lag.hist(lag, bins=30)
+    if not lag:
+        ax_lag.text(0.5, 0.5, "the fleet never agreed", ha="center", transform=ax_lag.transAxes)
     ax_lag.set_xlabel("seconds from a map update to fleet-wide agreement")
     ax_lag.set_ylabel("updates")
     fig.tight_layout()
@@ -302,6 +306,9 @@ def main() -> None:
         help="cycle: map files rewritten every 10 s, same size (memory must stay flat); "
         "replay: the Intel log, maps growing as the robots explore",
     )
+    parser.add_argument(
+        "--settle", type=float, default=90.0, help="s to wait for agreement after the run"
+    )
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     if args.sources == "cycle":
@@ -310,7 +317,7 @@ def main() -> None:
         sources = ReplaySources(args.robots, args.minutes)
     print(f"{args.robots} agents, {args.sources} sources, {args.minutes:g} min", flush=True)
     with tempfile.TemporaryDirectory(prefix="pgvd-soak-") as tmp:
-        run = soak(sources, args.minutes, Path(tmp))
+        run = soak(sources, args.minutes, Path(tmp), args.settle)
     summary = summarise(run, args.minutes)
     name = f"soak-{args.sources}"
     args.out.mkdir(parents=True, exist_ok=True)
