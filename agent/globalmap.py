@@ -24,6 +24,7 @@ import numpy as np
 
 from agent.links import LinkRecord
 from pgvd.grid import Grid, relative_matrix
+from pgvd.uncertainty import compose_covariance, inverse_covariance
 from protocol.quantize import quantise
 
 FuseFn = Callable[[Grid, Grid, np.ndarray, np.ndarray], Grid]
@@ -90,16 +91,19 @@ def compose_transforms(
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Matrices robot px -> anchor px along ``tree``, and their first-order covariances.
 
-    A link's matrix maps ``b`` to ``a``; walking it from ``b`` to ``a`` uses the inverse.
-    Covariances add along the path, the child's translation part rotated into the anchor
-    frame (first-order propagation of eqs. (4)-(8) through a composition).
+    A link's matrix maps ``b`` to ``a``; walking it from ``b`` to ``a`` uses the inverse
+    and its covariance.  Covariances compose to first order, eq. (4), with the Jacobian of
+    eq. (1): a parent's heading error also moves the child's translation
+    (:func:`pgvd.uncertainty.compose_covariance`).
     """
     mats = {anchor: np.eye(3)}
     covs = {anchor: np.zeros((3, 3))}
     adjacency: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
     for ln in tree:
         adjacency.setdefault(ln.a, []).append((ln.b, ln.matrix, ln.covariance))
-        adjacency.setdefault(ln.b, []).append((ln.a, np.linalg.inv(ln.matrix), ln.covariance))
+        adjacency.setdefault(ln.b, []).append(
+            (ln.a, np.linalg.inv(ln.matrix), inverse_covariance(ln.matrix, ln.covariance))
+        )
     frontier = [anchor]
     while frontier:
         node = frontier.pop(0)
@@ -107,9 +111,7 @@ def compose_transforms(
             if child in mats:
                 continue
             mats[child] = mats[node] @ m
-            rot = np.eye(3)
-            rot[:2, :2] = mats[node][:2, :2]
-            covs[child] = covs[node] + rot @ cov @ rot.T
+            covs[child] = compose_covariance(mats[node], covs[node], m, cov)
             frontier.append(child)
     return mats, covs
 

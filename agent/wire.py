@@ -12,6 +12,7 @@ import numpy as np
 from agent.keys import FleetKeys
 from agent.links import LinkRecord
 from pgvd.grid import Grid
+from pgvd.uncertainty import check_covariance
 from protocol import (
     Limits,
     Link,
@@ -131,6 +132,10 @@ def link_record(msg: Link) -> LinkRecord:
     m = np.asarray(msg.matrix, dtype=np.float64)
     if abs(abs(np.linalg.det(m[:2, :2])) - 1.0) > 1e-3 or np.any(m[2] != (0.0, 0.0, 1.0)):
         raise ValueError("link matrix is not rigid")
+    covariance = np.asarray(msg.covariance, dtype=np.float64)
+    if msg.accepted:
+        # An accepted link's covariance is composed along chains in every global-map rebuild.
+        covariance = check_covariance(covariance)
     return LinkRecord(
         msg.robot_a,
         msg.version_a,
@@ -138,7 +143,7 @@ def link_record(msg: Link) -> LinkRecord:
         msg.version_b,
         msg.accepted,
         m,
-        np.asarray(msg.covariance, dtype=np.float64),
+        covariance,
         msg.score,
         msg.decided_by,
     )

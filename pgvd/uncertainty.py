@@ -59,7 +59,7 @@ def transform_covariance(xy: np.ndarray, psi: float, cov3: np.ndarray) -> np.nda
     (N, 2, 2) covariances of the transformed points, eq. (5).
     """
     xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
-    c = _check_cov3(cov3)
+    c = check_covariance(cov3)
     s, co = math.sin(psi), math.cos(psi)
     r1 = -xy[:, 0] * s + xy[:, 1] * co
     r2 = -xy[:, 0] * co - xy[:, 1] * s
@@ -93,7 +93,7 @@ def compose_covariance(
     a1[:2, 2] = r1 @ _J @ t2
     a2 = np.eye(3)
     a2[:2, :2] = r1
-    out = a1 @ _check_cov3(cov1) @ a1.T + a2 @ _check_cov3(cov2) @ a2.T
+    out = a1 @ check_covariance(cov1) @ a1.T + a2 @ check_covariance(cov2) @ a2.T
     return (out + out.T) / 2.0
 
 
@@ -108,11 +108,12 @@ def inverse_covariance(m: np.ndarray, cov: np.ndarray) -> np.ndarray:
     a[:2, :2] = -r.T
     a[:2, 2] = r.T @ _J @ t
     a[2, 2] = -1.0
-    out = a @ _check_cov3(cov) @ a.T
+    out = a @ check_covariance(cov) @ a.T
     return (out + out.T) / 2.0
 
 
-def _check_cov3(cov3: np.ndarray) -> np.ndarray:
+def check_covariance(cov3: np.ndarray) -> np.ndarray:
+    """``cov3`` as float64 if it is a finite, symmetric, positive semi-definite 3x3, eq. (3)."""
     c = np.asarray(cov3, dtype=np.float64)
     if c.shape != (3, 3) or not np.isfinite(c).all():
         raise ValueError(f"covariance must be a finite 3x3 array, got shape {c.shape}")
@@ -315,7 +316,7 @@ def propagate(
     -------
     (rows, cols) float32 array: B in the output frame, blurred by eq. (8).
     """
-    c = _check_cov3(cov3)
+    c = check_covariance(cov3)
     m = np.asarray(matrix, dtype=np.float64)
     center_out = (m @ np.append(np.asarray(center, dtype=np.float64), 1.0))[:2]
     s_pp = c[2, 2]

@@ -105,3 +105,41 @@ def test_a_failing_blur_falls_back_to_plain_fusion_the_same_everywhere(halves: t
     (comp,) = build_components({"r1": (1, a), "r2": (1, b)}, [link("r1", "r2", truth)], fragile)
     assert comp.unblurred == ("r2",)
     assert comp.digest == map_digest(fuse_maps(a, b, truth, np.zeros((3, 3))))
+
+
+def test_composed_covariance_matches_monte_carlo_along_a_reversed_chain() -> None:
+    """Eq. (4) through a chain: a parent's heading error moves the child's translation."""
+    rng = np.random.default_rng(7)
+    # a <- c by link (a, c), then c -> b by link (b, c) walked backwards, then b <- d.
+    m_ac, cov_ac = rigid_matrix(0.4, 120.0, -30.0), np.diag([0.3, 0.2, 1e-4])
+    m_bc, cov_bc = rigid_matrix(0.7, -50.0, 200.0), np.diag([0.4, 0.4, 2e-4])
+    m_bd, cov_bd = rigid_matrix(-1.1, 300.0, 80.0), np.diag([0.5, 0.1, 4e-4])
+    tree = [
+        LinkRecord("a", 1, "c", 1, True, m_ac, cov_ac, 0.9, "a"),
+        LinkRecord("b", 1, "c", 1, True, m_bc, cov_bc, 0.9, "b"),
+        LinkRecord("b", 1, "d", 1, True, m_bd, cov_bd, 0.9, "b"),
+    ]
+    mats, covs = compose_transforms("a", tree)
+    np.testing.assert_allclose(mats["d"], m_ac @ np.linalg.inv(m_bc) @ m_bd, atol=1e-9)
+
+    def perturbed(m: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        dx, dy, dpsi = rng.multivariate_normal(np.zeros(3), cov)
+        psi = np.arctan2(m[0, 1], m[0, 0]) + dpsi
+        return rigid_matrix(psi, m[0, 2] + dx, m[1, 2] + dy)
+
+    chains = {
+        "b": lambda: perturbed(m_ac, cov_ac) @ np.linalg.inv(perturbed(m_bc, cov_bc)),
+        "d": lambda: (
+            perturbed(m_ac, cov_ac)
+            @ np.linalg.inv(perturbed(m_bc, cov_bc))
+            @ perturbed(m_bd, cov_bd)
+        ),
+    }
+    for child, chain in chains.items():
+        poses = [chain() for _ in range(20000)]
+        samples = np.array([[m[0, 2], m[1, 2], np.arctan2(m[0, 1], m[0, 0])] for m in poses])
+        np.testing.assert_allclose(covs[child], np.cov(samples.T), rtol=0.1, atol=2e-3)
+    # Summing the links' translation covariances (rotated) misses the heading terms:
+    # here that alone would understate the translation variance of d by pixels squared.
+    naive = sum(np.trace(c[:2, :2]) for c in (cov_ac, cov_bc, cov_bd))
+    assert np.trace(covs["d"][:2, :2]) > naive + 2.0

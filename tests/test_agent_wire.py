@@ -73,3 +73,10 @@ def test_wrong_key_is_a_protocol_error() -> None:
     tiles, _ = wire.Outbound("f", "r1", b"k1").prepare(1, grid(1), None)
     with pytest.raises(ProtocolError):
         wire.Inbound("f", b"k2").decode(tiles[0])
+
+
+def test_accepted_link_with_a_covariance_that_is_not_psd_is_refused() -> None:
+    cov = np.diag([1.0, 1.0, -0.5])
+    rec = LinkRecord("r1", 3, "r2", 4, True, rigid_matrix(0.2, 5, 6), cov, 0.9, "r1")
+    with pytest.raises(ValueError, match="semi-definite"):
+        wire.link_record(decode(wire.encode_link("f", rec, None)))
