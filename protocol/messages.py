@@ -190,6 +190,21 @@ def check_crc(value: object, what: str) -> int:
     return int(value)
 
 
+def _check_map_header(
+    fleet: str, robot: str, version: int, geometry: Geometry, base_version: int | None
+) -> None:
+    """The fields a map's tiles and its manifest share; a delta's base must be older."""
+    check_id(fleet, "fleet")
+    check_id(robot, "robot")
+    check_version(version, "version")
+    if not isinstance(geometry, Geometry):
+        raise ProtocolError("geometry must be a Geometry")
+    if base_version is not None:
+        check_version(base_version, "base_version")
+        if base_version >= version:
+            raise ProtocolError(f"base_version {base_version} must be older than version {version}")
+
+
 @dataclass(frozen=True, eq=False)
 class MapTiles:
     """Some tiles of one version of a robot's own local map.
@@ -207,17 +222,7 @@ class MapTiles:
     base_version: int | None = None
 
     def __post_init__(self) -> None:
-        check_id(self.fleet, "fleet")
-        check_id(self.robot, "robot")
-        check_version(self.version, "version")
-        if not isinstance(self.geometry, Geometry):
-            raise ProtocolError("geometry must be a Geometry")
-        if self.base_version is not None:
-            check_version(self.base_version, "base_version")
-            if self.base_version >= self.version:
-                raise ProtocolError(
-                    f"base_version {self.base_version} must be older than version {self.version}"
-                )
+        _check_map_header(self.fleet, self.robot, self.version, self.geometry, self.base_version)
         tiles = tuple(self.tiles)
         if not tiles:
             raise ProtocolError("a MapTiles message must carry at least one tile")
@@ -260,19 +265,9 @@ class Manifest:
     digest: int | None = None
 
     def __post_init__(self) -> None:
-        check_id(self.fleet, "fleet")
-        check_id(self.robot, "robot")
-        check_version(self.version, "version")
-        if not isinstance(self.geometry, Geometry):
-            raise ProtocolError("geometry must be a Geometry")
+        _check_map_header(self.fleet, self.robot, self.version, self.geometry, self.base_version)
         if (self.base_version is None) != (self.digest is None):
             raise ProtocolError("a delta manifest needs both base_version and digest")
-        if self.base_version is not None:
-            check_version(self.base_version, "base_version")
-            if self.base_version >= self.version:
-                raise ProtocolError(
-                    f"base_version {self.base_version} must be older than version {self.version}"
-                )
             if isinstance(self.digest, bool) or not isinstance(self.digest, (int, np.integer)):
                 raise ProtocolError("digest must be an integer")
             if not 0 <= self.digest < 2**64:
