@@ -387,6 +387,13 @@ def _finalists(hyps: list[_Hypothesis], n: int) -> list[_Hypothesis]:
     return out
 
 
+def _decided(hyps: list[_Hypothesis], params: MergeParams, bound: float) -> bool:
+    """True when ``params.finalists`` supported hypotheses all score above ``bound``."""
+    good = [h for h in hyps if h.support >= params.min_pairs]
+    chosen = _finalists(good, params.finalists)
+    return len(chosen) == params.finalists and chosen[-1].evidence > bound
+
+
 def _decide(
     finalists: list[_Hypothesis],
     fine_a: WallMap,
@@ -535,6 +542,12 @@ def merge(
     clock.lap("verify")
     hyps: list[_Hypothesis] = []
     for t in turned[: params.search_headings]:
+        # A heading's hypotheses score at most its best overlay evidence, and the
+        # finalists are the best by evidence: once that many supported ones beat
+        # everything this heading (and the weaker ones after it) could offer, it
+        # cannot change the outcome, so its PGVD/Gamma stages are skipped.
+        if _decided(hyps, params, t.overlay.best_evidence(params.disagreement_weight)):
+            break
         hyps += _search_heading(t, graph_a, correlator, params, min_len, radius, clock)
     good = [h for h in hyps if h.support >= params.min_pairs]
     if not good:
