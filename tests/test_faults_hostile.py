@@ -154,3 +154,26 @@ def test_pgvd_status_shows_the_drops_by_reason(attacked: dict) -> None:
     assert set(statuses) == set(SOURCES)
     for status in statuses.values():
         assert {"bad_message", "stale_version"} <= set(status["drops"]), status["drops"]
+
+
+def test_forged_messages_fail_for_the_intended_reason() -> None:
+    """The rogue's keyed forgeries are refused for what they break, not for a bad forgery."""
+    from rogue import Rogue
+
+    from protocol import ProtocolError, decode, encode_map
+
+    rogue = Rogue(None, "t", b"k")  # type: ignore[arg-type]
+
+    def huge(body: dict) -> None:
+        rogue._geometry(body)[:2] = [20_000, 20_000]
+
+    def nan(body: dict) -> None:
+        rogue._geometry(body)[2] = float("nan")
+
+    decode(rogue.forged_manifest("r1", lambda body: None), b"k")  # an unedited forgery passes
+    for edit, reason in ((huge, "side limit"), (nan, "must be finite")):
+        with pytest.raises(ProtocolError, match=reason):
+            decode(rogue.forged_manifest("r1", edit), b"k")
+    for key, reason in ((None, "no MAC"), (b"wrong", "wrong MAC")):
+        with pytest.raises(ProtocolError, match=reason):
+            decode(encode_map("t", "r1", 10_000, rogue.grid(), key)[1], b"k")
