@@ -268,7 +268,8 @@ class MapView:
         self.occ = prob > occupied
         struct = np.ones((2 * tolerance + 1, 2 * tolerance + 1), bool)
         self.near = ndi.binary_dilation(self.occ, struct) if tolerance else self.occ
-        self.clear = (prob < free) & ~ndi.binary_dilation(self.occ, struct, iterations=2)
+        # dilating ``near`` once more is the two-fold dilation of the walls, one pass cheaper
+        self.clear = (prob < free) & ~ndi.binary_dilation(self.near, struct)
         self.shape = prob.shape
 
 

@@ -69,10 +69,13 @@ def angle_spectrum(p: np.ndarray, n_angles: int = 360, max_points: int = 3000) -
     w = p[rows, cols]
     theta = np.arange(n_angles) * (np.pi / n_angles)
     reach = int(np.ceil(np.hypot(*p.shape))) + 1
-    rho = np.outer(np.cos(theta), cols) + np.outer(np.sin(theta), rows)
-    bins = np.floor(rho + 0.5).astype(np.int64) + reach
     n_bins = 2 * reach + 1
-    keys = bins + (np.arange(n_angles) * n_bins)[:, None]
+    # bin = floor(rho + 0.5) + reach, with rho + reach + 0.5 > 0 so truncation is the floor;
+    # each angle's row offset goes into the same pass
+    keys = np.outer(np.cos(theta), cols)
+    keys += np.outer(np.sin(theta), rows)
+    keys += (np.arange(n_angles) * n_bins + reach + 0.5)[:, None]
+    keys = keys.astype(np.int64)
     proj = np.bincount(keys.ravel(), np.broadcast_to(w, keys.shape).ravel(), n_angles * n_bins)
     proj = proj.reshape(n_angles, n_bins)
     return (proj**2).sum(axis=1) / w.sum() ** 2
