@@ -301,11 +301,30 @@ class _Rotated:
 
 
 def _rotate(
-    heading: HeadingCandidate, cb: np.ndarray, scores: OverlayScores, params: MergeParams
+    heading: HeadingCandidate,
+    cb: np.ndarray,
+    scores: OverlayScores,
+    params: MergeParams,
+    canvases: dict[float, np.ndarray],
 ) -> _Rotated:
-    """Rotate coarse B by a candidate heading (12) and overlay it on A for all translations."""
+    """Rotate coarse B by a candidate heading (12) and overlay it on A for all translations.
+
+    ``canvases`` holds the whole rotated canvases by heading.  Headings come in
+    pairs ``psi``, ``psi + pi`` (:func:`pgvd.rotation.estimate_headings`), and
+    the canvas is centred on a cell-centre grid, so a half-turn twin is the
+    canvas flipped on both axes: it is taken from there instead of warped again.
+    """
     rot, shape = _rotation_about_centre(heading.psi, cb.shape)
-    rb = warp(cb, rot, shape, order=1, cval=0.5)
+    twin = next(
+        (
+            c
+            for psi, c in canvases.items()
+            if abs(np.angle(np.exp(1j * (heading.psi - psi - np.pi)))) < 1e-9
+        ),
+        None,
+    )
+    rb = warp(cb, rot, shape, order=1, cval=0.5) if twin is None else twin[::-1, ::-1].copy()
+    canvases[heading.psi] = rb
     # The heading blur spreads walls by a few cells at most: keep that margin.
     rows, cols = _known_box(rb, margin=2 + int(np.ceil(3 * np.sqrt(heading.variance) * shape[0])))
     rb = rb[rows, cols]
@@ -535,8 +554,9 @@ def merge(
     correlator = EdgeCorrelator(graph_a.edges, params.edge_tolerance)
     radius = max(1, round(params.search_radius / coarse_res))
     clock.lap("verify")
+    canvases: dict[float, np.ndarray] = {}
     turned = sorted(
-        (_rotate(h, cb, scores, params) for h in headings),
+        (_rotate(h, cb, scores, params, canvases) for h in headings),
         key=lambda r: -r.overlay.best_evidence(params.disagreement_weight),
     )
     clock.lap("verify")
