@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage as ndi
 
+from pgvd.morphology import grow
+
 #: The 8 neighbours in ring order (N, NE, E, SE, S, SW, W, NW) as (row, col) offsets.
 _RING = ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))
 
@@ -90,7 +92,7 @@ def build_graph(s: np.ndarray, sp: np.ndarray, min_edge_length: int = 8) -> Edge
     if s.shape != sp.shape or s.ndim != 2:
         raise ValueError(f"S and Sp must be equal 2-D shapes, got {s.shape} and {sp.shape}")
     vertices = s & (branch_count(s) > 2)
-    dilated = ndi.binary_dilation(vertices, np.ones((3, 3), bool))
+    dilated = grow(vertices)
     labels, n = ndi.label(s & ~dilated, np.ones((3, 3), int))
     edges: list[Edge] = []
     if n:

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
 from pgvd.grid import rigid_matrix
+from pgvd.morphology import grow
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
 _BLOCK_CELLS = 1 << 21
@@ -266,10 +267,9 @@ class MapView:
     def __init__(self, prob: np.ndarray, occupied: float, free: float, tolerance: int) -> None:
         prob = np.asarray(prob)
         self.occ = prob > occupied
-        struct = np.ones((2 * tolerance + 1, 2 * tolerance + 1), bool)
-        self.near = ndi.binary_dilation(self.occ, struct) if tolerance else self.occ
-        # dilating ``near`` once more is the two-fold dilation of the walls, one pass cheaper
-        self.clear = (prob < free) & ~ndi.binary_dilation(self.near, struct)
+        self.near = grow(self.occ, tolerance)
+        # growing ``near`` once more is the two-fold dilation of the walls, one pass cheaper
+        self.clear = (prob < free) & ~grow(self.near, tolerance)
         self.shape = prob.shape
 
 
