@@ -329,7 +329,7 @@ def main() -> None:
         f"# Soak ({args.sources} sources)",
         "",
         f"`python3 -m bench.soak --robots {args.robots} --minutes {args.minutes:g} --sources "
-        f"{args.sources}` on {os.cpu_count()} cores, "
+        f"{args.sources} --settle {args.settle:g}` on {os.cpu_count()} cores, "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
         "",
         (sources.__doc__ or "").strip().replace("\n    ", " "),
