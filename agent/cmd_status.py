@@ -98,12 +98,14 @@ def format_table(statuses: dict[str, dict]) -> str:
                 f"{'accepted' if ln['accepted'] else 'rejected'} score {ln['score']:.3f} "
                 f"rot {ln['rotation_deg']:.1f} deg (by {ln['decided_by']})"
             )
-        drops = s.get("drops", {})
         lines.append(
             f"  traffic sent {s.get('bytes_sent', 0)} B, received {s.get('bytes_received', 0)} B"
-            f", merges {s.get('merges', 0)}, drops "
-            + (", ".join(f"{k}={v}" for k, v in sorted(drops.items())) or "none")
+            f", merges {s.get('merges', 0)}"
         )
+        # Dropped messages by reason: framing, auth, schema, limit, value (what a decoder
+        # refused), stale_version, overload, foreign_fleet, ... (the agent's own rules).
+        drops = sorted(s.get("drops", {}).items(), key=lambda kv: (-kv[1], kv[0]))
+        lines.append("  drops   " + (", ".join(f"{k}={v}" for k, v in drops) or "none"))
     return "\n".join(lines)
 
 

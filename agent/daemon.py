@@ -311,8 +311,8 @@ class Agent:
         sender = key.split("/")[3] if key.count("/") >= 3 else key
         try:
             msg = self.inbound.decode(data)
-        except ProtocolError as exc:
-            self.counters.drop("bad_message", sender, str(exc))
+        except ProtocolError as exc:  # counted by what it broke: framing, auth, schema, ...
+            self.counters.drop(exc.reason, sender, str(exc))
             return
         if msg.fleet != self.opts.fleet:
             self.counters.drop("foreign_fleet", sender, f"fleet {msg.fleet!r}")
@@ -337,8 +337,8 @@ class Agent:
             return  # a re-announce or a duplicate reply: nothing new
         try:
             done = self.inbound.feed(msg)
-        except ProtocolError as exc:
-            self.counters.drop("bad_tiles", msg.robot, str(exc))
+        except ProtocolError as exc:  # e.g. a tile that contradicts its manifest: value
+            self.counters.drop(exc.reason, msg.robot, str(exc))
             self._fetch_later(msg.robot)
             return
         if done is None:

@@ -95,7 +95,7 @@ class Inbound:
         reasm = self._reassemblers.get(msg.robot)
         if reasm is None:
             if len(self._reassemblers) >= MAX_PEERS:
-                raise ProtocolError(f"more than {MAX_PEERS} robots in the fleet")
+                raise ProtocolError(f"more than {MAX_PEERS} robots in the fleet", reason="limit")
             reasm = self._reassemblers[msg.robot] = MapReassembler(
                 msg.robot, self.fleet, self.limits
             )

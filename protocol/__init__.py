@@ -17,8 +17,9 @@ Messages (:mod:`protocol.messages`, frozen dataclasses)
 Bytes (:mod:`protocol.codec`)
     ``encode(msg, key=None) -> bytes`` and
     ``decode(data, key=None, limits=Limits()) -> Message``; ``decode`` raises
-    :class:`ProtocolError` and nothing else.  With a fleet ``key`` every
-    message carries an HMAC-SHA256 and unkeyed or wrongly keyed ones are
+    :class:`ProtocolError` and nothing else; its ``reason`` is one of
+    ``REASONS`` (framing, auth, schema, limit, value, replay) for counting drops.
+    With a fleet ``key`` every message carries an HMAC-SHA256 and unkeyed or wrongly keyed ones are
     refused; without one, a CRC-32 catches corruption.
 
 Maps (:mod:`protocol.mapsync`)
@@ -67,13 +68,14 @@ Wire layout (:mod:`protocol.codec`, schema version 2)
 
 from protocol.auth import ReplayGuard
 from protocol.codec import SCHEMA_VERSION, decode, encode
-from protocol.errors import ProtocolError
+from protocol.errors import REASONS, ProtocolError
 from protocol.limits import Limits
 from protocol.mapsync import MapReassembler, encode_map, quantise_grid
 from protocol.messages import Geometry, Heartbeat, Link, Manifest, MapTiles, Message, Status, Tile
 from protocol.quantize import SCALE, dequantise, quantise
 
 __all__ = [
+    "REASONS",
     "SCALE",
     "SCHEMA_VERSION",
     "Geometry",

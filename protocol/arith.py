@@ -128,7 +128,7 @@ class _Decoder(_Coder):
     def __init__(self, data: bytes) -> None:
         super().__init__()
         if data.endswith(b"\x00"):
-            raise ProtocolError("arithmetic-coded stream ends in a zero byte")
+            raise ProtocolError("arithmetic-coded stream ends in a zero byte", reason="framing")
         self.data, self.pos = data, 4
         self.code, self.range = int.from_bytes(data[:4].ljust(4, b"\x00"), "big"), _MASK32
 
@@ -154,7 +154,8 @@ class _Decoder(_Coder):
         # bytes would be trailing garbage.
         if self.pos < len(self.data):
             raise ProtocolError(
-                f"arithmetic-coded stream of {len(self.data)} bytes ends at byte {self.pos}"
+                f"arithmetic-coded stream of {len(self.data)} bytes ends at byte {self.pos}",
+                reason="framing",
             )
 
 
@@ -174,7 +175,7 @@ def _get_number(dec: _Decoder, ctx: int) -> int:
     while dec.bit(ctx + length):
         length += 1
         if length > _MAX_LENGTH:
-            raise ProtocolError("arithmetic-coded number longer than a tile side")
+            raise ProtocolError("arithmetic-coded number longer than a tile side", reason="limit")
     n = 1
     for i in range(length - 1, -1, -1):
         n = (n << 1) | dec.bit(ctx + _mantissa(length, i))
@@ -256,9 +257,13 @@ def decode_sparse(stream: bytes, tiles: list[tuple[int, tuple[int, int]]]) -> by
         malformed or does not end where the last cell does.
     """
     if any(size % 3 for size, _ in tiles):
-        raise ProtocolError("arithmetic-coded tiles must be sparse layouts of 3 bytes per cell")
+        raise ProtocolError(
+            "arithmetic-coded tiles must be sparse layouts of 3 bytes per cell", reason="framing"
+        )
     if sum(size for size, _ in tiles) // 3 > MAX_CELLS:
-        raise ProtocolError(f"arithmetic-coded stream of more than {MAX_CELLS} cells")
+        raise ProtocolError(
+            f"arithmetic-coded stream of more than {MAX_CELLS} cells", reason="limit"
+        )
     dec = _Decoder(stream)
     out = []
     for size, (h, w) in tiles:
@@ -280,7 +285,9 @@ def decode_sparse(stream: bytes, tiles: list[tuple[int, tuple[int, int]]]) -> by
                 c = start = start + _get_signed(dec, _COL)
                 touching = False
             if not (0 <= c < w and r < h):
-                raise ProtocolError(f"arithmetic-coded cell ({r}, {c}) outside its {h}x{w} tile")
+                raise ProtocolError(
+                    f"arithmetic-coded cell ({r}, {c}) outside its {h}x{w} tile", reason="value"
+                )
             where[j] = r * w + c
             values[j] = _get_value(dec)
         gaps = np.diff(where, prepend=0).astype("<u2")

@@ -25,7 +25,7 @@ def check_key(key: object) -> bytes | None:
     if key is None:
         return None
     if not isinstance(key, (bytes, bytearray)) or not key:
-        raise ProtocolError("a fleet key must be non-empty bytes")
+        raise ProtocolError("a fleet key must be non-empty bytes", reason="value")
     return bytes(key)
 
 
@@ -48,15 +48,18 @@ def unseal(data: bytes, keyed: bool, key: bytes | None) -> bytes:
         too short to hold its trailer, or the trailer does not match.
     """
     if key is not None and not keyed:
-        raise ProtocolError("message carries no MAC but a fleet key is configured")
+        raise ProtocolError("message carries no MAC but a fleet key is configured", reason="auth")
     if key is None and keyed:
-        raise ProtocolError("message carries a MAC but no fleet key is configured")
+        raise ProtocolError("message carries a MAC but no fleet key is configured", reason="auth")
     size = MAC_BYTES if keyed else CRC_BYTES
     if len(data) < size:
-        raise ProtocolError("truncated message: trailer incomplete")
+        raise ProtocolError("truncated message: trailer incomplete", reason="framing")
     covered, trailer = data[:-size], data[-size:]
     if not hmac.compare_digest(seal(covered, key), trailer):
-        raise ProtocolError("wrong MAC" if keyed else "corrupted message: CRC mismatch")
+        raise ProtocolError(
+            "wrong MAC" if keyed else "corrupted message: CRC mismatch",
+            reason="auth" if keyed else "framing",
+        )
     return covered
 
 
@@ -81,7 +84,7 @@ def replay_keys(msg: Message) -> list[tuple[tuple[str, ...], tuple[int, ...]]]:
         return [(pair, (msg.version_a, msg.version_b))]
     if isinstance(msg, (Heartbeat, Status)):
         return [((msg.robot, type(msg).__name__.lower()), (msg.seq,))]
-    raise ProtocolError(f"no replay rule for {type(msg).__name__}")
+    raise ProtocolError(f"no replay rule for {type(msg).__name__}", reason="schema")
 
 
 def _forward(new: tuple[int, ...], old: tuple[int, ...]) -> bool:
@@ -107,7 +110,8 @@ class ReplayGuard:
             if last is not None and not _forward(version, last):
                 raise ProtocolError(
                     f"replayed {key[1]} from {key[0]}: version {_fmt(version)} "
-                    f"is not newer than {_fmt(last)}"
+                    f"is not newer than {_fmt(last)}",
+                    reason="replay",
                 )
 
     def admit(self, msg: Message) -> None:

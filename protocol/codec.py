@@ -111,7 +111,7 @@ class _Layout:
 def _layout(t: Tile) -> _Layout:
     if not t.is_delta and checksum(t.cells) != t.checksum:
         # The wire carries no checksum for a full tile: the receiver computes it.
-        raise ProtocolError(f"tile {t.index}: checksum mismatch")
+        raise ProtocolError(f"tile {t.index}: checksum mismatch", reason="value")
     encoding, layout = layout_cells(t.cells)
     entry = _varint(t.index) + bytes((encoding | (DELTA_BIT if t.is_delta else 0),))
     entry += _varint(len(layout))
@@ -159,7 +159,7 @@ def _body(msg: Message) -> list[Any]:
         return [KIND_HEARTBEAT, msg.fleet, msg.robot, msg.seq, msg.map_version]
     if isinstance(msg, Status):
         return [KIND_STATUS, msg.fleet, msg.robot, msg.seq, dict(msg.counters)]
-    raise ProtocolError(f"cannot encode a {type(msg).__name__}")
+    raise ProtocolError(f"cannot encode a {type(msg).__name__}", reason="schema")
 
 
 # ---------------------------------------------------------------- decoding
@@ -177,37 +177,43 @@ def decode(data: bytes, key: bytes | None = None, limits: Limits = Limits()) -> 
         On any malformed, oversized, corrupted, unauthenticated or invalid input.
     """
     if not isinstance(data, (bytes, bytearray, memoryview)):
-        raise ProtocolError(f"message must be bytes, got {type(data).__name__}")
+        raise ProtocolError(f"message must be bytes, got {type(data).__name__}", reason="framing")
     data = bytes(data)
     key = check_key(key)
     if len(data) > limits.max_message_bytes:
         raise ProtocolError(
-            f"message of {len(data)} bytes exceeds the limit of {limits.max_message_bytes}"
+            f"message of {len(data)} bytes exceeds the limit of {limits.max_message_bytes}",
+            reason="limit",
         )
     if len(data) < HEADER_BYTES:
-        raise ProtocolError(f"truncated message: {len(data)} bytes, header needs {HEADER_BYTES}")
+        raise ProtocolError(
+            f"truncated message: {len(data)} bytes, header needs {HEADER_BYTES}", reason="framing"
+        )
     if data[:2] != MAGIC:
-        raise ProtocolError("not a pgvd message: bad magic")
+        raise ProtocolError("not a pgvd message: bad magic", reason="framing")
     if data[2] != SCHEMA_VERSION:
         raise ProtocolError(
-            f"unsupported schema version {data[2]} (this decoder speaks {SCHEMA_VERSION})"
+            f"unsupported schema version {data[2]} (this decoder speaks {SCHEMA_VERSION})",
+            reason="schema",
         )
     flags = data[3]
     if flags & ~FLAG_MAC:
-        raise ProtocolError(f"unknown flags 0x{flags:02x}")
+        raise ProtocolError(f"unknown flags 0x{flags:02x}", reason="schema")
     covered = unseal(data, bool(flags & FLAG_MAC), key)
     try:
         body = msgpack.unpackb(
             covered[HEADER_BYTES:], raw=False, strict_map_key=True, use_list=True
         )
     except Exception as exc:  # msgpack raises a zoo of types on bad input
-        raise ProtocolError(f"malformed msgpack body: {type(exc).__name__}") from None
+        raise ProtocolError(
+            f"malformed msgpack body: {type(exc).__name__}", reason="schema"
+        ) from None
     if not isinstance(body, list) or not body:
-        raise ProtocolError("message body must be a non-empty array")
+        raise ProtocolError("message body must be a non-empty array", reason="schema")
     kind = body[0]
     entry = None if isinstance(kind, bool) or not isinstance(kind, int) else _PARSERS.get(kind)
     if entry is None:
-        raise ProtocolError(f"unknown message kind {kind!r}")
+        raise ProtocolError(f"unknown message kind {kind!r}", reason="schema")
     name, parser = entry
     return parser(_Fields(body[1:], name), limits)
 
@@ -222,47 +228,60 @@ class _Fields:
 
     def take(self, name: str, types: type | tuple[type, ...], nullable: bool = False) -> Any:
         if self._next >= len(self._values):
-            raise ProtocolError(f"{self.kind} message lacks field {name!r}")
+            raise ProtocolError(f"{self.kind} message lacks field {name!r}", reason="schema")
         value = self._values[self._next]
         self._next += 1
         if value is None and nullable:
             return None
         allowed = types if isinstance(types, tuple) else (types,)
         if isinstance(value, bool) and bool not in allowed:
-            raise ProtocolError(f"{self.kind} field {name!r} has the wrong type bool")
+            raise ProtocolError(
+                f"{self.kind} field {name!r} has the wrong type bool", reason="schema"
+            )
         if not isinstance(value, types):
             raise ProtocolError(
-                f"{self.kind} field {name!r} has the wrong type {type(value).__name__}"
+                f"{self.kind} field {name!r} has the wrong type {type(value).__name__}",
+                reason="schema",
             )
         return value
 
     def done(self) -> None:
         extra = len(self._values) - self._next
         if extra:
-            raise ProtocolError(f"{self.kind} message has {extra} unknown trailing fields")
+            raise ProtocolError(
+                f"{self.kind} message has {extra} unknown trailing fields", reason="schema"
+            )
 
 
 def _id(fields: _Fields, name: str, what: str, limits: Limits) -> str:
     value = check_id(fields.take(name, str), what)
     if len(value) > limits.max_id_length:
-        raise ProtocolError(f"{what} longer than {limits.max_id_length} characters")
+        raise ProtocolError(f"{what} longer than {limits.max_id_length} characters", reason="limit")
     return value
 
 
 def _parse_geometry(fields: _Fields, limits: Limits) -> Geometry:
     g = fields.take("geometry", list)
     if len(g) != 7:
-        raise ProtocolError(f"geometry must have 7 entries, got {len(g)}")
+        raise ProtocolError(f"geometry must have 7 entries, got {len(g)}", reason="schema")
     geometry = Geometry((g[0], g[1]), g[2], (g[3], g[4], g[5]), g[6])
     h, w = geometry.shape
     if h > limits.max_side or w > limits.max_side:
-        raise ProtocolError(f"map of {h}x{w} cells exceeds the side limit {limits.max_side}")
+        raise ProtocolError(
+            f"map of {h}x{w} cells exceeds the side limit {limits.max_side}", reason="limit"
+        )
     if h * w > limits.max_cells:
-        raise ProtocolError(f"map of {h * w} cells exceeds the limit of {limits.max_cells}")
+        raise ProtocolError(
+            f"map of {h * w} cells exceeds the limit of {limits.max_cells}", reason="limit"
+        )
     if geometry.n_tiles > limits.max_tiles:
-        raise ProtocolError(f"map of {geometry.n_tiles} tiles exceeds the limit {limits.max_tiles}")
+        raise ProtocolError(
+            f"map of {geometry.n_tiles} tiles exceeds the limit {limits.max_tiles}", reason="limit"
+        )
     if geometry.tile_size**2 > limits.max_tile_cells:
-        raise ProtocolError(f"tile of {geometry.tile_size**2} cells exceeds the limit")
+        raise ProtocolError(
+            f"tile of {geometry.tile_size**2} cells exceeds the limit", reason="limit"
+        )
     return geometry
 
 
@@ -277,7 +296,7 @@ class _Reader:
 
     def byte(self) -> int:
         if self.pos >= len(self.data):
-            raise ProtocolError("tile table is truncated")
+            raise ProtocolError("tile table is truncated", reason="framing")
         self.pos += 1
         return self.data[self.pos - 1]
 
@@ -288,11 +307,11 @@ class _Reader:
             value |= (b & 0x7F) << shift
             if not b & 0x80:
                 return value
-        raise ProtocolError("tile table holds a varint longer than 64 bits")
+        raise ProtocolError("tile table holds a varint longer than 64 bits", reason="framing")
 
     def crc(self) -> int:
         if self.pos + 4 > len(self.data):
-            raise ProtocolError("tile table is truncated")
+            raise ProtocolError("tile table is truncated", reason="framing")
         self.pos += 4
         return int.from_bytes(self.data[self.pos - 4 : self.pos], "little")
 
@@ -306,7 +325,8 @@ def _parse_table(
     while reader:
         if len(entries) >= limits.max_tiles_per_message:
             raise ProtocolError(
-                f"more than {limits.max_tiles_per_message} tiles in one message exceed the limit"
+                f"more than {limits.max_tiles_per_message} tiles in one message exceed the limit",
+                reason="limit",
             )
         index = reader.varint()
         shape = geometry.tile_shape(index)
@@ -314,23 +334,28 @@ def _parse_table(
         encoding = flags & ~DELTA_BIT
         size = reader.varint()
         if size > layout_bound(encoding, shape, index):
-            raise ProtocolError(f"tile {index}: layout of {size} bytes exceeds its bound")
+            raise ProtocolError(
+                f"tile {index}: layout of {size} bytes exceeds its bound", reason="limit"
+            )
         crc, base = (reader.crc(), reader.crc()) if flags & DELTA_BIT else (None, None)
         cells += shape[0] * shape[1]
         if cells > limits.max_message_cells:
             raise ProtocolError(
-                f"tiles of one message exceed the limit of {limits.max_message_cells} cells"
+                f"tiles of one message exceed the limit of {limits.max_message_cells} cells",
+                reason="limit",
             )
         entries.append((index, encoding, size, crc, base))
     if not entries:
-        raise ProtocolError("a tiles message must carry at least one tile")
+        raise ProtocolError("a tiles message must carry at least one tile", reason="schema")
     return entries
 
 
 def _tile(index: int, cells: np.ndarray, crc: int | None, base: int | None) -> Tile:
     if crc is None:
         if cells.min(initial=0) == -128:
-            raise ProtocolError(f"tile {index}: cell value -128 is outside the quantised range")
+            raise ProtocolError(
+                f"tile {index}: cell value -128 is outside the quantised range", reason="value"
+            )
         return Tile(index, checksum(cells), cells)
     # A delta's checksum can only be checked against its base, when it is applied.
     return Tile(index, crc, cells, base)
@@ -367,14 +392,17 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
     n = geometry.n_tiles
     bitmap = -(-n // 8)
     if len(packed) < bitmap:
-        raise ProtocolError(f"manifest checksums of {len(packed)} bytes miss the {n}-tile bitmap")
+        raise ProtocolError(
+            f"manifest checksums of {len(packed)} bytes miss the {n}-tile bitmap", reason="schema"
+        )
     bits = np.unpackbits(np.frombuffer(packed, np.uint8, bitmap))
     if bits[n:].any():
-        raise ProtocolError("manifest bitmap has bits beyond the last tile")
+        raise ProtocolError("manifest bitmap has bits beyond the last tile", reason="schema")
     listed = np.flatnonzero(bits[:n])
     if len(packed) != bitmap + 4 * len(listed):
         raise ProtocolError(
-            f"manifest lists {len(listed)} tiles but carries {len(packed) - bitmap} checksum bytes"
+            f"manifest lists {len(listed)} tiles but carries {len(packed) - bitmap} checksum bytes",
+            reason="schema",
         )
     crcs = np.frombuffer(packed, "<u4", offset=bitmap)
     checksums = {int(i): int(c) for i, c in zip(listed, crcs, strict=True)}
@@ -384,7 +412,7 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
 def _matrix(fields: _Fields, name: str) -> list[list[Any]]:
     flat = fields.take(name, list)
     if len(flat) != 9:
-        raise ProtocolError(f"{name} must hold 9 numbers, got {len(flat)}")
+        raise ProtocolError(f"{name} must hold 9 numbers, got {len(flat)}", reason="schema")
     return [flat[0:3], flat[3:6], flat[6:9]]
 
 
@@ -423,7 +451,8 @@ def _parse_status(fields: _Fields, limits: Limits) -> Status:
     fields.done()
     if len(counters) > limits.max_status_entries:
         raise ProtocolError(
-            f"{len(counters)} counters exceed the limit of {limits.max_status_entries}"
+            f"{len(counters)} counters exceed the limit of {limits.max_status_entries}",
+            reason="limit",
         )
     return Status(fleet, robot, seq, counters)
 
@@ -471,6 +500,8 @@ def _fit(msg: MapTiles, batch: list[_Layout], key: bytes | None, limit: int) -> 
     if len(wire) < limit:
         return [wire]
     if len(batch) == 1:
-        raise ProtocolError(f"a tile of {len(wire)} bytes does not fit in {limit}-byte messages")
+        raise ProtocolError(
+            f"a tile of {len(wire)} bytes does not fit in {limit}-byte messages", reason="limit"
+        )
     half = len(batch) // 2
     return _fit(msg, batch[:half], key, limit) + _fit(msg, batch[half:], key, limit)

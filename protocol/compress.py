@@ -165,7 +165,7 @@ def decompress(codec: int, stream: bytes, tiles: list[tuple[int, int, tuple[int,
     size = sum(n for _, n, _ in tiles)
     if codec == ARITH:
         if any(e != SPARSE for e, _, _ in tiles):
-            raise ProtocolError("the arithmetic coder carries sparse tiles only")
+            raise ProtocolError("the arithmetic coder carries sparse tiles only", reason="schema")
         return arith.decode_sparse(stream, [(n, shape) for _, n, shape in tiles])
     if codec == DEFLATE:
         unpacker = zlib.decompressobj(-15)
@@ -174,21 +174,23 @@ def decompress(codec: int, stream: bytes, tiles: list[tuple[int, int, tuple[int,
         unpacker = lzma.LZMADecompressor(format=lzma.FORMAT_RAW, filters=_LZMA_DECODE)
         errors = (lzma.LZMAError,)
     else:
-        raise ProtocolError(f"unknown compression codec {codec!r}")
+        raise ProtocolError(f"unknown compression codec {codec!r}", reason="schema")
     try:
         # One byte beyond the bound proves the stream goes on past it (and a
         # bound of 0 must not become zlib's "no limit").
         out = unpacker.decompress(stream, size + 1)
     except errors as exc:
-        raise ProtocolError(f"corrupted stream ({exc})") from None
+        raise ProtocolError(f"corrupted stream ({exc})", reason="framing") from None
     if len(out) > size:
-        raise ProtocolError(f"stream expands past its bound of {size} bytes")
+        raise ProtocolError(f"stream expands past its bound of {size} bytes", reason="limit")
     if not unpacker.eof:
-        raise ProtocolError("compressed stream is truncated")
+        raise ProtocolError("compressed stream is truncated", reason="framing")
     if unpacker.unused_data:
-        raise ProtocolError("trailing bytes after the compressed stream")
+        raise ProtocolError("trailing bytes after the compressed stream", reason="framing")
     if len(out) != size:
-        raise ProtocolError(f"stream decompresses to {len(out)} bytes, the tiles need {size}")
+        raise ProtocolError(
+            f"stream decompresses to {len(out)} bytes, the tiles need {size}", reason="value"
+        )
     return out
 
 
@@ -208,32 +210,38 @@ def layout_bound(encoding: int, shape: tuple[int, int], index: int) -> int:
         return 1 + MAX_PALETTE + h * -(-w // 2)
     if encoding == SPARSE:
         return 3 * ((n - 1) // 4)  # 3 bytes for each of < n/4 cells
-    raise ProtocolError(f"tile {index}: unknown encoding {encoding!r}")
+    raise ProtocolError(f"tile {index}: unknown encoding {encoding!r}", reason="schema")
 
 
 def _unpack_palette(data: bytes, shape: tuple[int, int], index: int) -> np.ndarray:
     h, w = shape
     k = data[0] if data else 0
     if not 1 <= k <= MAX_PALETTE:
-        raise ProtocolError(f"tile {index}: palette of {k} values outside 1..{MAX_PALETTE}")
+        raise ProtocolError(
+            f"tile {index}: palette of {k} values outside 1..{MAX_PALETTE}", reason="value"
+        )
     bits = _bits_for(k)
     per = 8 // bits
     row_bytes = -(-w // per)
     if len(data) != 1 + k + h * row_bytes:
-        raise ProtocolError(f"tile {index}: palette tile of {len(data)} bytes, shape {shape}")
+        raise ProtocolError(
+            f"tile {index}: palette tile of {len(data)} bytes, shape {shape}", reason="value"
+        )
     values = np.frombuffer(data, np.int8, k, 1)
     if k > 1 and not (np.diff(values.astype(np.int16)) > 0).all():
-        raise ProtocolError(f"tile {index}: palette values must be strictly increasing")
+        raise ProtocolError(
+            f"tile {index}: palette values must be strictly increasing", reason="value"
+        )
     packed = np.frombuffer(data, np.uint8, offset=1 + k).reshape(h, row_bytes)
     mask = np.uint8((1 << bits) - 1)
     groups = np.stack(
         [(packed >> np.uint8(bits * (per - 1 - i))) & mask for i in range(per)], axis=-1
     ).reshape(h, row_bytes * per)
     if groups[:, w:].any():
-        raise ProtocolError(f"tile {index}: nonzero padding in a palette tile")
+        raise ProtocolError(f"tile {index}: nonzero padding in a palette tile", reason="value")
     idx = groups[:, :w]
     if idx.max(initial=0) >= k:
-        raise ProtocolError(f"tile {index}: palette index beyond its {k} values")
+        raise ProtocolError(f"tile {index}: palette index beyond its {k} values", reason="value")
     return values[idx]
 
 
@@ -241,17 +249,21 @@ def _unpack_sparse(data: bytes, shape: tuple[int, int], index: int) -> np.ndarra
     n = shape[0] * shape[1]
     k, rest = divmod(len(data), 3)  # k < n / 4 is enforced by layout_bound
     if rest:
-        raise ProtocolError(f"tile {index}: sparse tile of {len(data)} bytes for {n} cells")
+        raise ProtocolError(
+            f"tile {index}: sparse tile of {len(data)} bytes for {n} cells", reason="value"
+        )
     raw = np.frombuffer(data, np.uint8)
     gaps = raw[:k].astype(np.int64) | (raw[k : 2 * k].astype(np.int64) << 8)
     if k > 1 and gaps[1:].min() < 1:
-        raise ProtocolError(f"tile {index}: sparse tile repeats a cell")
+        raise ProtocolError(f"tile {index}: sparse tile repeats a cell", reason="value")
     where = np.cumsum(gaps)
     if k and where[-1] >= n:
-        raise ProtocolError(f"tile {index}: sparse cell {where[-1]} outside the {n}-cell tile")
+        raise ProtocolError(
+            f"tile {index}: sparse cell {where[-1]} outside the {n}-cell tile", reason="value"
+        )
     values = raw[2 * k :].view(np.int8)
     if not values.all():
-        raise ProtocolError(f"tile {index}: zero value listed in a sparse tile")
+        raise ProtocolError(f"tile {index}: zero value listed in a sparse tile", reason="value")
     cells = np.zeros(n, np.int8)
     cells[where] = values
     return cells.reshape(shape)
@@ -267,10 +279,14 @@ def unpack_layout(encoding: int, data: bytes, shape: tuple[int, int], index: int
         that does not match ``shape``.
     """
     if len(data) > layout_bound(encoding, shape, index):
-        raise ProtocolError(f"tile {index}: layout of {len(data)} bytes exceeds its bound")
+        raise ProtocolError(
+            f"tile {index}: layout of {len(data)} bytes exceeds its bound", reason="limit"
+        )
     if encoding == RAW:
         if len(data) != shape[0] * shape[1]:
-            raise ProtocolError(f"tile {index}: raw tile of {len(data)} bytes, shape {shape}")
+            raise ProtocolError(
+                f"tile {index}: raw tile of {len(data)} bytes, shape {shape}", reason="value"
+            )
         return np.frombuffer(data, np.int8).reshape(shape)
     if encoding == PALETTE:
         return _unpack_palette(data, shape, index)

@@ -37,7 +37,7 @@ def quantise_grid(grid: Grid) -> np.ndarray:
     try:
         return quantise(grid.logodds)
     except ValueError as exc:
-        raise ProtocolError(str(exc)) from None
+        raise ProtocolError(str(exc), reason="value") from None
 
 
 def _as_quantised(since: Grid | np.ndarray) -> np.ndarray:
@@ -49,7 +49,7 @@ def _as_quantised(since: Grid | np.ndarray) -> np.ndarray:
     try:
         return quantise(arr)
     except ValueError as exc:
-        raise ProtocolError(str(exc)) from None
+        raise ProtocolError(str(exc), reason="value") from None
 
 
 def encode_map(
@@ -194,11 +194,15 @@ class MapReassembler:
             delta manifest does not rebuild onto the held base version.
         """
         if not isinstance(msg, (MapTiles, Manifest)):
-            raise ProtocolError(f"a {type(msg).__name__} is not a map message")
+            raise ProtocolError(f"a {type(msg).__name__} is not a map message", reason="schema")
         if msg.robot != self.robot:
-            raise ProtocolError(f"message of robot {msg.robot!r}, expected {self.robot!r}")
+            raise ProtocolError(
+                f"message of robot {msg.robot!r}, expected {self.robot!r}", reason="value"
+            )
         if self.fleet is not None and msg.fleet != self.fleet:
-            raise ProtocolError(f"message of fleet {msg.fleet!r}, expected {self.fleet!r}")
+            raise ProtocolError(
+                f"message of fleet {msg.fleet!r}, expected {self.fleet!r}", reason="value"
+            )
         if self.version is not None and msg.version <= self.version:
             return None
         if isinstance(msg, Manifest):
@@ -224,7 +228,9 @@ class MapReassembler:
                 manifest.geometry.shape,
                 manifest.geometry.tile_size,
             ):
-                raise ProtocolError(f"delta manifest {manifest.version} changes the map's shape")
+                raise ProtocolError(
+                    f"delta manifest {manifest.version} changes the map's shape", reason="value"
+                )
             manifest = expand_manifest(manifest, base.checksums)
         current = self._manifest
         if current is not None:
@@ -232,7 +238,9 @@ class MapReassembler:
                 return None
             if manifest.version == current.version:
                 if manifest != current:
-                    raise ProtocolError(f"two different manifests for version {manifest.version}")
+                    raise ProtocolError(
+                        f"two different manifests for version {manifest.version}", reason="value"
+                    )
                 return self._complete()
         g = manifest.geometry
         if self._assembler is None or (
@@ -268,11 +276,14 @@ class MapReassembler:
         assert manifest is not None and assembler is not None
         g = msg.geometry
         if (g.shape, g.tile_size) != (manifest.geometry.shape, manifest.geometry.tile_size):
-            raise ProtocolError(f"version {msg.version} tiles do not fit the manifest's shape")
+            raise ProtocolError(
+                f"version {msg.version} tiles do not fit the manifest's shape", reason="value"
+            )
         for tile in msg.tiles:
             if manifest.checksums.get(tile.index) != tile.checksum:
                 raise ProtocolError(
-                    f"tile {tile.index} of version {msg.version} is not the manifest's"
+                    f"tile {tile.index} of version {msg.version} is not the manifest's",
+                    reason="value",
                 )
         for tile in msg.tiles:
             # A delta whose base we lack stays missing; the agent fetches it in full.

@@ -35,30 +35,37 @@ DEFAULT_TILE_SIZE = 128
 def check_id(value: object, what: str) -> str:
     """Return ``value`` if it is a valid fleet/robot id, else raise ProtocolError."""
     if not isinstance(value, str):
-        raise ProtocolError(f"{what} must be a string, got {type(value).__name__}")
+        raise ProtocolError(f"{what} must be a string, got {type(value).__name__}", reason="schema")
     if not 0 < len(value) <= MAX_ID_LENGTH:
-        raise ProtocolError(f"{what} must have 1..{MAX_ID_LENGTH} characters, got {len(value)}")
+        raise ProtocolError(
+            f"{what} must have 1..{MAX_ID_LENGTH} characters, got {len(value)}",
+            reason="limit" if value else "value",
+        )
     if not ID_PATTERN.fullmatch(value):
-        raise ProtocolError(f"{what} {value!r} has characters outside [A-Za-z0-9_-]")
+        raise ProtocolError(
+            f"{what} {value!r} has characters outside [A-Za-z0-9_-]", reason="value"
+        )
     return value
 
 
 def check_version(value: object, what: str) -> int:
     """Return ``value`` if it is an int in ``[0, 2**63)`` (bools refused), else raise."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ProtocolError(f"{what} must be an integer, got {type(value).__name__}")
+        raise ProtocolError(
+            f"{what} must be an integer, got {type(value).__name__}", reason="schema"
+        )
     if not 0 <= value <= MAX_VERSION:
-        raise ProtocolError(f"{what} must be in [0, 2**63), got {value}")
+        raise ProtocolError(f"{what} must be in [0, 2**63), got {value}", reason="value")
     return int(value)
 
 
 def check_float(value: object, what: str) -> float:
     """Return ``value`` as a finite float (ints accepted, bools and NaN/inf refused)."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ProtocolError(f"{what} must be a number, got {type(value).__name__}")
+        raise ProtocolError(f"{what} must be a number, got {type(value).__name__}", reason="schema")
     out = float(value)
     if not math.isfinite(out):
-        raise ProtocolError(f"{what} must be finite, got {out}")
+        raise ProtocolError(f"{what} must be finite, got {out}", reason="value")
     return out
 
 
@@ -67,9 +74,9 @@ def check_matrix(value: object, what: str) -> tuple[tuple[float, float, float], 
     try:
         arr = np.asarray(value, dtype=object)
     except Exception as exc:  # ragged input makes numpy raise ValueError
-        raise ProtocolError(f"{what} must be a 3x3 matrix") from exc
+        raise ProtocolError(f"{what} must be a 3x3 matrix", reason="schema") from exc
     if arr.shape != (3, 3):
-        raise ProtocolError(f"{what} must be 3x3, got shape {arr.shape}")
+        raise ProtocolError(f"{what} must be 3x3, got shape {arr.shape}", reason="schema")
     return tuple(
         tuple(check_float(arr[i, j], f"{what}[{i}][{j}]") for j in range(3)) for i in range(3)
     )  # type: ignore[return-value]
@@ -95,19 +102,21 @@ class Geometry:
 
     def __post_init__(self) -> None:
         if not isinstance(self.shape, (tuple, list)) or len(self.shape) != 2:
-            raise ProtocolError(f"shape must be (H, W), got {self.shape!r}")
+            raise ProtocolError(f"shape must be (H, W), got {self.shape!r}", reason="schema")
         h = check_version(self.shape[0], "shape[0]")
         w = check_version(self.shape[1], "shape[1]")
         if h == 0 or w == 0:
-            raise ProtocolError(f"shape must be positive, got ({h}, {w})")
+            raise ProtocolError(f"shape must be positive, got ({h}, {w})", reason="value")
         res = check_float(self.resolution, "resolution")
         if res <= 0:
-            raise ProtocolError(f"resolution must be > 0, got {res}")
+            raise ProtocolError(f"resolution must be > 0, got {res}", reason="value")
         if not isinstance(self.origin, (tuple, list)) or len(self.origin) != 3:
-            raise ProtocolError(f"origin must be (x, y, yaw), got {self.origin!r}")
+            raise ProtocolError(f"origin must be (x, y, yaw), got {self.origin!r}", reason="schema")
         origin = tuple(check_float(v, f"origin[{i}]") for i, v in enumerate(self.origin))
         if isinstance(self.tile_size, bool) or self.tile_size not in TILE_SIZES:
-            raise ProtocolError(f"tile_size must be one of {TILE_SIZES}, got {self.tile_size!r}")
+            raise ProtocolError(
+                f"tile_size must be one of {TILE_SIZES}, got {self.tile_size!r}", reason="value"
+            )
         object.__setattr__(self, "shape", (h, w))
         object.__setattr__(self, "resolution", res)
         object.__setattr__(self, "origin", origin)
@@ -128,7 +137,7 @@ class Geometry:
     def tile_window(self, index: int) -> tuple[slice, slice]:
         """Row and column slices of tile ``index`` in the full grid."""
         if not 0 <= index < self.n_tiles:
-            raise ProtocolError(f"tile index {index} outside [0, {self.n_tiles})")
+            raise ProtocolError(f"tile index {index} outside [0, {self.n_tiles})", reason="value")
         t = self.tile_size
         r, c = divmod(index, self.tile_grid[1])
         return slice(r * t, min((r + 1) * t, self.shape[0])), slice(
@@ -166,9 +175,11 @@ class Tile:
         if self.base_checksum is not None:
             check_crc(self.base_checksum, "tile base checksum")
         if not isinstance(self.cells, np.ndarray) or self.cells.dtype != np.int8:
-            raise ProtocolError(f"tile {self.index} cells must be an int8 array")
+            raise ProtocolError(f"tile {self.index} cells must be an int8 array", reason="schema")
         if self.cells.ndim != 2:
-            raise ProtocolError(f"tile {self.index} cells must be 2-D, got {self.cells.shape}")
+            raise ProtocolError(
+                f"tile {self.index} cells must be 2-D, got {self.cells.shape}", reason="schema"
+            )
         cells = np.ascontiguousarray(self.cells)
         if cells.flags.writeable:
             cells = cells.copy()  # freeze a private copy, never the caller's array
@@ -184,9 +195,13 @@ class Tile:
 def check_crc(value: object, what: str) -> int:
     """Return ``value`` if it is an unsigned 32-bit integer, else raise ProtocolError."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ProtocolError(f"{what} must be an integer, got {type(value).__name__}")
+        raise ProtocolError(
+            f"{what} must be an integer, got {type(value).__name__}", reason="schema"
+        )
     if not 0 <= value < 2**32:
-        raise ProtocolError(f"{what} must be a 32-bit unsigned integer, got {value}")
+        raise ProtocolError(
+            f"{what} must be a 32-bit unsigned integer, got {value}", reason="value"
+        )
     return int(value)
 
 
@@ -198,11 +213,13 @@ def _check_map_header(
     check_id(robot, "robot")
     check_version(version, "version")
     if not isinstance(geometry, Geometry):
-        raise ProtocolError("geometry must be a Geometry")
+        raise ProtocolError("geometry must be a Geometry", reason="schema")
     if base_version is not None:
         check_version(base_version, "base_version")
         if base_version >= version:
-            raise ProtocolError(f"base_version {base_version} must be older than version {version}")
+            raise ProtocolError(
+                f"base_version {base_version} must be older than version {version}", reason="value"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,18 +242,19 @@ class MapTiles:
         _check_map_header(self.fleet, self.robot, self.version, self.geometry, self.base_version)
         tiles = tuple(self.tiles)
         if not tiles:
-            raise ProtocolError("a MapTiles message must carry at least one tile")
+            raise ProtocolError("a MapTiles message must carry at least one tile", reason="schema")
         seen: set[int] = set()
         for tile in tiles:
             if not isinstance(tile, Tile):
-                raise ProtocolError("tiles must be Tile objects")
+                raise ProtocolError("tiles must be Tile objects", reason="schema")
             if tile.index in seen:
-                raise ProtocolError(f"tile {tile.index} appears twice")
+                raise ProtocolError(f"tile {tile.index} appears twice", reason="value")
             seen.add(tile.index)
             expected = self.geometry.tile_shape(tile.index)
             if tile.cells.shape != expected:
                 raise ProtocolError(
-                    f"tile {tile.index} has shape {tile.cells.shape}, geometry says {expected}"
+                    f"tile {tile.index} has shape {tile.cells.shape}, geometry says {expected}",
+                    reason="value",
                 )
         object.__setattr__(self, "tiles", tiles)
 
@@ -267,19 +285,23 @@ class Manifest:
     def __post_init__(self) -> None:
         _check_map_header(self.fleet, self.robot, self.version, self.geometry, self.base_version)
         if (self.base_version is None) != (self.digest is None):
-            raise ProtocolError("a delta manifest needs both base_version and digest")
+            raise ProtocolError(
+                "a delta manifest needs both base_version and digest", reason="schema"
+            )
             if isinstance(self.digest, bool) or not isinstance(self.digest, (int, np.integer)):
-                raise ProtocolError("digest must be an integer")
+                raise ProtocolError("digest must be an integer", reason="schema")
             if not 0 <= self.digest < 2**64:
-                raise ProtocolError(f"digest must be a 64-bit unsigned integer, got {self.digest}")
+                raise ProtocolError(
+                    f"digest must be a 64-bit unsigned integer, got {self.digest}", reason="value"
+                )
         if not isinstance(self.checksums, Mapping):
-            raise ProtocolError("checksums must map tile index -> checksum")
+            raise ProtocolError("checksums must map tile index -> checksum", reason="schema")
         n = self.geometry.n_tiles
         clean: dict[int, int] = {}
         for index in sorted(self.checksums):
             i = check_version(index, "manifest tile index")
             if i >= n:
-                raise ProtocolError(f"manifest tile index {i} outside [0, {n})")
+                raise ProtocolError(f"manifest tile index {i} outside [0, {n})", reason="value")
             clean[i] = check_crc(self.checksums[index], f"checksum of tile {i}")
         object.__setattr__(self, "checksums", MappingProxyType(clean))
 
@@ -334,11 +356,13 @@ class Link:
         check_id(self.robot_a, "robot_a")
         check_id(self.robot_b, "robot_b")
         if self.robot_a == self.robot_b:
-            raise ProtocolError(f"a link needs two different robots, got {self.robot_a!r} twice")
+            raise ProtocolError(
+                f"a link needs two different robots, got {self.robot_a!r} twice", reason="value"
+            )
         check_version(self.version_a, "version_a")
         check_version(self.version_b, "version_b")
         if not isinstance(self.accepted, bool):
-            raise ProtocolError("accepted must be a bool")
+            raise ProtocolError("accepted must be a bool", reason="schema")
         object.__setattr__(self, "matrix", check_matrix(self.matrix, "matrix"))
         object.__setattr__(self, "covariance", check_matrix(self.covariance, "covariance"))
         object.__setattr__(self, "score", check_float(self.score, "score"))
@@ -380,14 +404,14 @@ class Status:
         check_id(self.robot, "robot")
         check_version(self.seq, "seq")
         if not isinstance(self.counters, Mapping):
-            raise ProtocolError("counters must be a mapping")
+            raise ProtocolError("counters must be a mapping", reason="schema")
         clean: dict[str, int | float] = {}
         for name in sorted(self.counters, key=str):
             check_counter_name(name)
             value = self.counters[name]
             if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
                 if not -(2**63) <= value < 2**63:
-                    raise ProtocolError(f"counter {name!r} does not fit 64 bits")
+                    raise ProtocolError(f"counter {name!r} does not fit 64 bits", reason="value")
                 clean[name] = int(value)
             else:
                 clean[name] = check_float(value, f"counter {name!r}")
@@ -412,7 +436,9 @@ COUNTER_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 def check_counter_name(name: object) -> str:
     """Return ``name`` if it is a valid counter name (1..64 of ``[A-Za-z0-9_.-]``)."""
     if not isinstance(name, str) or not COUNTER_PATTERN.fullmatch(name):
-        raise ProtocolError(f"counter name {name!r} must be 1..64 characters of [A-Za-z0-9_.-]")
+        raise ProtocolError(
+            f"counter name {name!r} must be 1..64 characters of [A-Za-z0-9_.-]", reason="value"
+        )
     return name
 
 

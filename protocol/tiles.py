@@ -62,7 +62,8 @@ def expand_manifest(delta: Manifest, base: Mapping[int, int]) -> Manifest:
     if manifest_digest(delta.geometry, full) != delta.digest:
         raise ProtocolError(
             f"delta manifest of version {delta.version} does not apply to the held "
-            f"version {delta.base_version}"
+            f"version {delta.base_version}",
+            reason="value",
         )
     return Manifest(delta.fleet, delta.robot, delta.version, delta.geometry, full)
 
@@ -70,9 +71,11 @@ def expand_manifest(delta: Manifest, base: Mapping[int, int]) -> Manifest:
 def check_quantised(q: np.ndarray, geometry: Geometry) -> np.ndarray:
     """Return ``q`` if it is an int8 array of the geometry's shape, else raise ProtocolError."""
     if not isinstance(q, np.ndarray) or q.dtype != np.int8:
-        raise ProtocolError("a quantised grid must be an int8 array")
+        raise ProtocolError("a quantised grid must be an int8 array", reason="schema")
     if q.shape != geometry.shape:
-        raise ProtocolError(f"grid shape {q.shape} does not match geometry {geometry.shape}")
+        raise ProtocolError(
+            f"grid shape {q.shape} does not match geometry {geometry.shape}", reason="value"
+        )
     return q
 
 
@@ -144,12 +147,14 @@ def apply_tile(tile: Tile, held: np.ndarray | None) -> np.ndarray:
         content = tile.cells
     else:
         if held is None or checksum(held) != tile.base_checksum:
-            raise ProtocolError(f"tile {tile.index}: delta base is not held")
+            raise ProtocolError(f"tile {tile.index}: delta base is not held", reason="value")
         content = (held.view(np.uint8) + tile.cells.view(np.uint8)).view(np.int8)
     if checksum(content) != tile.checksum:
-        raise ProtocolError(f"tile {tile.index}: checksum mismatch")
+        raise ProtocolError(f"tile {tile.index}: checksum mismatch", reason="value")
     if content.min(initial=0) == -128:
-        raise ProtocolError(f"tile {tile.index}: cell value -128 is outside the quantised range")
+        raise ProtocolError(
+            f"tile {tile.index}: cell value -128 is outside the quantised range", reason="value"
+        )
     return content
 
 
@@ -183,7 +188,8 @@ class TileAssembler:
         expected = self.geometry.tile_shape(tile.index)
         if tile.cells.shape != expected:
             raise ProtocolError(
-                f"tile {tile.index} has shape {tile.cells.shape}, geometry says {expected}"
+                f"tile {tile.index} has shape {tile.cells.shape}, geometry says {expected}",
+                reason="value",
             )
         content = apply_tile(tile, self._held.get(tile.index))
         content = content.copy()
@@ -214,7 +220,9 @@ class TileAssembler:
         """
         lacking = self.missing(manifest)
         if lacking:
-            raise ProtocolError(f"{len(lacking)} tiles of version {manifest.version} are missing")
+            raise ProtocolError(
+                f"{len(lacking)} tiles of version {manifest.version} are missing", reason="value"
+            )
         q = np.zeros(self.geometry.shape, dtype=np.int8)
         for i in manifest.checksums:
             q[self.geometry.tile_window(i)] = self._held[i]
@@ -230,4 +238,4 @@ class TileAssembler:
         if manifest.geometry.shape != self.geometry.shape or (
             manifest.geometry.tile_size != self.geometry.tile_size
         ):
-            raise ProtocolError("manifest geometry differs from the assembler's")
+            raise ProtocolError("manifest geometry differs from the assembler's", reason="value")

@@ -27,7 +27,7 @@ STATUS = {
     "bytes_sent": 1200,
     "bytes_received": 3400,
     "merges": 2,
-    "drops": {"bad_message": 3},
+    "drops": {"auth": 3, "limit": 12, "stale_version": 3},
 }
 
 
@@ -36,7 +36,9 @@ def test_table_shows_robots_versions_links_traffic_and_drops() -> None:
     assert "r1: own v40.7  global abababababab anchor r1 members r1,r2  settled" in text
     assert "r1:v40.7 r2:v41.3(gone)" in text
     assert "link    r1 v40.7 - r2 v41.3: accepted score 0.987 rot -91.5 deg (by r2)" in text
-    assert "sent 1200 B, received 3400 B, merges 2, drops bad_message=3" in text
+    assert "  traffic sent 1200 B, received 3400 B, merges 2\n" in text
+    assert "  drops   limit=12, auth=3, stale_version=3" in text  # most first
+    assert "  drops   none" in format_table({"r1": {**STATUS, "drops": {}}})
     assert format_table({}) == "no agent answered"
 
 

@@ -24,13 +24,16 @@ from netns import Lab, lab_or_skip, pgvd_argv, read_line
 
 pytestmark = [pytest.mark.netns, pytest.mark.fleet, pytest.mark.slow]
 
-#: attack -> drop reason it must raise (in every agent's status)
+#: attack -> drop reason it must raise (in every agent's status): what the decoder refused
+#: (protocol.errors.REASONS) or, for a genuine old version, the agent's own stale_version.
+#: Truncated keyed messages cut past the header also fail their MAC (auth): only the MAC
+#: can tell, and it cannot tell a cut from a forgery.
 ATTACKS = {
-    "random": "bad_message",
-    "truncated": "bad_message",
-    "oversized": "bad_message",
-    "nan": "bad_message",
-    "spoofed": "bad_message",
+    "random": "framing",
+    "truncated": "framing",
+    "oversized": "limit",
+    "nan": "value",
+    "spoofed": "auth",
     "replay": "stale_version",
 }
 FLOOD = (20_000, 1_000), (1_000, 60_000)  # (messages, bytes each)
@@ -86,7 +89,9 @@ def attacked() -> dict:
                 if all(g > 0 for g in grown.values()):
                     break
                 time.sleep(0.3)
-            out["attacks"][attack] = {"sent": sent, "reason": reason, "dropped": grown}
+            delta = {r: {k: n - counts[r].get(k, 0) for k, n in now[r].items()} for r in now}
+            delta = {r: {k: n for k, n in d.items() if n} for r, d in delta.items()}
+            out["attacks"][attack] = {"sent": sent, "reason": reason, "dropped": grown, "by": delta}
         peak = dict(out["rss_before"])
         for n, size in FLOOD:
             counts = {r: s["counts"]["messages_received"] for r, s in fleet.statuses().items()}
@@ -153,7 +158,9 @@ def test_pgvd_status_shows_the_drops_by_reason(attacked: dict) -> None:
     statuses = json.loads(attacked["status"])
     assert set(statuses) == set(SOURCES)
     for status in statuses.values():
-        assert {"bad_message", "stale_version"} <= set(status["drops"]), status["drops"]
+        want = {"framing", "auth", "limit", "value", "stale_version"}
+        assert want <= set(status["drops"]), status["drops"]
+        assert "bad_message" not in status["drops"]  # every drop names what it broke
 
 
 def test_forged_messages_fail_for_the_intended_reason() -> None:

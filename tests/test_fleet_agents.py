@@ -140,7 +140,7 @@ def _inject_bad_messages(endpoint: str) -> list[str]:
         session.put("pgvd/t/manifest/r9", spoofed)
         session.put("pgvd/t/manifest/r9", unkeyed)
         time.sleep(0.5)
-    return ["bad_message", "foreign_fleet", "key_mismatch"]
+    return ["framing", "auth", "foreign_fleet", "key_mismatch"]  # garbage, unkeyed, ...
 
 
 def _intel_links(status: dict) -> list[dict]:

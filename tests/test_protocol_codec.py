@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from refusals import refused
 
 from pgvd.io import read_map
 from protocol import (
+    REASONS,
     Geometry,
     Heartbeat,
     Limits,
@@ -140,7 +142,7 @@ def test_the_sample_delta_is_arithmetic_coded():
 def test_bytes_like_input_and_non_bytes():
     wire = encode(Heartbeat("f", "r", 1))
     assert decode(bytearray(wire)) == decode(memoryview(wire)) == Heartbeat("f", "r", 1)
-    with pytest.raises(ProtocolError, match="message must be bytes, got str"):
+    with refused("framing", "message must be bytes, got str"):
         decode("PG")
 
 
@@ -173,8 +175,9 @@ def test_status_round_trips(robot, seq, counters):
 @given(st.binary(max_size=2000))
 def test_random_bytes_raise_protocol_error_only(data):
     for key in (None, KEY):
-        with pytest.raises(ProtocolError):
+        with pytest.raises(ProtocolError) as err:
             decode(data, key)
+        assert err.value.reason in REASONS
 
 
 @settings(max_examples=300)
@@ -254,24 +257,22 @@ def raw_bytes(body: bytes) -> bytes:
 
 
 def test_wrong_schema_version():
-    with pytest.raises(
-        ProtocolError, match=r"unsupported schema version 1 \(this decoder speaks 2\)"
-    ):
+    with refused("schema", r"unsupported schema version 1 \(this decoder speaks 2\)"):
         decode(raw(heartbeat(), schema=1))
 
 
 def test_truncated_message():
     wire = encode(sample_messages()[0])
-    with pytest.raises(ProtocolError, match=r"CRC mismatch|truncated"):
+    with refused("framing", r"CRC mismatch|truncated"):
         decode(wire[:-1])
-    with pytest.raises(ProtocolError, match="truncated"):
+    with refused("framing", "truncated"):
         decode(wire[:3])
 
 
 def test_corrupted_message():
     wire = bytearray(encode(sample_messages()[1]))
     wire[10] ^= 0xFF
-    with pytest.raises(ProtocolError, match="corrupted message: CRC mismatch"):
+    with refused("framing", "corrupted message: CRC mismatch"):
         decode(bytes(wire))
 
 
@@ -281,7 +282,7 @@ def test_full_tiles_carry_the_checksum_of_their_cells():
     g = Geometry((20, 30), 0.05, tile_size=16)
     assert decode(raw(tile_body(cells))).tiles[0].checksum == checksum(cells)
     wrong = MapTiles("f", "r", 1, g, (Tile(0, checksum(cells) ^ 1, cells),))
-    with pytest.raises(ProtocolError, match="tile 0: checksum mismatch"):
+    with refused("value", "tile 0: checksum mismatch"):
         encode(wrong)
 
 
@@ -298,63 +299,63 @@ def test_nan_is_refused_everywhere_a_float_travels():
     eye = [1.0, 0, 0, 0, 1, 0, 0, 0, 1]
     link = [KIND_LINK, "f", "a", "a", "b", 1, 2, True, eye, eye, 0.5]
     for at, value in [(10, math.nan), (8, [math.nan, *eye[1:]])]:
-        with pytest.raises(ProtocolError, match="finite"):
+        with refused("value", "finite"):
             decode(raw([*link[:at], value, *link[at + 1 :]]))
-    with pytest.raises(ProtocolError, match="finite"):
+    with refused("value", "finite"):
         decode(raw([KIND_STATUS, "f", "r", 1, {"x": math.inf}]))
     body = tile_body(np.ones((16, 16), np.int8))
     body[4][2] = math.nan
-    with pytest.raises(ProtocolError, match="resolution must be finite"):
+    with refused("value", "resolution must be finite"):
         decode(raw(body))
 
 
 def test_tile_shape_mismatch():
     # Tile 0 of a 20x30 map with 16-cell tiles is 16x16; 15x16 cells make a short layout.
-    with pytest.raises(ProtocolError, match=r"raw tile of 240 bytes, shape \(16, 16\)"):
+    with refused("value", r"raw tile of 240 bytes, shape \(16, 16\)"):
         decode(raw(tile_body(np.ones((15, 16), np.int8), table=entry(0, RAW, 240))))
-    with pytest.raises(ProtocolError, match="tile index 6 outside"):
+    with refused("value", "tile index 6 outside"):
         decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(6, RAW, 256))))
-    with pytest.raises(ProtocolError, match="stream decompresses to 200 bytes, the tiles need 256"):
+    with refused("value", "stream decompresses to 200 bytes, the tiles need 256"):
         decode(raw(tile_body(np.ones((10, 20), np.int8), table=entry(0, RAW, 256))))
-    with pytest.raises(ProtocolError, match="stream expands past its bound of 200 bytes"):
+    with refused("limit", "stream expands past its bound of 200 bytes"):
         decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, RAW, 200))))
-    with pytest.raises(ProtocolError, match="layout of 257 bytes exceeds its bound"):
+    with refused("limit", "layout of 257 bytes exceeds its bound"):
         decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, RAW, 257))))
-    with pytest.raises(ProtocolError, match="tile table is truncated"):
+    with refused("framing", "tile table is truncated"):
         decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, RAW, 256)[:-1])))
-    with pytest.raises(ProtocolError, match="unknown encoding 5"):
+    with refused("schema", "unknown encoding 5"):
         decode(raw(tile_body(np.ones((16, 16), np.int8), table=entry(0, 5, 256))))
     g = [20, 30, 0.05, 0.0, 0.0, 0.0, 16]  # 2x2 tiles
     beyond = np.packbits([0, 0, 0, 0, 1, 0, 0, 0]).tobytes() + bytes(4)
-    with pytest.raises(ProtocolError, match="bits beyond the last tile"):
+    with refused("schema", "bits beyond the last tile"):
         decode(raw([KIND_MANIFEST, "f", "r", 1, g, beyond, None, None]))
     short = np.packbits([1, 1, 0, 0, 0, 0, 0, 0]).tobytes() + bytes(4)
-    with pytest.raises(ProtocolError, match="lists 2 tiles but carries 4 checksum bytes"):
+    with refused("schema", "lists 2 tiles but carries 4 checksum bytes"):
         decode(raw([KIND_MANIFEST, "f", "r", 1, g, short, None, None]))
 
 
 def test_too_many_cells():
     body = tile_body(np.ones((16, 16), np.int8), shape=(5000, 5000), ts=256)
-    with pytest.raises(ProtocolError, match="25000000 cells exceeds the limit"):
+    with refused("limit", "25000000 cells exceeds the limit"):
         decode(raw(body))
 
 
 def test_too_many_tiles():
     limits = Limits(max_tiles=3)
-    with pytest.raises(ProtocolError, match="4 tiles exceeds the limit 3"):
+    with refused("limit", "4 tiles exceeds the limit 3"):
         decode(raw(tile_body(np.ones((16, 16), np.int8))), limits=limits)
     msg = MapTiles(
         "f", "r", 1, Geometry((64, 64), 0.05, tile_size=16),
         tuple(Tile(i, checksum(np.zeros((16, 16), np.int8)), np.zeros((16, 16), np.int8))
               for i in range(3)),
     )  # fmt: skip
-    with pytest.raises(ProtocolError, match="more than 2 tiles in one message exceed the limit"):
+    with refused("limit", "more than 2 tiles in one message exceed the limit"):
         decode(encode(msg), limits=Limits(max_tiles_per_message=2))
 
 
 def test_too_many_bytes():
     wire = encode(sample_messages()[0])
-    with pytest.raises(ProtocolError, match=f"message of {len(wire)} bytes exceeds the limit"):
+    with refused("limit", f"message of {len(wire)} bytes exceeds the limit"):
         decode(wire, limits=Limits(max_message_bytes=len(wire) - 1))
 
 
@@ -377,7 +378,7 @@ def test_decompression_bomb_is_bounded(codec):
     assert len(wire) < 12_000
     tracemalloc.start()
     try:
-        with pytest.raises(ProtocolError, match="expands past its bound of 65536 bytes"):
+        with refused("limit", "expands past its bound of 65536 bytes"):
             decode(wire)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
@@ -406,39 +407,43 @@ def test_codecs_are_chosen_by_size(shared):
 def test_arithmetic_coded_stream_of_non_sparse_tiles_is_refused():
     body = tile_body(np.ones((16, 16), np.int8))
     body[7] = ARITH
-    with pytest.raises(ProtocolError, match="sparse tiles only"):
+    with refused("schema", "sparse tiles only"):
         decode(raw(body))
     body[6] = entry(0, SPARSE, 3)
-    with pytest.raises(ProtocolError, match="arithmetic-coded stream"):
+    with refused("framing", "arithmetic-coded stream"):
         decode(raw(body))
 
 
 def test_unknown_kind_and_fields():
-    with pytest.raises(ProtocolError, match="unknown message kind 9"):
+    with refused("schema", "unknown message kind 9"):
         decode(raw([9, "f"]))
-    with pytest.raises(ProtocolError, match="unknown message kind 'gossip'"):
+    with refused("schema", "unknown message kind 'gossip'"):
         decode(raw(["gossip"]))
-    with pytest.raises(ProtocolError, match="body must be a non-empty array"):
+    with refused("schema", "body must be a non-empty array"):
         decode(raw({"k": "heartbeat"}))
-    with pytest.raises(ProtocolError, match="heartbeat message has 2 unknown trailing fields"):
+    with refused("schema", "heartbeat message has 2 unknown trailing fields"):
         decode(raw(heartbeat("f", "r", 1, None, 1, b"x")))
-    with pytest.raises(ProtocolError, match="lacks field 'map_version'"):
+    with refused("schema", "lacks field 'map_version'"):
         decode(raw(heartbeat("f", "r", 1)))
-    with pytest.raises(ProtocolError, match="wrong type bool"):
+    with refused("schema", "wrong type bool"):
         decode(raw(heartbeat("f", "r", True, None)))
 
 
 def test_bad_ids():
-    for robot, why in [("a/b", "characters outside"), ("x" * 65, "1..64"), ("", "1..64")]:
-        with pytest.raises(ProtocolError, match=why):
+    for robot, reason, why in [
+        ("a/b", "value", "characters outside"),
+        ("x" * 65, "limit", "1..64"),
+        ("", "value", "1..64"),
+    ]:
+        with refused(reason, why):
             decode(raw(heartbeat("f", robot, 1, None)))
-    with pytest.raises(ProtocolError, match="longer than 8"):
+    with refused("limit", "longer than 8"):
         decode(raw(heartbeat("f", "r" * 9, 1, None)), limits=Limits(max_id_length=8))
 
 
 def test_out_of_range_cell_value():
     cells = np.full((16, 16), -128, np.int8)
-    with pytest.raises(ProtocolError, match="-128 is outside the quantised range"):
+    with refused("value", "-128 is outside the quantised range"):
         decode(raw(tile_body(cells)))
 
 
@@ -446,7 +451,7 @@ def test_out_of_range_cell_value():
 def test_batched_tile_encoding_matches_encode_of_the_same_message(key):
     msg = sample_messages()[0]
     assert encode_tiles(msg, key, 60_000) == [encode(msg, key)]
-    with pytest.raises(ProtocolError, match="does not fit in 100-byte messages"):
+    with refused("limit", "does not fit in 100-byte messages"):
         encode_tiles(msg, key, 100)
 
 
@@ -459,7 +464,7 @@ def test_cells_decoded_from_one_message_are_bounded():
     assert len(wire) < 40_000
     tracemalloc.start()
     try:
-        with pytest.raises(ProtocolError, match="exceed the limit of 1048576 cells"):
+        with refused("limit", "exceed the limit of 1048576 cells"):
             decode(wire)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
@@ -468,3 +473,9 @@ def test_cells_decoded_from_one_message_are_bounded():
     # encode_map's batching keeps every message within that limit.
     parts = encode_tiles(msg, None, 60_000)
     assert len(parts) == 15 and all(len(decode(p).tiles) == 16 for p in parts)
+
+
+def test_a_reason_outside_the_fixed_set_is_a_programming_error():
+    assert ProtocolError("x", reason="auth").reason == "auth"
+    with pytest.raises(ValueError, match="unknown ProtocolError reason 'bad'"):
+        ProtocolError("x", reason="bad")
