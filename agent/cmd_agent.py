@@ -12,6 +12,7 @@ from pathlib import Path
 import zenoh
 
 from agent.cli import EXIT_OK, CliError
+from agent.inbox import MAX_BYTES
 from agent.keys import check_name
 from agent.sources import parse_frame, parse_source
 from agent.zenoh_config import MODES, ZenohOptions, build_config
@@ -74,6 +75,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         help="overlay agreement a link needs (default: the merge's own threshold)",
     )
+    p.add_argument(
+        "--inbox-mib",
+        type=int,
+        default=MAX_BYTES >> 20,
+        help="MiB of received messages held for decoding; beyond, drops count as overload",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log every event")
     p.set_defaults(func=run)
 
@@ -91,7 +98,7 @@ def options_from_args(args: argparse.Namespace):
         raise CliError(str(exc)) from None
     if not source.path.is_file():
         raise CliError(f"source file not found: {source.path}")
-    for name in ("resolution", "speed", "link_timeout", "announce", "min_interval"):
+    for name in ("resolution", "speed", "link_timeout", "announce", "min_interval", "inbox_mib"):
         if not getattr(args, name) > 0:
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
     if not 0 <= args.min_change <= 1 or not 0 <= args.epoch_change <= 1:
@@ -143,6 +150,7 @@ def options_from_args(args: argparse.Namespace):
         min_interval=args.min_interval,
         min_agreement=args.min_agreement,
         epoch_change=args.epoch_change,
+        inbox_bytes=args.inbox_mib << 20,
     )
 
 

@@ -16,7 +16,6 @@ import contextlib
 import json
 import logging
 import os
-import queue
 import threading
 import time
 from collections.abc import Callable
@@ -30,6 +29,7 @@ from agent import wire
 from agent.book import FleetBook, next_version
 from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, component_of
+from agent.inbox import MAX_BYTES, Inbox
 from agent.keys import FleetKeys
 from agent.links import LinkRecord
 from agent.sources import ChangeGate, SourceSpec, epoch_due, make_source
@@ -40,9 +40,6 @@ from pgvd.grid import Grid
 from protocol.errors import ProtocolError
 
 log = logging.getLogger("pgvd.agent")
-
-#: Inbound payloads queued beyond this are dropped (counted): memory stays bounded.
-INBOX_LIMIT = 20_000
 
 
 @dataclass(frozen=True)
@@ -67,6 +64,7 @@ class AgentOptions:
     min_interval: float = 1.0
     min_agreement: float | None = None
     epoch_change: float = 0.15
+    inbox_bytes: int = MAX_BYTES
 
 
 class Agent:
@@ -85,7 +83,8 @@ class Agent:
         self.book = FleetBook()
         self.state = StateDir(opts.state_dir)
         self.out_dir = Path(opts.out_dir or opts.state_dir)
-        self.inbox: queue.Queue[tuple[str, str, bytes]] = queue.Queue(INBOX_LIMIT)
+        # Bounded in count and bytes; what does not fit is dropped as "overload".
+        self.inbox = Inbox(max_bytes=opts.inbox_bytes)
         self.inbound = wire.Inbound(opts.fleet, opts.key)
         self.outbound = wire.Outbound(opts.fleet, self.me, opts.key)
         self.alive: dict[str, bool] = {}
@@ -143,10 +142,7 @@ class Agent:
             data = sample.payload.to_bytes()
             self.counters.add("bytes_received", len(data))
             self.counters.add("messages_received")
-            try:
-                self.inbox.put_nowait((kind, str(sample.key_expr), data))
-            except queue.Full:
-                self.counters.drop("inbox_full", str(sample.key_expr), "receive queue full")
+            self._offer((kind, str(sample.key_expr), data))
 
         return callback
 
@@ -156,18 +152,20 @@ class Agent:
         sample = reply.ok
         data = sample.payload.to_bytes()
         self.counters.add("bytes_received", len(data))
-        try:
-            self.inbox.put_nowait(("reply", str(sample.key_expr), data))
-        except queue.Full:
-            self.counters.drop("inbox_full", str(sample.key_expr), "receive queue full")
+        self._offer(("reply", str(sample.key_expr), data))
+
+    def _offer(self, item: tuple[str, str, bytes]) -> None:
+        """Queue for the main thread, or count an ``overload`` drop: never block Zenoh."""
+        if not self.inbox.offer(item):
+            detail = f"receive queue full ({len(self.inbox)} messages, {self.inbox.queued_bytes} B)"
+            self.counters.drop("overload", item[1], detail)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         robot = self.keys.robot_of(str(sample.key_expr), "alive")
         if robot is None or robot == self.me:
             return
         joined = sample.kind == zenoh.SampleKind.PUT
-        with contextlib.suppress(queue.Full):
-            self.inbox.put_nowait(("alive", robot, b"1" if joined else b"0"))
+        self._offer(("alive", robot, b"1" if joined else b"0"))
 
     def _answer_latest(self, query: zenoh.Query) -> None:
         for key, data in self.outbound.latest_replies(self.keys):
@@ -288,10 +286,10 @@ class Agent:
 
     def _drain_inbox(self, deadline: float) -> None:
         while time.monotonic() < deadline:
-            try:
-                kind, key, data = self.inbox.get(timeout=0.05)
-            except queue.Empty:
+            item = self.inbox.get(timeout=0.05)
+            if item is None:
                 return
+            kind, key, data = item
             if kind == "alive":
                 self._membership(key, data == b"1")
             else:
@@ -489,6 +487,7 @@ class Agent:
             "bytes_received": counters["counts"].get("bytes_received", 0),
             "counts": counters["counts"],
             "drops": counters["drops"],
+            "inbox": {"messages": len(self.inbox), "bytes": self.inbox.queued_bytes},
         }
 
     def _refresh_status(self) -> None:

@@ -26,6 +26,7 @@ def agent(tmp_path: Path, *extra: str) -> list[str]:
         (["--frame", "1,2"], "frame must be"),
         (["--key-file", "/nonexistent.key"], "cannot read key file"),
         (["--speed", "0"], "--speed"),
+        (["--inbox-mib", "0"], "--inbox-mib must be > 0"),
         (["--min-agreement", "1.5"], "--min-agreement"),
         (["--zenoh-config", "/nonexistent.json5"], "bad Zenoh config"),
     ],

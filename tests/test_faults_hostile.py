@@ -50,6 +50,14 @@ def drops(fleet: NetFleet) -> dict[str, dict[str, int]]:
     return {r: dict((s or {}).get("drops", {})) for r, s in fleet.statuses().items()}
 
 
+def growth(before: dict, after: dict) -> dict[str, dict[str, int]]:
+    """Per agent, the drop reasons that grew from ``before`` to ``after``, and by how much."""
+    return {
+        r: {k: n - before[r].get(k, 0) for k, n in d.items() if n > before[r].get(k, 0)}
+        for r, d in after.items()
+    }
+
+
 def command(rogue: subprocess.Popen, line: str) -> str:
     rogue.stdin.write(line + "\n")
     rogue.stdin.flush()
@@ -89,12 +97,12 @@ def attacked() -> dict:
                 if all(g > 0 for g in grown.values()):
                     break
                 time.sleep(0.3)
-            delta = {r: {k: n - counts[r].get(k, 0) for k, n in now[r].items()} for r in now}
-            delta = {r: {k: n for k, n in d.items() if n} for r, d in delta.items()}
-            out["attacks"][attack] = {"sent": sent, "reason": reason, "dropped": grown, "by": delta}
+            by = growth(counts, now)
+            out["attacks"][attack] = {"sent": sent, "reason": reason, "dropped": grown, "by": by}
         peak = dict(out["rss_before"])
         for n, size in FLOOD:
             counts = {r: s["counts"]["messages_received"] for r, s in fleet.statuses().items()}
+            dropped = drops(fleet)
             reply = command(rogue, f"flood {n} {size}")
             for _ in range(10):  # the agents drain their queues for a few seconds
                 peak = {r: max(peak[r], rss_kb(pid)) for r, pid in pids.items()}
@@ -106,6 +114,8 @@ def attacked() -> dict:
                 "sent": n,
                 "seconds": float(reply.split()[3]),
                 "received": got,
+                # framing (random bytes), and overload if the receive queue filled up
+                "by": growth(dropped, drops(fleet)),
             }
         out["rss_peak"] = peak
         time.sleep(2)
