@@ -488,21 +488,34 @@ def _diagnostics(
     )
 
 
+def _result(
+    accepted: bool,
+    reason: str,
+    clock: _Clock,
+    matrix: np.ndarray,
+    score: float,
+    covariance: np.ndarray,
+    diagnostics: MergeDiagnostics | None = None,
+) -> MergeResult:
+    psi, tx, ty = matrix_to_pose(matrix)
+    return MergeResult(
+        accepted=accepted,
+        matrix=matrix,
+        rotation_deg=float(np.degrees(psi)),
+        translation_px=(tx, ty),
+        covariance=covariance,
+        score=score,
+        timings_ms=clock.total(),
+        reason=reason,
+        diagnostics=diagnostics,
+    )
+
+
 def _rejected(
     reason: str, clock: _Clock, matrix: np.ndarray | None = None, score: float = 0.0
 ) -> MergeResult:
     m = np.eye(3) if matrix is None else matrix
-    psi, tx, ty = matrix_to_pose(m)
-    return MergeResult(
-        accepted=False,
-        matrix=m,
-        rotation_deg=float(np.degrees(psi)),
-        translation_px=(tx, ty),
-        covariance=np.full((3, 3), np.nan),
-        score=score,
-        timings_ms=clock.total(),
-        reason=reason,
-    )
+    return _result(False, reason, clock, m, score, np.full((3, 3), np.nan))
 
 
 def merge(
@@ -609,15 +622,4 @@ def merge(
     )
     if diag is not None:
         clock.lap("diagnostics")
-    psi, tx, ty = matrix_to_pose(matrix)
-    return MergeResult(
-        accepted=True,
-        matrix=matrix,
-        rotation_deg=float(np.degrees(psi)),
-        translation_px=(tx, ty),
-        covariance=cov,
-        score=agreement.ratio,
-        timings_ms=clock.total(),
-        reason="accepted",
-        diagnostics=diag,
-    )
+    return _result(True, "accepted", clock, matrix, agreement.ratio, cov, diag)
