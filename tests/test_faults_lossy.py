@@ -83,10 +83,17 @@ def runs() -> dict[str, dict]:
     return out
 
 
-#: Seen in about 2 of 13 runs (see the faults helper's report): with a TCP and a UDP link per
-#: peer (max_links 2) at 20 % loss, one pair of agents ends half-open: one side got the other's
-#: liveliness DELETE, the other still sees a live transport, and nothing flows between them
-#: (fetches go unanswered) for as long as we waited (40 s). TCP-only runs never did this.
+#: With a TCP and a UDP link per peer (max_links 2) at 20 % loss, some runs (2 of 13 in the
+#: faults helper's series, 1 of 4 in the udp helper's) end with agents out of step for good;
+#: TCP-only runs never did. Seen: one side got the other's liveliness DELETE while the other still
+#: sees it alive, its queries to it unanswered, yet samples may still flow the other way. Suspected
+#: (not proven): Zenoh's declaration state diverges when one side drops the transport and the other
+#: keeps it, and the re-connected link brings no re-declarations. An agent watchdog (tried, not
+#: kept: probe live peers' ``status`` queryable, reopen the session after 15 s without a reply)
+#: recovered that shape twice in 8 runs, but 2 of the 8 still failed in shapes
+#: it cannot see: two agents that never saw each other join (both with a DELETE for the third,
+#: which saw them alive and got answers), and an all-alive trio where one agent stopped getting a
+#: peer's manifests while its queries to that peer were answered. Hence still xfail.
 UDP_HALF_OPEN = pytest.mark.xfail(
     strict=False, reason="Zenoh TCP+UDP multilink can end half-open under 20 % loss"
 )
