@@ -466,17 +466,23 @@ _PARSERS: dict[int, tuple[str, Callable[[_Fields, Limits], Message]]] = {
 }
 
 
-def encode_tiles(msg: MapTiles, key: bytes | None, max_message_bytes: int) -> list[bytes]:
+def encode_tiles(
+    msg: MapTiles, key: bytes | None, max_message_bytes: int, lone_oversize: bool = False
+) -> list[bytes]:
     """Encode the tiles of ``msg`` as several MapTiles messages, each under ``max_message_bytes``.
 
     Every tile is laid out once; tiles are batched in their order up to the
     cells and tiles a decoder with default :class:`Limits` accepts in one
     message, and a batch whose message comes out too large is split in two.
+    With ``lone_oversize`` a tile that alone exceeds ``max_message_bytes``
+    travels in a message of its own instead: a best-effort sender packs tiles
+    into datagrams, and only such a tile then rides IP fragmentation.
 
     Raises
     ------
     ProtocolError
-        If one tile alone does not fit in ``max_message_bytes``.
+        If one tile alone does not fit in ``max_message_bytes`` (without
+        ``lone_oversize``), or not in a message a default decoder accepts.
     """
     key = check_key(key)
     limits = Limits()
@@ -491,17 +497,27 @@ def encode_tiles(msg: MapTiles, key: bytes | None, max_message_bytes: int) -> li
             cells = 0
         batches[-1].append(_layout(tile))
         cells += tile.cells.size
-    return [wire for batch in batches for wire in _fit(msg, batch, key, max_message_bytes)]
+    lone_limit = limits.max_message_bytes if lone_oversize else max_message_bytes
+    return [
+        wire for batch in batches for wire in _fit(msg, batch, key, max_message_bytes, lone_limit)
+    ]
 
 
-def _fit(msg: MapTiles, batch: list[_Layout], key: bytes | None, limit: int) -> list[bytes]:
-    """``batch`` as one message, or split in halves until every message is under ``limit``."""
+def _fit(
+    msg: MapTiles, batch: list[_Layout], key: bytes | None, limit: int, lone_limit: int
+) -> list[bytes]:
+    """``batch`` as one message, or split in halves until every message is under ``limit``.
+
+    A message of a single tile may reach ``lone_limit`` (>= ``limit``).
+    """
     wire = _seal_tiles(msg, batch, key)
-    if len(wire) < limit:
+    if len(wire) < limit or (len(batch) == 1 and len(wire) < lone_limit):
         return [wire]
     if len(batch) == 1:
         raise ProtocolError(
             f"a tile of {len(wire)} bytes does not fit in {limit}-byte messages", reason="limit"
         )
     half = len(batch) // 2
-    return _fit(msg, batch[:half], key, limit) + _fit(msg, batch[half:], key, limit)
+    return _fit(msg, batch[:half], key, limit, lone_limit) + _fit(
+        msg, batch[half:], key, limit, lone_limit
+    )

@@ -63,6 +63,7 @@ def encode_map(
     max_message_bytes: int = 60_000,
     tile_size: int = DEFAULT_TILE_SIZE,
     indices: Collection[int] | None = None,
+    lone_oversize: bool = False,
 ) -> tuple[list[bytes], bytes]:
     """Encode one version of a robot's own map as tile messages and a manifest.
 
@@ -86,6 +87,9 @@ def encode_map(
         :meth:`MapReassembler.missing`); overrides ``since``.  Indices that
         hold no knowledge in this version are skipped: the manifest, which a
         queryable should send along, already tells the receiver they are empty.
+    lone_oversize : let a tile that alone exceeds ``max_message_bytes`` travel
+        in a message of its own rather than raise (packing into datagrams, see
+        :func:`protocol.codec.encode_tiles`).
 
     Returns
     -------
@@ -116,7 +120,7 @@ def encode_map(
     if not tiles:
         return [], manifest_bytes
     msg = MapTiles(fleet, robot, version, geometry, tuple(tiles), base_version)
-    return encode_tiles(msg, key, max_message_bytes), manifest_bytes
+    return encode_tiles(msg, key, max_message_bytes, lone_oversize), manifest_bytes
 
 
 def _delta_manifest(full: Manifest, base: np.ndarray, base_version: int) -> Manifest:

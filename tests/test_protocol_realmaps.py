@@ -10,7 +10,14 @@ import pytest
 
 from pgvd.integrate import frame_for, integrate_scan
 from pgvd.io import read_carmen, read_map
-from protocol import MapReassembler, ReplayGuard, decode, encode_map, quantise_grid
+from protocol import (
+    MapReassembler,
+    ProtocolError,
+    ReplayGuard,
+    decode,
+    encode_map,
+    quantise_grid,
+)
 from protocol.compress import ARITH
 
 KEY = b"real-maps-fleet-key-0123456789ab"
@@ -100,3 +107,22 @@ def test_intel_log_replay_stages_and_one_scan_deltas(shared):
 
 def _window(msg, tile):
     return msg.geometry.tile_window(tile.index)
+
+
+# Limits below the largest 64x64 tile of each map, so that the lone case happens.
+@pytest.mark.parametrize(
+    ("rel", "limit"), [("intel/intel.yaml", 600), ("fr079_albertB/map312.yaml", 400)]
+)
+def test_datagram_packing_keeps_tiles_under_an_mtu_and_the_map_exact(shared, rel, limit):
+    """Best-effort tiles ride single UDP datagrams: only a tile too big alone may exceed them."""
+    grid = read_map(shared / "maps" / rel)
+    with pytest.raises(ProtocolError, match=f"does not fit in {limit}-byte messages"):
+        encode_map("lab", "r1", 1, grid, KEY, max_message_bytes=limit, tile_size=64)
+    tiles, manifest = encode_map(
+        "lab", "r1", 1, grid, KEY, max_message_bytes=limit, tile_size=64, lone_oversize=True
+    )
+    counts = [len(decode(w, KEY).tiles) for w in tiles]
+    assert max(counts) > 1 and any(len(w) >= limit for w in tiles)
+    assert all(len(w) < limit for w, n in zip(tiles, counts, strict=True) if n > 1)
+    out = receive(MapReassembler("r1", "lab"), [*tiles, manifest], ReplayGuard(), KEY)
+    assert out is not None and np.array_equal(quantise_grid(out), quantise_grid(grid))
