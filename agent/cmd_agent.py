@@ -15,7 +15,7 @@ from agent.cli import EXIT_OK, CliError
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
 from agent.sources import parse_frame, parse_source
-from agent.zenoh_config import MODES, ZenohOptions, build_config
+from agent.zenoh_config import MODES, ZenohOptions, build_config, tile_session_options
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -42,9 +42,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--lease-ms", type=int, help="Zenoh transport lease (ms)")
     p.add_argument(
-        "--best-effort-tiles",
-        action="store_true",
-        help="publish tiles best-effort (lost ones are fetched from the queryable)",
+        "--tiles-listen",
+        action="append",
+        default=[],
+        metavar="EP",
+        help="publish map tiles best-effort on a second Zenoh session listening here (e.g. "
+        "udp/IP:PORT); lost tiles are fetched over the main session",
+    )
+    p.add_argument(
+        "--tiles-connect",
+        action="append",
+        default=[],
+        metavar="EP",
+        help="a peer's tile endpoint (with --tiles-listen: the tile session's seeds)",
     )
     p.add_argument("--frame", help="own frame x,y,theta_deg (default: drawn from the robot id)")
     p.add_argument("--resolution", type=float, default=0.1, help="carmen map cell size (m)")
@@ -122,8 +132,12 @@ def options_from_args(args: argparse.Namespace):
         lease_ms=args.lease_ms,
         config_file=args.zenoh_config,
     )
-    try:
-        build_config(zopts)  # fail now, with one line, rather than inside the daemon
+    tiles = None
+    if args.tiles_listen or args.tiles_connect:
+        tiles = tile_session_options(zopts, args.tiles_listen, args.tiles_connect)
+    try:  # fail now, with one line, rather than inside the daemon
+        for session in (zopts,) if tiles is None else (zopts, tiles):
+            build_config(session)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     try:
@@ -145,7 +159,7 @@ def options_from_args(args: argparse.Namespace):
         speed=args.speed,
         link_timeout=args.link_timeout,
         announce_period=args.announce,
-        best_effort_tiles=args.best_effort_tiles,
+        tiles=tiles,
         min_change=args.min_change,
         min_interval=args.min_interval,
         min_agreement=args.min_agreement,

@@ -59,7 +59,7 @@ class AgentOptions:
     link_timeout: float = 6.0
     announce_period: float = 2.0
     status_period: float = 1.0
-    best_effort_tiles: bool = False
+    tiles: ZenohOptions | None = None
     min_change: float = 0.05
     min_interval: float = 1.0
     min_agreement: float | None = None
@@ -86,7 +86,9 @@ class Agent:
         # Bounded in count and bytes; what does not fit is dropped as "overload".
         self.inbox = Inbox(max_bytes=opts.inbox_bytes)
         self.inbound = wire.Inbound(opts.fleet, opts.key)
-        self.outbound = wire.Outbound(opts.fleet, self.me, opts.key)
+        self.outbound = wire.Outbound(
+            opts.fleet, self.me, opts.key, datagrams=opts.tiles is not None
+        )
         self.alive: dict[str, bool] = {}
         self.started = time.time()
         self._fetch_after: dict[str, float] = {}
@@ -222,23 +224,9 @@ class Agent:
         cfg = build_config(self.opts.zenoh)
         k = self.keys
         remote = zenoh.Locality.REMOTE
-        reliability = (
-            zenoh.Reliability.BEST_EFFORT
-            if self.opts.best_effort_tiles
-            else zenoh.Reliability.RELIABLE
-        )
-        congestion = (
-            zenoh.CongestionControl.DROP
-            if self.opts.best_effort_tiles
-            else zenoh.CongestionControl.BLOCK
-        )
         with zenoh.open(cfg) as session, contextlib.ExitStack() as stack:
             self.session = session
-            self.tiles_pub = stack.enter_context(
-                session.declare_publisher(
-                    k.tiles(self.me), congestion_control=congestion, reliability=reliability
-                )
-            )
+            self.tiles_pub = self._tile_publisher(session, stack)
             self.manifest_pub = stack.enter_context(
                 session.declare_publisher(
                     k.manifest(self.me), congestion_control=zenoh.CongestionControl.BLOCK
@@ -265,6 +253,33 @@ class Agent:
                 self._persist_links()
                 self._refresh_status()
         return 0
+
+    def _tile_publisher(
+        self, session: zenoh.Session, stack: contextlib.ExitStack
+    ) -> zenoh.Publisher:
+        """Tiles go reliably on ``session``, or best-effort on a tile session of their own.
+
+        A tile session also gets a tiles subscriber, so that peers on either plane are heard.
+        """
+        if self.opts.tiles is None:
+            return stack.enter_context(
+                session.declare_publisher(
+                    self.keys.tiles(self.me), congestion_control=zenoh.CongestionControl.BLOCK
+                )
+            )
+        tile_session = stack.enter_context(zenoh.open(build_config(self.opts.tiles)))
+        stack.enter_context(
+            tile_session.declare_subscriber(
+                self.keys.tiles(), self._enqueue("tiles"), allowed_origin=zenoh.Locality.REMOTE
+            )
+        )
+        return stack.enter_context(
+            tile_session.declare_publisher(
+                self.keys.tiles(self.me),
+                congestion_control=zenoh.CongestionControl.DROP,
+                reliability=zenoh.Reliability.BEST_EFFORT,
+            )
+        )
 
     def _loop(self, stop: threading.Event) -> None:
         next_announce = next_status = 0.0

@@ -27,6 +27,7 @@ from protocol import (
     encode_map,
     quantise_grid,
 )
+from protocol.messages import DEFAULT_TILE_SIZE
 
 MAP_MESSAGES = (MapTiles, Manifest)
 #: Peers tracked at most: a flood of invented robot ids cannot exhaust memory.
@@ -40,29 +41,52 @@ def on_the_wire(grid: Grid) -> Grid:
     return Grid(dequantise(quantise_grid(grid)), grid.resolution, tuple(grid.origin))
 
 
-class Outbound:
-    """Encodes the own map's versions: deltas to publish, and the full latest for queries."""
+#: Tile messages published best-effort are packed to this many bytes, so that each rides one
+#: UDP datagram of a 1500-byte MTU (with Zenoh's framing, see ``zenoh_config.TILE_BATCH_BYTES``):
+#: a lost IP fragment would lose the whole message (zenoh-notes.md).
+DATAGRAM_BYTES = 1200
+#: Smaller tiles for datagrams: most 64x64 tiles of a real map compress under DATAGRAM_BYTES.
+DATAGRAM_TILE_SIZE = 64
 
-    def __init__(self, fleet: str, robot: str, key: bytes | None) -> None:
+
+class Outbound:
+    """Encodes the own map's versions: deltas to publish, and the full latest for queries.
+
+    With ``datagrams`` the published tile messages are packed for best-effort UDP
+    (:data:`DATAGRAM_BYTES`); the full latest version, which queries fetch over a reliable
+    link, keeps the default message size.
+    """
+
+    def __init__(self, fleet: str, robot: str, key: bytes | None, datagrams: bool = False) -> None:
         self.fleet, self.robot, self.key = fleet, robot, key
+        self.datagrams = datagrams
+        self._tile_size = DATAGRAM_TILE_SIZE if datagrams else DEFAULT_TILE_SIZE
         self._latest: tuple[int, list[bytes], bytes] | None = None
 
     def prepare(
         self, version: int, grid: Grid, previous: tuple[int, Grid] | None
     ) -> tuple[list[bytes], bytes]:
         """Tile messages (a delta against ``previous`` if given) and the manifest of ``version``."""
-        full = encode_map(self.fleet, self.robot, version, grid, self.key)
+        full = self._encode(version, grid, None, packed=False)
         self._latest = (version, full[0], full[1])
-        if previous is None:
+        if previous is None and not self.datagrams:
             return full
+        return self._encode(version, grid, previous, packed=self.datagrams)
+
+    def _encode(
+        self, version: int, grid: Grid, previous: tuple[int, Grid] | None, packed: bool
+    ) -> tuple[list[bytes], bytes]:
+        since = {} if previous is None else {"since": previous[1], "base_version": previous[0]}
+        packing = {"max_message_bytes": DATAGRAM_BYTES, "lone_oversize": True} if packed else {}
         return encode_map(
             self.fleet,
             self.robot,
             version,
             grid,
             self.key,
-            since=previous[1],
-            base_version=previous[0],
+            tile_size=self._tile_size,
+            **since,
+            **packing,
         )
 
     def manifest(self) -> bytes | None:

@@ -1,9 +1,9 @@
 """Real ``pgvd agent`` processes, one per namespace of a :class:`netns.Lab`.
 
-Each agent listens on ``tcp/<its address>:7447`` (``udp/`` too with ``udp=True``) and connects
-to every other host, so a lossy or partitioned path is the direct one between two hosts (no
-relay around it). Shared memory is off: every byte crosses the veth pairs and their loss rules.
-Status comes from each agent's ``status.json`` (the namespaces share the file system).
+Each agent listens on ``tcp/<its address>:7447`` (tiles on ``udp/...:7448`` with ``udp=True``)
+and connects to every other host, so a lossy or partitioned path is the direct one between two
+hosts (no relay around it). Shared memory is off: every byte crosses the veth pairs and their loss
+rules. Status comes from each agent's ``status.json`` (the namespaces share the file system).
 """
 
 from __future__ import annotations
@@ -41,19 +41,18 @@ class NetFleet:
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     hosts: dict[str, int] = field(default_factory=dict)
 
-    def endpoints(self, host: int) -> list[str]:
-        tcp = self.lab.hosts[host].endpoint(PORT)
-        if not self.udp:
-            return [tcp]
-        # Two links per session (max_links 2): reliable traffic on TCP, best-effort on UDP.
-        return [f"{tcp}?rel=1", self.lab.hosts[host].endpoint(PORT + 1, "udp") + "?rel=0"]
-
     def start(self, robot: str, host: int, source: str, frame: str, *args: str) -> None:
-        """A peer agent listening on its host's address, connected to every other host."""
-        net = [a for ep in self.endpoints(host) for a in ("--listen", ep)]
-        for other in range(len(self.lab.hosts)):
-            if other != host:
-                net += [a for ep in self.endpoints(other) for a in ("--connect", ep)]
+        """A peer agent listening on its host's address, connected to every other host.
+
+        With ``udp``, tiles go best-effort on a tile session over ``udp/<address>:7448``.
+        """
+        me = self.lab.hosts[host]
+        others = [h for h in self.lab.hosts if h is not me]
+        net = ["--listen", me.endpoint(PORT)]
+        net += [a for h in others for a in ("--connect", h.endpoint(PORT))]
+        if self.udp:
+            net += ["--tiles-listen", me.endpoint(PORT + 1, "udp")]
+            net += [a for h in others for a in ("--tiles-connect", h.endpoint(PORT + 1, "udp"))]
         self.launch(robot, host, source, frame, *net, *args)
 
     def launch(self, robot: str, host: int, source: str, frame: str, *args: str) -> None:

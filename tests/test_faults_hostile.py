@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
-from netfleet import SOURCES, NetFleet, digests, wait_agreed
+from netfleet import PORT, SOURCES, NetFleet, digests, wait_agreed
 from netns import Lab, lab_or_skip, pgvd_argv, read_line
 
 pytestmark = [pytest.mark.netns, pytest.mark.fleet, pytest.mark.slow]
@@ -72,8 +72,7 @@ def attacked() -> dict:
         key = Path(tmp) / "fleet.key"
         key.write_text("a shared secret of the test fleet\n")
         fleet = NetFleet(lab, Path(tmp), extra=["--speed", "400", "--key-file", str(key)])
-        endpoints = [ep for h in range(3) for ep in fleet.endpoints(h)]
-        connect = [a for ep in endpoints for a in ("--connect", ep)]
+        connect = [a for h in lab.hosts[:3] for a in ("--connect", h.endpoint(PORT))]
         rogue_argv = [sys.executable, "tests/rogue.py", "--fleet", fleet.fleet, *connect]
         rogue_argv += ["--key-file", str(key)]
         rogue = lab.popen(3, rogue_argv, name="rogue", stdin=True)

@@ -4,8 +4,9 @@ Three runs of the same fleet (Intel log thirds, each robot in its own frame):
 
 - ``clean``: no loss, TCP (the baseline);
 - ``tcp``: 20 % loss on every directed path, everything over reliable TCP;
-- ``udp``: 20 % loss, map tiles published best-effort over a UDP link (manifests, links and
-  queries stay on TCP): lost tiles are noticed from the manifest and fetched from the queryable.
+- ``udp``: 20 % loss, map tiles published best-effort on a second Zenoh session over UDP, packed
+  to one datagram each (manifests, links, liveliness and queries stay on the TCP session): lost
+  tiles are noticed from the manifest and fetched from the queryable.
 
 Each must agree on one global map, with the three true overlaps linked within 2 degrees and 3
 cells of the truth, and every agent must hold every peer's final map exactly as that peer has it
@@ -33,17 +34,12 @@ pytestmark = [pytest.mark.netns, pytest.mark.fleet, pytest.mark.slow]
 
 RUNS = {"clean": (0, False), "tcp": (20, False), "udp": (20, True)}
 ARGS = ["--speed", "400", "--link-timeout", "3", "--lease-ms", "3000"]
-UDP_CONFIG = "{ transport: { unicast: { max_links: 2 } } }\n"  # one TCP + one UDP link per peer
 
 
 def run_fleet(loss: int, udp: bool, workdir: Path) -> dict:
     """Run the 3 agents to agreement; what they agreed on and what it cost."""
-    extra = list(ARGS)
-    if udp:
-        (workdir / "udp.json5").write_text(UDP_CONFIG)
-        extra += ["--best-effort-tiles", "--zenoh-config", str(workdir / "udp.json5")]
     with Lab(3, loss_pct=loss) as lab:
-        fleet = NetFleet(lab, workdir, extra=extra, udp=udp)
+        fleet = NetFleet(lab, workdir, extra=ARGS, udp=udp)
         for host, (robot, (source, frame)) in enumerate(SOURCES.items()):
             fleet.start(robot, host, source, frame)
         seconds = wait_agreed(fleet, 60 if udp else 120)
@@ -83,23 +79,7 @@ def runs() -> dict[str, dict]:
     return out
 
 
-#: With a TCP and a UDP link per peer (max_links 2) at 20 % loss, some runs (2 of 13 in the
-#: faults helper's series, 1 of 4 in the udp helper's) end with agents out of step for good;
-#: TCP-only runs never did. Seen: one side got the other's liveliness DELETE while the other still
-#: sees it alive, its queries to it unanswered, yet samples may still flow the other way. Suspected
-#: (not proven): Zenoh's declaration state diverges when one side drops the transport and the other
-#: keeps it, and the re-connected link brings no re-declarations. An agent watchdog (tried, not
-#: kept: probe live peers' ``status`` queryable, reopen the session after 15 s without a reply)
-#: recovered that shape twice in 8 runs, but 2 of the 8 still failed in shapes
-#: it cannot see: two agents that never saw each other join (both with a DELETE for the third,
-#: which saw them alive and got answers), and an all-alive trio where one agent stopped getting a
-#: peer's manifests while its queries to that peer were answered. Hence still xfail.
-UDP_HALF_OPEN = pytest.mark.xfail(
-    strict=False, reason="Zenoh TCP+UDP multilink can end half-open under 20 % loss"
-)
-
-
-@pytest.mark.parametrize("name", ["clean", "tcp", pytest.param("udp", marks=UDP_HALF_OPEN)])
+@pytest.mark.parametrize("name", list(RUNS))
 def test_fleet_agrees_on_the_baseline_map_with_true_links(
     runs: dict[str, dict], name: str, record_property: pytest.RecordProperty
 ) -> None:
