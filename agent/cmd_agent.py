@@ -12,6 +12,7 @@ from pathlib import Path
 import zenoh
 
 from agent.cli import EXIT_OK, CliError
+from agent.failpoints import check_armed
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
 from agent.sources import parse_frame, parse_source
@@ -104,6 +105,7 @@ def options_from_args(args: argparse.Namespace):
         fleet = check_name(args.fleet, "fleet name")
         source = parse_source(args.source)
         frame = parse_frame(args.frame) if args.frame else None
+        check_armed()  # a misspelt failpoint must not let a crash test pass without a crash
     except ValueError as exc:
         raise CliError(str(exc)) from None
     if not source.path.is_file():

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agent.failpoints import failpoint
 from agent.keys import check_name
 from agent.links import LinkRecord, dumps, loads
 from pgvd.grid import Grid
@@ -36,13 +37,23 @@ class StoredMap:
     extra: dict[str, object] = field(default_factory=dict)
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a crash leaves the old or the new file whole."""
+def atomic_write_bytes(path: Path, data: bytes, point: str | None = None) -> None:
+    """Write ``data`` to ``path`` so that a crash leaves the old or the new file whole.
+
+    The temporary copy is ``.<name>.<random>`` next to ``path``. ``point`` names the failpoint
+    (:mod:`agent.failpoints`) reached with half of the bytes written and flushed, so a test can
+    kill the process while a real half-written copy sits on disk.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            half = len(data) // 2
+            fh.write(data[:half])
+            fh.flush()
+            if point is not None:
+                failpoint(point)
+            fh.write(data[half:])
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -67,6 +78,9 @@ class StateDir:
         self.root = Path(root)
         self.maps_dir = self.root / "maps"
         self.maps_dir.mkdir(parents=True, exist_ok=True)
+        self.removed_temporaries = remove_temporaries(
+            self.root / ".links.json.*", self.root / ".status.json.*", self.maps_dir / ".*.npz.*"
+        )
 
     def save_map(self, robot: str, stored: StoredMap) -> None:
         buf = io.BytesIO()
@@ -79,7 +93,8 @@ class StateDir:
             version=np.int64(stored.version),
             extra=np.frombuffer(json.dumps(stored.extra).encode(), dtype=np.uint8),
         )
-        atomic_write_bytes(self.maps_dir / f"{check_name(robot, 'robot id')}.npz", buf.getvalue())
+        path = self.maps_dir / f"{check_name(robot, 'robot id')}.npz"
+        atomic_write_bytes(path, buf.getvalue(), point="state-write")
 
     def load_maps(self) -> tuple[dict[str, StoredMap], list[str]]:
         """All persisted maps, and one line per file that could not be read (skipped)."""
@@ -106,6 +121,22 @@ class StateDir:
 
     def save_status(self, status: dict[str, object]) -> None:
         atomic_write_json(self.root / "status.json", status)
+
+
+def remove_temporaries(*patterns: Path) -> list[str]:
+    """Delete the ``.<name>.*`` copies a killed writer left behind; their names, sorted.
+
+    Loading never reads them (``load_maps`` globs ``*.npz``), but an agent killed in a loop
+    would otherwise leave one per crash until the disk fills. Call only before this process
+    writes: another agent never shares a state directory.
+    """
+    removed = []
+    for pattern in patterns:
+        for tmp in pattern.parent.glob(pattern.name):
+            if tmp.is_file():
+                tmp.unlink(missing_ok=True)
+                removed.append(tmp.name)
+    return sorted(removed)
 
 
 def _read_map(path: Path) -> StoredMap:

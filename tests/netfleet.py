@@ -41,10 +41,19 @@ class NetFleet:
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     hosts: dict[str, int] = field(default_factory=dict)
 
-    def start(self, robot: str, host: int, source: str, frame: str, *args: str) -> None:
+    def start(
+        self,
+        robot: str,
+        host: int,
+        source: str,
+        frame: str,
+        *args: str,
+        env: dict[str, str] | None = None,
+    ) -> None:
         """A peer agent listening on its host's address, connected to every other host.
 
         With ``udp``, tiles go best-effort on a tile session over ``udp/<address>:7448``.
+        ``env`` adds environment variables (e.g. ``PGVD_FAILPOINT``).
         """
         me = self.lab.hosts[host]
         others = [h for h in self.lab.hosts if h is not me]
@@ -53,9 +62,17 @@ class NetFleet:
         if self.udp:
             net += ["--tiles-listen", me.endpoint(PORT + 1, "udp")]
             net += [a for h in others for a in ("--tiles-connect", h.endpoint(PORT + 1, "udp"))]
-        self.launch(robot, host, source, frame, *net, *args)
+        self.launch(robot, host, source, frame, *net, *args, env=env)
 
-    def launch(self, robot: str, host: int, source: str, frame: str, *args: str) -> None:
+    def launch(
+        self,
+        robot: str,
+        host: int,
+        source: str,
+        frame: str,
+        *args: str,
+        env: dict[str, str] | None = None,
+    ) -> None:
         """An agent on ``host`` with exactly the network arguments ``args``."""
         self.hosts[robot] = host
         argv = [
@@ -63,7 +80,7 @@ class NetFleet:
             "--fleet", self.fleet, "--state-dir", str(self.state_dir(robot)),
             "--shm", "off", *self.extra, *args,
         ]  # fmt: skip
-        self.procs[robot] = self.lab.popen(host, pgvd_argv(*argv), name=robot)
+        self.procs[robot] = self.lab.popen(host, pgvd_argv(*argv), name=robot, env=env)
 
     def state_dir(self, robot: str) -> Path:
         return self.workdir / robot

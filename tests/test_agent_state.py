@@ -63,3 +63,19 @@ def test_corrupt_files_are_skipped_with_one_line_each(tmp_path: Path) -> None:
     assert sorted(maps) == ["r1"] and len(errors) == 1 and "r2.npz" in errors[0]
     links, errors = sd.load_links()
     assert links == [] and "links.json" in errors[0]
+
+
+def test_leftover_temporaries_are_removed_at_start_and_never_loaded(tmp_path: Path) -> None:
+    sd = StateDir(tmp_path)
+    sd.save_map("r1", StoredMap(1, grid(1)))
+    left = [sd.maps_dir / ".r1.npz.a1b2", sd.maps_dir / ".r2.npz.c3d4", tmp_path / ".links.json.x"]
+    for path in left:
+        path.write_bytes(b"PK\x03\x04 half a file")
+    keep = [tmp_path / ".hidden", sd.maps_dir / "notes.txt"]  # not ours to delete
+    for path in keep:
+        path.write_text("x")
+    maps, errors = sd.load_maps()  # loading alone never reads them
+    assert sorted(maps) == ["r1"] and errors == []
+    again = StateDir(tmp_path)
+    assert again.removed_temporaries == sorted(p.name for p in left)
+    assert not any(p.exists() for p in left) and all(p.exists() for p in keep)
