@@ -16,7 +16,7 @@ import time
 
 #: Every point the agent can stop at (``pgvd agent`` refuses any other ``PGVD_FAILPOINT``).
 POINTS = {
-    "state-write": "half of a map file's temporary copy written, before fsync and rename",
+    "state-write": "half of the own map file's temporary copy written, before fsync and rename",
     "tiles-send": "the first tile of a new own version sent, the other tiles and manifest not",
 }
 ENV = "PGVD_FAILPOINT"

@@ -82,7 +82,8 @@ class StateDir:
             self.root / ".links.json.*", self.root / ".status.json.*", self.maps_dir / ".*.npz.*"
         )
 
-    def save_map(self, robot: str, stored: StoredMap) -> None:
+    def save_map(self, robot: str, stored: StoredMap, point: str | None = None) -> None:
+        """Persist ``robot``'s map atomically; ``point`` arms a failpoint mid-write (tests)."""
         buf = io.BytesIO()
         g = stored.grid
         np.savez(
@@ -94,7 +95,7 @@ class StateDir:
             extra=np.frombuffer(json.dumps(stored.extra).encode(), dtype=np.uint8),
         )
         path = self.maps_dir / f"{check_name(robot, 'robot id')}.npz"
-        atomic_write_bytes(path, buf.getvalue(), point="state-write")
+        atomic_write_bytes(path, buf.getvalue(), point)
 
     def load_maps(self) -> tuple[dict[str, StoredMap], list[str]]:
         """All persisted maps, and one line per file that could not be read (skipped)."""

@@ -92,7 +92,8 @@ import numpy as np
 from agent.state import StateDir, StoredMap
 from pgvd.grid import Grid
 lo = np.full((200, 300), 2.5, dtype=np.float32)
-StateDir(sys.argv[1]).save_map("r1", StoredMap(2, Grid(lo, 0.05, (0.0, 0.0, 0.0))))
+grid = Grid(lo, 0.05, (0.0, 0.0, 0.0))
+StateDir(sys.argv[1]).save_map("r1", StoredMap(2, grid), point="state-write")
 """
 
 
@@ -110,3 +111,18 @@ def test_kill_9_at_state_write_leaves_the_old_map_whole(tmp_path: Path) -> None:
     maps, errors = state.load_maps()
     assert errors == [] and maps["r1"].version == 1 and maps["r1"].extra == {"cursor": 5}
     np.testing.assert_array_equal(maps["r1"].grid.logodds, old.logodds)
+
+
+def test_state_write_stops_only_writes_that_name_it(tmp_path: Path) -> None:
+    # a peer's map is saved without the point: an agent armed for its own map passes these
+    code = WRITER.replace(', point="state-write"', "")
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path)],
+        cwd=ROOT,
+        env={**os.environ, failpoints.ENV: "state-write"},
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert proc.returncode == 0 and proc.stderr == ""
+    assert StateDir(tmp_path).load_maps()[0]["r1"].version == 2

@@ -3,9 +3,11 @@
 One scenario (3 agents replaying overlapping Intel segments, lease 2 s):
 
 1. r2 is frozen with SIGSTOP until its peers declare it gone (past the lease), then resumed;
-2. r3 is killed with SIGKILL three times, each a few ms after it published a new version (while
-   it sends and persists), and restarted; its state directory must load without a single error
-   and hold at least what it had published;
+2. r3 is killed with SIGKILL exactly at two failpoints (:mod:`agent.failpoints`), each armed by
+   restarting it with ``PGVD_FAILPOINT``: ``state-write`` (half of a map file's temporary copy
+   on disk) and ``tiles-send`` (one tile of a new version sent, the rest and the manifest not).
+   After each kill its state must load without a single error, hold every r3 version a peer
+   holds, and the next start must remove the half-written copy;
 3. the network is split into {r1} and {r2, r3} until each side sees the other gone, while every
    robot keeps mapping; then the split heals;
 4. everybody must end with the same global map, the three true links, every final version.
@@ -13,7 +15,6 @@ One scenario (3 agents replaying overlapping Intel segments, lease 2 s):
 
 from __future__ import annotations
 
-import random
 import signal
 import tempfile
 import time
@@ -69,11 +70,47 @@ def progress(fleet: NetFleet, robot: str) -> float:
     return done / total
 
 
+def crash_at(fleet: NetFleet, lab: Lab, where: tuple, point: str) -> dict:
+    """Restart r3 with ``point`` armed, ``kill -9`` it there, restart it plain; what was seen."""
+    fleet.signal("r3", signal.SIGTERM)
+    fleet.procs["r3"].wait(timeout=20)
+    fleet.start("r3", *where, env={"PGVD_FAILPOINT": point})
+    maps_dir = fleet.state_dir("r3") / "maps"
+    kill: dict = {"point": point}
+    kill["reached_s"] = wait(lambda: f"FAILPOINT {point}" in lab.stderr_of("r3"), 60)
+    # what is on disk while the writer is stopped: a real, partly written temporary copy
+    kill["temporaries"] = {p.name: p.stat().st_size for p in maps_dir.glob(".*.npz.*")}
+    fleet.kill("r3")
+    time.sleep(0.5)  # peers' status files catch up (older views only weaken the check below)
+    kill["peers_hold"] = {
+        r: ((fleet.status(r) or {}).get("robots", {}).get("r3") or {}).get("version") or 0
+        for r in ("r1", "r2")
+    }
+    state = StateDir(fleet.state_dir("r3"))  # what the restarted agent does first
+    maps, errors = state.load_maps()
+    kill.update(errors=errors, maps=sorted(maps), removed=state.removed_temporaries)
+    kill["persisted"] = maps["r3"].version if "r3" in maps else None
+    (fleet.state_dir("r3") / "status.json").unlink(missing_ok=True)
+    restarted = time.monotonic()
+    fleet.start("r3", *where)
+    kill["restart_s"] = wait(lambda: fleet.status("r3") is not None, 20)
+    # peers hold r3's version cut mid-send (or a newer one): from the restarted agent
+    kill["peers_caught_up_s"] = wait(
+        lambda: all(
+            (((fleet.status(r) or {}).get("robots", {}).get("r3") or {}).get("version") or 0)
+            >= (kill["persisted"] or 0)
+            for r in ("r1", "r2")
+        ),
+        60,
+    )
+    kill["since_restart_s"] = time.monotonic() - restarted
+    return kill
+
+
 @pytest.fixture(scope="module")
-def scenario() -> dict:
+def scenario(record_testsuite_property) -> dict:
     lab_or_skip()
     out: dict = {"kills": []}
-    rng = random.Random(9)
     with tempfile.TemporaryDirectory(prefix="pgvd-crash-") as tmp, Lab(3) as lab:
         fleet = NetFleet(lab, Path(tmp), extra=ARGS)
         hosts = {}
@@ -93,20 +130,9 @@ def scenario() -> dict:
         fleet.signal("r2", signal.SIGCONT)
         out["rejoin_s"] = wait(lambda: sees(fleet, "r1", "r2") and sees(fleet, "r2", "r1"), 20)
 
-        # 2. kill -9 r3 right after it publishes (sending, persisting), restart, three times
-        for _ in range(3):
-            held = version(fleet, "r3")
-            if wait(lambda held=held: version(fleet, "r3") > held, 20) is None:
-                break  # r3's replay is over: no more versions to interrupt
-            time.sleep(rng.uniform(0.0, 0.05))
-            shown = version(fleet, "r3")
-            fleet.kill("r3")
-            maps, errors = StateDir(fleet.state_dir("r3")).load_maps()
-            kill = {"published": shown, "persisted": maps["r3"].version}
-            out["kills"].append({**kill, "errors": errors, "maps": sorted(maps)})
-            (fleet.state_dir("r3") / "status.json").unlink(missing_ok=True)
-            fleet.start("r3", *hosts["r3"])
-            assert wait(lambda: fleet.status("r3") is not None, 20) is not None
+        # 2. kill -9 r3 exactly mid-write of its own map, then exactly mid-send of a version
+        for point in ("state-write", "tiles-send"):
+            out["kills"].append(crash_at(fleet, lab, hosts["r3"], point))
 
         # 3. split {r1} | {r2, r3}, both halves keep mapping, then heal
         lab.partition([0], [1, 2])
@@ -122,6 +148,9 @@ def scenario() -> dict:
         out["agreed_s"] = wait_agreed(fleet, 120)
         out["statuses"] = fleet.statuses()
     print("\n", {k: v for k, v in out.items() if k != "statuses"})
+    for kill in out["kills"]:
+        for key in ("reached_s", "restart_s", "peers_caught_up_s", "since_restart_s"):
+            record_testsuite_property(f"{kill['point']}_{key}", kill[key])
     return out
 
 
@@ -138,12 +167,21 @@ def test_both_halves_keep_mapping_through_a_partition_that_heals(scenario: dict)
     assert scenario["heal_s"] is not None
 
 
-def test_kill_9_mid_send_loses_nothing_persisted(scenario: dict) -> None:
-    assert scenario["kills"], "r3 was never killed"
-    for kill in scenario["kills"]:
+def test_kill_9_mid_write_and_mid_send_loses_nothing(scenario: dict) -> None:
+    kills = {k["point"]: k for k in scenario["kills"]}
+    assert sorted(kills) == ["state-write", "tiles-send"]
+    for kill in kills.values():
+        assert kill["reached_s"] is not None, f"{kill['point']} never reached"
         assert kill["errors"] == []
-        assert kill["persisted"] >= kill["published"]
         assert kill["maps"] == ["r1", "r2", "r3"]  # the peers' maps were persisted too
+        # persist before publish: no peer holds an r3 version r3 itself lost
+        assert all(kill["persisted"] >= v for v in kill["peers_hold"].values()), kill
+        assert kill["restart_s"] is not None and kill["peers_caught_up_s"] is not None, kill
+    write = kills["state-write"]
+    # the kill landed with half a copy on disk; the old file loaded whole; the next start removed it
+    assert [n.split(".")[1] for n in write["temporaries"]] == ["r3"], write  # its own map
+    assert min(write["temporaries"].values()) > 0, write
+    assert write["removed"] == sorted(write["temporaries"])
 
 
 def test_everyone_ends_with_the_same_global_map(scenario: dict) -> None:
