@@ -28,6 +28,7 @@ import zenoh
 from agent import wire
 from agent.book import FleetBook, next_version
 from agent.counters import Counters
+from agent.failpoints import failpoint
 from agent.globalmap import Component, FuseFn, component_of
 from agent.inbox import MAX_BYTES, Inbox
 from agent.keys import FleetKeys
@@ -38,6 +39,7 @@ from agent.worker import FusionWorker, GlobalState, RegisterFn, merge_registrati
 from agent.zenoh_config import ZenohOptions, build_config
 from pgvd.grid import Grid
 from protocol.errors import ProtocolError
+from protocol.fetch import fetch_parameters, parse_fetch
 
 log = logging.getLogger("pgvd.agent")
 
@@ -170,7 +172,13 @@ class Agent:
         self._offer(("alive", robot, b"1" if joined else b"0"))
 
     def _answer_latest(self, query: zenoh.Query) -> None:
-        for key, data in self.outbound.latest_replies(self.keys):
+        params = query.parameters
+        try:
+            fetch = parse_fetch(params.get("v"), params.get("tiles"))
+        except ProtocolError as exc:
+            self.counters.drop(exc.reason, "query", f"fetch {str(params)[:80]!r}: {exc}")
+            return
+        for key, data in self.outbound.latest_replies(self.keys, fetch):
             query.reply(key, data)
             self.counters.add("bytes_sent", len(data))
 
@@ -394,12 +402,21 @@ class Agent:
         self.counters.add("fetches")
         consolidation = zenoh.ConsolidationMode.NONE
         self.session.get(
-            self.keys.latest(robot), self._on_reply, consolidation=consolidation, timeout=5.0
+            self._latest_selector(robot), self._on_reply, consolidation=consolidation, timeout=5.0
         )
         if links:
             self.session.get(
                 self.keys.links(robot), self._on_reply, consolidation=consolidation, timeout=5.0
             )
+
+    def _latest_selector(self, robot: str) -> str | zenoh.Selector:
+        """Only the tiles missing from the version being assembled, when that is few of them."""
+        wanted = self.inbound.wanted(robot)
+        params = None if wanted is None else fetch_parameters(*wanted)
+        if params is None:
+            return self.keys.latest(robot)
+        self.counters.add("tile_fetches")
+        return zenoh.Selector(self.keys.latest(robot), params)
 
     # ------------------------------------------------------------ publishing
 
@@ -430,12 +447,15 @@ class Agent:
         if new_epoch:
             self._epoch_base = sent
         # Persist before publishing: a peer never holds a version this agent could lose.
-        self.state.save_map(self.me, StoredMap(version, grid, self.source.resume_state()))
+        own = StoredMap(version, grid, self.source.resume_state())
+        self.state.save_map(self.me, own, point="state-write")  # a crash test stops mid-write
         self.book.put_map(self.me, version, sent)
         self._last_update = time.time()
-        for data in tiles:
+        for i, data in enumerate(tiles):
             self.tiles_pub.put(data)
             self.counters.add("bytes_sent", len(data))
+            if i == 0:
+                failpoint("tiles-send")  # a crash test stops here: mid-publication
         self.manifest_pub.put(manifest)
         self.counters.add("bytes_sent", len(manifest))
         self.counters.add("versions_published")

@@ -21,6 +21,7 @@ from protocol import (
     MapTiles,
     Message,
     ProtocolError,
+    TileFetch,
     decode,
     dequantise,
     encode,
@@ -61,20 +62,25 @@ class Outbound:
         self.fleet, self.robot, self.key = fleet, robot, key
         self.datagrams = datagrams
         self._tile_size = DATAGRAM_TILE_SIZE if datagrams else DEFAULT_TILE_SIZE
-        self._latest: tuple[int, list[bytes], bytes] | None = None
+        self._latest: tuple[int, list[bytes], bytes, Grid] | None = None
 
     def prepare(
         self, version: int, grid: Grid, previous: tuple[int, Grid] | None
     ) -> tuple[list[bytes], bytes]:
         """Tile messages (a delta against ``previous`` if given) and the manifest of ``version``."""
         full = self._encode(version, grid, None, packed=False)
-        self._latest = (version, full[0], full[1])
+        self._latest = (version, full[0], full[1], grid)
         if previous is None and not self.datagrams:
             return full
         return self._encode(version, grid, previous, packed=self.datagrams)
 
     def _encode(
-        self, version: int, grid: Grid, previous: tuple[int, Grid] | None, packed: bool
+        self,
+        version: int,
+        grid: Grid,
+        previous: tuple[int, Grid] | None,
+        packed: bool,
+        indices: frozenset[int] | None = None,
     ) -> tuple[list[bytes], bytes]:
         since = {} if previous is None else {"since": previous[1], "base_version": previous[0]}
         packing = {"max_message_bytes": DATAGRAM_BYTES, "lone_oversize": True} if packed else {}
@@ -85,6 +91,7 @@ class Outbound:
             grid,
             self.key,
             tile_size=self._tile_size,
+            indices=indices,
             **since,
             **packing,
         )
@@ -92,11 +99,20 @@ class Outbound:
     def manifest(self) -> bytes | None:
         return None if self._latest is None else self._latest[2]
 
-    def latest_replies(self, keys: FleetKeys) -> list[tuple[str, bytes]]:
-        """The full latest version, each message under its own concrete key, manifest last."""
-        if self._latest is None:
+    def latest_replies(
+        self, keys: FleetKeys, fetch: TileFetch | None = None
+    ) -> list[tuple[str, bytes]]:
+        """The answer to a fetch, each message under its own concrete key, manifest last.
+
+        The tiles ``fetch`` names if it asks for the latest version, else the whole latest
+        version (the asker then learns of the newer one).
+        """
+        latest = self._latest  # one read: the main thread may replace it meanwhile
+        if latest is None:
             return []
-        version, tiles, manifest = self._latest
+        version, tiles, manifest, grid = latest
+        if fetch is not None and fetch.version == version:
+            tiles = self._encode(version, grid, None, packed=False, indices=fetch.indices)[0]
         out = [(keys.latest_reply(self.robot, version, f"t{i}"), t) for i, t in enumerate(tiles)]
         out.append((keys.latest_reply(self.robot, version, "m"), manifest))
         return out
@@ -128,6 +144,13 @@ class Inbound:
             return None
         assert reasm.version is not None
         return reasm.version, grid
+
+    def wanted(self, robot: str) -> tuple[int, list[int]] | None:
+        """The version of ``robot`` being assembled and the tiles it lacks, if a manifest waits."""
+        reasm = self._reassemblers.get(robot)
+        if reasm is None or reasm.pending_version is None:
+            return None
+        return reasm.pending_version, reasm.missing()
 
     def incomplete(self, robot: str) -> bool:
         """True if a manifest of ``robot`` waits for tiles that are not held."""

@@ -50,6 +50,12 @@ Maps (:mod:`protocol.mapsync`)
     last complete one; ``dropped`` counts buffered messages that contradicted
     their manifest.  A sender's versions must keep growing across its restarts.
 
+Fetches (:mod:`protocol.fetch`)
+    ``fetch_parameters(version, indices) -> dict | None`` names the tiles a receiver lacks as
+    a query's selector parameters (None: ask for the whole map), and
+    ``parse_fetch(v, tiles) -> TileFetch | None`` reads them back on the queryable's side,
+    bounded, raising ProtocolError like every decoder.
+
 Replays (:mod:`protocol.auth`)
     ``ReplayGuard(state=None).admit(msg)`` raises ProtocolError unless the
     message's version moves forward for its (robot, kind): per sequence number
@@ -69,12 +75,14 @@ Wire layout (:mod:`protocol.codec`, schema version 2)
 from protocol.auth import ReplayGuard
 from protocol.codec import SCHEMA_VERSION, decode, encode
 from protocol.errors import REASONS, ProtocolError
+from protocol.fetch import MAX_FETCH_TILES, TileFetch, fetch_parameters, parse_fetch
 from protocol.limits import Limits
 from protocol.mapsync import MapReassembler, encode_map, quantise_grid
 from protocol.messages import Geometry, Heartbeat, Link, Manifest, MapTiles, Message, Status, Tile
 from protocol.quantize import SCALE, dequantise, quantise
 
 __all__ = [
+    "MAX_FETCH_TILES",
     "REASONS",
     "SCALE",
     "SCHEMA_VERSION",
@@ -90,10 +98,13 @@ __all__ = [
     "ReplayGuard",
     "Status",
     "Tile",
+    "TileFetch",
     "decode",
     "dequantise",
     "encode",
     "encode_map",
+    "fetch_parameters",
+    "parse_fetch",
     "quantise",
     "quantise_grid",
 ]

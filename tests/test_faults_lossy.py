@@ -53,6 +53,7 @@ def run_fleet(loss: int, udp: bool, workdir: Path) -> dict:
             "statuses": statuses,
             "bytes_sent": fleet.bytes_sent(),
             "fetches": sum(s["counts"].get("fetches", 0) for s in statuses.values()),
+            "tile_fetches": sum(s["counts"].get("tile_fetches", 0) for s in statuses.values()),
             "packets_dropped": sum(lab.dropped(i) for i in range(3)),
             "udp_datagrams": sum(lab.snmp(i, "Udp", "OutDatagrams") for i in range(3)),
             "tcp_retransmits": sum(lab.snmp(i, "Tcp", "RetransSegs") for i in range(3)),
@@ -72,7 +73,8 @@ def runs() -> dict[str, dict]:
         r = out[name]
         print(
             f"\n{name}: loss {loss}% udp-tiles {udp}: agreed in {r['seconds']} s (wall {wall:.1f}),"
-            f" {r['bytes_sent']} B sent by agents, {r['fetches']} fetches, {r['packets_dropped']}"
+            f" {r['bytes_sent']} B sent by agents, {r['fetches']} fetches ({r['tile_fetches']} of"
+            f" missing tiles only), {r['packets_dropped']}"
             f" packets dropped by nft, {r['udp_datagrams']} UDP datagrams,"
             f" {r['tcp_retransmits']} TCP retransmits"
         )
@@ -84,7 +86,14 @@ def test_fleet_agrees_on_the_baseline_map_with_true_links(
     runs: dict[str, dict], name: str, record_property: pytest.RecordProperty
 ) -> None:
     run = runs[name]
-    for key in ("seconds", "bytes_sent", "fetches", "packets_dropped", "udp_datagrams"):
+    for key in (
+        "seconds",
+        "bytes_sent",
+        "fetches",
+        "tile_fetches",
+        "packets_dropped",
+        "udp_datagrams",
+    ):
         record_property(key, run[key])
     assert run["seconds"] is not None, f"{name}: no agreement"
     statuses, held = run["statuses"], run["held"]
