@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import protocol
 from agent import wire
 from agent.keys import FleetKeys
 from agent.links import LinkRecord
@@ -80,3 +81,33 @@ def test_accepted_link_with_a_covariance_that_is_not_psd_is_refused() -> None:
     rec = LinkRecord("r1", 3, "r2", 4, True, rigid_matrix(0.2, 5, 6), cov, 0.9, "r1")
     with pytest.raises(ValueError, match="semi-definite"):
         wire.link_record(decode(wire.encode_link("f", rec, None)))
+
+
+def test_lost_datagram_tiles_come_back_in_a_fetch_of_only_those_tiles() -> None:
+    """Best-effort tiles: a version whose manifest came but some tiles did not is completed by
+    a fetch that names the missing tiles, and its answer holds nothing else."""
+    out = wire.Outbound("f", "r1", b"k", datagrams=True)
+    inbound = wire.Inbound("f", b"k")
+    v1, v2 = wire.on_the_wire(grid(1, (600, 560))), wire.on_the_wire(grid(2, (600, 560)))
+    for version, g, prev in ((1, v1, None), (2, v2, (1, v1))):
+        tiles, manifest = out.prepare(version, g, prev)
+        assert len(tiles) > 3
+        packed = [t for t in tiles if len(inbound.decode(t).tiles) > 1]
+        assert all(len(t) < wire.DATAGRAM_BYTES for t in packed)
+        for data in [*tiles[::3], manifest]:  # two tile messages in three are lost
+            inbound.feed(inbound.decode(data))
+        assert inbound.incomplete("r1")
+        pending, missing = inbound.wanted("r1")
+        assert pending == version and missing
+        params = protocol.fetch_parameters(pending, missing)
+        fetch = protocol.parse_fetch(params["v"], params["tiles"])
+        replies = out.latest_replies(FleetKeys("f"), fetch)
+        sent = {t.index for _, d in replies[:-1] for t in inbound.decode(d).tiles}
+        assert sent == set(missing)
+        done = [x for _, d in replies if (x := inbound.feed(inbound.decode(d)))]
+        assert len(done) == 1 and done[0][0] == version
+        np.testing.assert_array_equal(done[0][1].logodds, g.logodds)
+    # A fetch for a version the sender has left behind gets the whole latest one.
+    stale = out.latest_replies(FleetKeys("f"), protocol.TileFetch(1, frozenset({0})))
+    late = wire.Inbound("f", b"k")
+    assert [late.feed(late.decode(d)) for _, d in stale][-1][0] == 2
