@@ -13,6 +13,7 @@ read from stdin, it publishes on the fleet's real keys and answers ``done ATTACK
 ``spoofed``    a map of real robot r1, newer version, encoded without the fleet key / a wrong key
 ``replay``     the genuine messages recorded at start, verbatim (old versions)
 ``flood``      N messages of SIZE random bytes on a member's tiles key, as fast as possible
+``queries``    N malformed tile fetches (``latest`` queries with bad ``v``/``tiles`` parameters)
 """
 
 from __future__ import annotations
@@ -127,6 +128,16 @@ class Rogue:
         for key, data in recorded:
             self.put(key, data)
         return len(recorded)
+
+    def queries(self, n: int = 40, size: int = 0) -> int:
+        """Malformed fetches at every member's ``latest`` queryable; the count of map replies."""
+        bad = ("v=x1;tiles=1", "tiles=1,2", "v=1;tiles=1,,2", "v=-3;tiles=4")
+        answered = 0
+        for i in range(n):
+            selector = f"{self.root}/latest/*/**?{bad[i % len(bad)]}"
+            answered += sum(r.ok is not None for r in self.s.get(selector, timeout=2.0))
+        print(f"malformed fetches answered: {answered}", file=sys.stderr, flush=True)
+        return n
 
     def flood(self, n: int = 20_000, size: int = 1000) -> int:
         payload = os.urandom(size)

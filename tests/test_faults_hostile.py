@@ -35,6 +35,7 @@ ATTACKS = {
     "nan": "value",
     "spoofed": "auth",
     "replay": "stale_version",
+    "queries": "schema",  # malformed tile fetches at the latest queryables
 }
 FLOOD = (20_000, 1_000), (1_000, 60_000)  # (messages, bytes each)
 
@@ -117,6 +118,7 @@ def attacked() -> dict:
                 "by": growth(dropped, drops(fleet)),
             }
         out["rss_peak"] = peak
+        out["rogue_log"] = lab.stderr_of("rogue")
         time.sleep(2)
         out["rss_after"] = {r: rss_kb(pid) for r, pid in pids.items()}
         out["alive"] = not fleet.dead()
@@ -152,6 +154,10 @@ def test_agents_survive_with_bounded_memory(attacked: dict) -> None:
         assert attacked["rss_peak"][robot] - before < 150_000, (robot, attacked["rss_peak"])
 
 
+def test_malformed_fetches_get_no_map(attacked: dict) -> None:
+    assert "malformed fetches answered: 0" in attacked["rogue_log"], attacked["rogue_log"][-500:]
+
+
 def test_global_map_and_versions_are_unaffected(attacked: dict) -> None:
     before, after = attacked["before"], attacked["after"]
     assert attacked["agreed_after"] is not None
@@ -167,7 +173,7 @@ def test_pgvd_status_shows_the_drops_by_reason(attacked: dict) -> None:
     statuses = json.loads(attacked["status"])
     assert set(statuses) == set(SOURCES)
     for status in statuses.values():
-        want = {"framing", "auth", "limit", "value", "stale_version"}
+        want = {"framing", "auth", "limit", "value", "stale_version", "schema"}
         assert want <= set(status["drops"]), status["drops"]
         assert "bad_message" not in status["drops"]  # every drop names what it broke
 
