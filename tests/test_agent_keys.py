@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from agent import wire
 from agent.keys import FleetKeys, check_name
-from agent.zenoh_config import ZenohOptions, build_config
+from agent.zenoh_config import TILE_BATCH_BYTES, ZenohOptions, build_config, tile_session_options
 
 
 def test_keys_live_under_the_fleet_prefix() -> None:
@@ -64,3 +65,23 @@ def test_bad_config_is_one_line(tmp_path: Path) -> None:
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="mode"):
         build_config(ZenohOptions(mode="satellite"))
+
+
+def test_tile_session_keeps_the_main_choices_but_not_its_file_or_multicast(tmp_path: Path) -> None:
+    f = tmp_path / "tls.json5"
+    f.write_text('{ transport: { link: { tls: { root_ca_certificate: "/nowhere/ca.pem" } } } }')
+    main = ZenohOptions(
+        mode="client", multicast=True, shared_memory=False, lease_ms=2000, config_file=f
+    )
+    tiles = tile_session_options(main, ["udp/127.0.0.1:17002"], ["udp/127.0.0.1:17003"])
+    cfg = build_config(tiles)
+    assert json.loads(cfg.get_json("mode")) == "client"
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(cfg.get_json("transport/link/tls/root_ca_certificate")) is None
+    assert json.loads(cfg.get_json("transport/shared_memory/enabled")) is False
+    assert json.loads(cfg.get_json("transport/link/tx/lease")) == 2000
+    assert json.loads(cfg.get_json("transport/link/tx/batch_size")) == TILE_BATCH_BYTES
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["udp/127.0.0.1:17002"]
+    assert json.loads(cfg.get_json("connect/endpoints")) == ["udp/127.0.0.1:17003"]
+    # A tile message packed for a datagram, with Zenoh's framing, fits one batch.
+    assert wire.DATAGRAM_BYTES + 100 <= TILE_BATCH_BYTES <= 1500 - 28
