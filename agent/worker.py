@@ -22,6 +22,7 @@ import numpy as np
 from agent.book import FleetBook, Snapshot
 from agent.globalmap import Component, FuseFn, build_components
 from agent.links import LinkKey, LinkRecord, due_keys
+from agent.memory import release_free_memory
 from pgvd.grid import Grid
 
 log = logging.getLogger("pgvd.agent")
@@ -130,8 +131,11 @@ class FusionWorker:
             self.book.changed.wait(0.2)
             self.book.changed.clear()
             try:
-                while not self._stop.is_set() and self.step():
-                    pass
+                while not self._stop.is_set():
+                    more = self.step()
+                    release_free_memory()  # RSS follows the maps, not the largest merge
+                    if not more:
+                        break
             except Exception:  # a bug here must not kill the agent silently
                 log.exception("fusion worker step failed")
                 time.sleep(0.5)
