@@ -171,11 +171,12 @@ def open_as(certs: Path, tmp_path: Path, port: int, cn: str) -> zenoh.Session:
 
 
 def received_through(config: Path, certs: Path, tmp_path: Path, port: int) -> dict[str, list]:
-    """Who hears what when robot-1 (a member) and a visitor (not a member) both publish.
+    """What robot-2 and a visitor hear when robot-1 (a member) and a visitor (not a member) both
+    publish, hold a liveliness token and answer queries under the fleet's keys.
 
     Every role has a session of its own, so that nothing is delivered locally.
     """
-    heard: dict[str, list[bytes]] = {"robot-2": [], "visitor": []}
+    heard: dict[str, list] = {"robot-2": [], "visitor": []}
     with router(config):
         roles = {"robot-2": "robot-2", "visitor": "visitor", "robot-1": "robot-1", "pub": "visitor"}
         sessions = {role: open_as(certs, tmp_path, port, cn) for role, cn in roles.items()}
@@ -186,28 +187,67 @@ def received_through(config: Path, certs: Path, tmp_path: Path, port: int) -> di
                 )
                 for role in heard
             ]
+            held = [
+                declared
+                for role, name in (("robot-1", "robot-1"), ("pub", "visitor"))
+                for declared in answer_as(sessions[role], name)
+            ]
             wait_matching(sessions["robot-1"], "pgvd/fleet-a/tiles/1")
             sessions["robot-1"].put("pgvd/fleet-a/tiles/1", b"member")
             sessions["pub"].put("pgvd/fleet-a/tiles/2", b"visitor")
             time.sleep(0.5)
-            for sub in subs:
-                sub.undeclare()
+            asker = sessions["robot-2"]
+            heard["alive"] = sorted(
+                str(r.ok.key_expr)
+                for r in asker.liveliness().get("pgvd/fleet-a/alive/*", timeout=2.0)
+                if r.ok is not None
+            )
+            heard["replies"] = sorted(
+                str(r.ok.key_expr)
+                for r in asker.get("pgvd/fleet-a/latest/**", timeout=2.0)
+                if r.ok is not None
+            )
+            for entity in [*subs, *held]:
+                entity.undeclare()
         finally:
             for session in sessions.values():
                 session.close()
     return heard
 
 
-def test_acl_lets_only_fleet_members_publish(certs: Path, tmp_path: Path) -> None:
+def answer_as(session: zenoh.Session, name: str) -> list:
+    """A liveliness token and a ``latest`` queryable of robot ``name``, as an agent holds them."""
+    reply_key = f"pgvd/fleet-a/latest/{name}/1/m"
+    return [
+        session.liveliness().declare_token(f"pgvd/fleet-a/alive/{name}"),
+        session.declare_queryable(
+            f"pgvd/fleet-a/latest/{name}/**", lambda q: q.reply(reply_key, name.encode())
+        ),
+    ]
+
+
+def test_acl_lets_only_fleet_members_publish_hold_tokens_and_answer(
+    certs: Path, tmp_path: Path
+) -> None:
     port = free_port()
     listen = {"listen__endpoints": [f"tls/127.0.0.1:{port}"]}
     acl_router = example("acl/router.json5", certs, tmp_path, **listen)
     enforced = received_through(acl_router, certs, tmp_path, port)
-    assert enforced == {"robot-2": [b"member"], "visitor": [b"member"]}
-    # Control: the same run without access control delivers the visitor's put, so the ACL is
-    # what dropped it above (and not, say, a lost sample).
+    assert enforced == {
+        "robot-2": [b"member"],
+        "visitor": [b"member"],
+        "alive": ["pgvd/fleet-a/alive/robot-1"],  # the visitor's token never got past
+        "replies": ["pgvd/fleet-a/latest/robot-1/1/m"],  # nor its queryable
+    }
+    # Control: the same run without access control delivers the visitor's put, token and
+    # replies, so the ACL is what dropped them above (and not, say, a lost sample).
     open_router = example(
         "acl/router.json5", certs, tmp_path, access_control__enabled=False, **listen
     )
     heard = received_through(open_router, certs, tmp_path, port)
     assert sorted(heard["robot-2"]) == [b"member", b"visitor"]
+    assert heard["alive"] == ["pgvd/fleet-a/alive/robot-1", "pgvd/fleet-a/alive/visitor"]
+    assert heard["replies"] == [
+        "pgvd/fleet-a/latest/robot-1/1/m",
+        "pgvd/fleet-a/latest/visitor/1/m",
+    ]
