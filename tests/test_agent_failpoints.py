@@ -30,6 +30,18 @@ def run(code: str, point: str, *args: str) -> subprocess.Popen:
     )
 
 
+def run_to_end(code: str, point: str, *args: str) -> subprocess.CompletedProcess:
+    """``code`` run to its end with ``point`` armed (for points it must not reach)."""
+    return subprocess.run(
+        [sys.executable, "-c", code, *args],
+        cwd=ROOT,
+        env={**os.environ, failpoints.ENV: point},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
 def first_line_then_kill(proc: subprocess.Popen) -> str:
     """The first stderr line of ``proc``, then make sure it is still blocked and kill -9 it."""
     assert proc.stderr is not None
@@ -59,28 +71,14 @@ def test_an_armed_failpoint_announces_itself_and_blocks() -> None:
 
 def test_another_armed_point_does_not_stop_this_one() -> None:
     code = "from agent.failpoints import failpoint; failpoint('tiles-send')"
-    proc = subprocess.run(
-        [sys.executable, "-c", code],
-        cwd=ROOT,
-        env={**os.environ, failpoints.ENV: "state-write"},
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+    proc = run_to_end(code, "state-write")
     assert proc.returncode == 0 and proc.stderr == ""
 
 
 def test_an_unknown_failpoint_is_refused_by_the_agent_cli(tmp_path: Path) -> None:
     argv = ["agent", "--robot", "r1", "--source", f"carmen:{INTEL}", "--state-dir", str(tmp_path)]
     code = "import sys; from agent.cli import main; sys.exit(main())"
-    proc = subprocess.run(
-        [sys.executable, "-c", code, *argv],
-        cwd=ROOT,
-        env={**os.environ, failpoints.ENV: "state-wrte"},
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    proc = run_to_end(code, "state-wrte", *argv)
     assert proc.returncode == 2
     lines = proc.stderr.splitlines()
     assert len(lines) == 1 and "state-wrte" in lines[0] and "state-write" in lines[0], lines
@@ -116,13 +114,6 @@ def test_kill_9_at_state_write_leaves_the_old_map_whole(tmp_path: Path) -> None:
 def test_state_write_stops_only_writes_that_name_it(tmp_path: Path) -> None:
     # a peer's map is saved without the point: an agent armed for its own map passes these
     code = WRITER.replace(', point="state-write"', "")
-    proc = subprocess.run(
-        [sys.executable, "-c", code, str(tmp_path)],
-        cwd=ROOT,
-        env={**os.environ, failpoints.ENV: "state-write"},
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+    proc = run_to_end(code, "state-write", str(tmp_path))
     assert proc.returncode == 0 and proc.stderr == ""
     assert StateDir(tmp_path).load_maps()[0]["r1"].version == 2
