@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -16,6 +17,19 @@ EXIT_NO_OVERLAP = 3
 
 class CliError(Exception):
     """A user error: printed as one line on stderr, exit code 2."""
+
+
+def read_fleet_key(path: Path | None) -> bytes | None:
+    """The fleet key in ``path`` (surrounding whitespace stripped), or None without a path."""
+    if path is None:
+        return None
+    try:
+        key = path.read_bytes().strip()
+    except OSError as exc:
+        raise CliError(f"cannot read key file: {exc.strerror}: {path}") from None
+    if not key:
+        raise CliError(f"key file is empty: {path}")
+    return key
 
 
 class _Parser(argparse.ArgumentParser):

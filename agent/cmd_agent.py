@@ -11,7 +11,7 @@ from pathlib import Path
 
 import zenoh
 
-from agent.cli import EXIT_OK, CliError
+from agent.cli import EXIT_OK, CliError, read_fleet_key
 from agent.failpoints import check_armed
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
@@ -117,14 +117,7 @@ def options_from_args(args: argparse.Namespace):
         raise CliError("--min-change and --epoch-change must be in [0, 1]")
     if args.min_agreement is not None and not 0 < args.min_agreement <= 1:
         raise CliError("--min-agreement must be in (0, 1]")
-    key = None
-    if args.key_file is not None:
-        try:
-            key = args.key_file.read_bytes().strip()
-        except OSError as exc:
-            raise CliError(f"cannot read key file: {exc.strerror}: {args.key_file}") from None
-        if not key:
-            raise CliError(f"key file is empty: {args.key_file}")
+    key = read_fleet_key(args.key_file)
     zopts = ZenohOptions(
         mode=args.mode,
         listen=tuple(args.listen),

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import zenoh
 
-from agent.cli import EXIT_OK, CliError
+from agent.cli import EXIT_OK, CliError, read_fleet_key
 from agent.keys import FleetKeys
 from agent.links import EPOCH_SHIFT, epoch_of
+from agent.status_reply import read_status
 from agent.zenoh_config import ZenohOptions, build_config
 
 
@@ -28,16 +30,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="an agent's endpoint, e.g. tcp/127.0.0.1:7447 (none: multicast scouting)",
     )
     p.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file")
+    p.add_argument(
+        "--key-file", type=Path, help="fleet key file: only replies with its MAC are shown"
+    )
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers")
     p.add_argument("--json", action="store_true", help="print one JSON object {robot: status}")
     p.set_defaults(func=run)
 
 
 def collect(
-    keys: FleetKeys, opts: ZenohOptions, timeout: float, settle: float = 0.5
-) -> dict[str, dict]:
-    """Status of every agent that answers within ``timeout``, by robot id."""
+    keys: FleetKeys,
+    opts: ZenohOptions,
+    timeout: float,
+    settle: float = 0.5,
+    key: bytes | None = None,
+) -> tuple[dict[str, dict], list[str]]:
+    """Status of every agent that answers within ``timeout``, by robot id, and one line per
+    reply refused (no or a wrong fleet MAC with ``key``, not JSON, a field of the wrong type).
+    """
     out: dict[str, dict] = {}
+    refused: list[str] = []
     with zenoh.open(build_config(opts)) as session:
         # open() returns before links are up (zenoh-notes): wait for a peer, then
         # give gossip a moment to link the rest.
@@ -51,14 +63,21 @@ def collect(
         for reply in replies:
             if reply.ok is None:
                 continue
-            robot = keys.robot_of(str(reply.ok.key_expr), "status")
+            where = str(reply.ok.key_expr)
+            robot = keys.robot_of(where, "status")
+            attachment = reply.ok.attachment
             try:
-                status = json.loads(reply.ok.payload.to_bytes())
-            except ValueError:
+                status = read_status(
+                    reply.ok.payload.to_bytes(),
+                    None if attachment is None else attachment.to_bytes(),
+                    key,
+                )
+            except ValueError as exc:
+                refused.append(f"ignored the reply on {where[:120]}: {exc}")
                 continue
-            if robot is not None and isinstance(status, dict):
+            if robot is not None:
                 out[robot] = status
-    return out
+    return out, refused
 
 
 def _neighbours(session: zenoh.Session) -> bool:
@@ -120,7 +139,9 @@ def run(args: argparse.Namespace) -> int:
         build_config(opts)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    statuses = collect(keys, opts, args.timeout)
+    statuses, refused = collect(keys, opts, args.timeout, key=read_fleet_key(args.key_file))
+    for line in refused:
+        print(f"pgvd status: {line}", file=sys.stderr)
     if args.json:
         print(json.dumps(statuses, indent=1, sort_keys=True))
     else:

@@ -3,7 +3,7 @@
 Threads (zenoh-notes.md: callbacks run one at a time per subscriber, a slow one stalls it):
 
 - Zenoh callback threads only count bytes and enqueue raw payloads; queryables answer
-  from bytes prepared in advance;
+  from bytes prepared in advance, or encode just the few tiles a fetch names (at most 256);
 - the main thread (:meth:`Agent.run`) decodes and reassembles what arrived, steps the
   source, publishes new versions of the own map, re-announces its manifest, fetches what
   is missing from the ``latest`` queryables, and persists;
@@ -35,6 +35,7 @@ from agent.keys import FleetKeys
 from agent.links import LinkRecord
 from agent.sources import ChangeGate, SourceSpec, epoch_due, make_source
 from agent.state import StateDir, StoredMap, atomic_write_bytes
+from agent.status_reply import status_mac
 from agent.worker import FusionWorker, GlobalState, RegisterFn, merge_registration
 from agent.zenoh_config import ZenohOptions, build_config
 from pgvd.grid import Grid
@@ -189,7 +190,9 @@ class Agent:
             self.counters.add("bytes_sent", len(data))
 
     def _answer_status(self, query: zenoh.Query) -> None:
-        query.reply(self.keys.status(self.me), self._status_bytes)
+        payload = self._status_bytes
+        mac = None if self.opts.key is None else status_mac(payload, self.opts.key)
+        query.reply(self.keys.status(self.me), payload, attachment=mac)
 
     # ---------------------------------------------------------- worker hooks
 

@@ -1,6 +1,6 @@
 """A hostile process on a fleet's keys, driven line by line on stdin (one attack per line).
 
-    python3 tests/rogue.py --fleet F --key-file K --connect EP [--connect EP ...]
+    python3 tests/rogue.py --fleet F --key-file K --connect EP [--connect EP ...] [--listen EP]
 
 It joins the fleet's Zenoh network as a peer and records the first genuine map messages
 (tiles and manifests) it sees, to replay them later. Then, for each line ``ATTACK [N [SIZE]]``
@@ -14,6 +14,8 @@ read from stdin, it publishes on the fleet's real keys and answers ``done ATTACK
 ``replay``     the genuine messages recorded at start, verbatim (old versions)
 ``flood``      N messages of SIZE random bytes on a member's tiles key, as fast as possible
 ``queries``    N malformed tile fetches (``latest`` queries with bad ``v``/``tiles`` parameters)
+``status``     answers ``pgvd status`` as robots r8 (malformed JSON) and r9 (a forged status,
+               no MAC)
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ class Rogue:
         self.recorded: list[tuple[str, bytes]] = []
         self._lock = threading.Lock()
         self.rng = random.Random(6)
+        self.queryables: list[zenoh.Queryable] = []
 
     def record(self, sample: zenoh.Sample) -> None:
         with self._lock:
@@ -139,6 +142,17 @@ class Rogue:
         print(f"malformed fetches answered: {answered}", file=sys.stderr, flush=True)
         return n
 
+    def status(self, n: int = 0, size: int = 0) -> int:
+        """Forged status replies; they stay declared until the rogue exits."""
+        forged = {"own_version": 1, "settled": True, "robots": {"r9": {"alive": True}}}
+        answers = {"r8": b'{"links": [{}]}', "r9": json.dumps(forged).encode()}
+        for robot, data in answers.items():
+            key = f"{self.root}/status/{robot}"
+            self.queryables.append(
+                self.s.declare_queryable(key, lambda q, k=key, d=data: q.reply(k, d))
+            )
+        return len(answers)
+
     def flood(self, n: int = 20_000, size: int = 1000) -> int:
         payload = os.urandom(size)
         for i in range(n):
@@ -152,11 +166,13 @@ def main() -> int:
     parser.add_argument("--fleet", required=True)
     parser.add_argument("--key-file", type=Path, required=True)
     parser.add_argument("--connect", action="append", default=[])
+    parser.add_argument("--listen", action="append", default=[])
     args = parser.parse_args()
     config = zenoh.Config()
     settings = {
         "mode": "peer",
         "connect/endpoints": args.connect,
+        "listen/endpoints": args.listen,
         "scouting/multicast/enabled": False,
         "scouting/delay": 0,
         "transport/shared_memory/enabled": False,
@@ -175,8 +191,8 @@ def main() -> int:
             start = time.monotonic()
             count = getattr(rogue, name)(*map(int, numbers))
             print(f"done {name} {count} {time.monotonic() - start:.3f}", flush=True)
-        for sub in subs:
-            sub.undeclare()
+        for entity in [*subs, *rogue.queryables]:
+            entity.undeclare()
     return 0
 
 

@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
+import json
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
 from agent.cli import main
 from agent.cmd_status import format_table
+from agent.status_reply import MAX_STATUS_BYTES, check_status, read_status, status_mac
 
 V7, V3 = (40 << 31) | 7, (41 << 31) | 3  # epoch 40 minor 7, epoch 41 minor 3
 
@@ -46,3 +53,66 @@ def test_bad_fleet_name_is_exit_2(capsys) -> None:
     assert main(["status", "--fleet", "a/b"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "fleet name" in err
+
+
+KEY = b"the fleet key"
+
+
+def test_a_signed_status_reads_back_and_a_forged_one_does_not() -> None:
+    payload = json.dumps(STATUS).encode()
+    mac = status_mac(payload, KEY)
+    assert read_status(payload, mac, KEY) == STATUS
+    assert read_status(payload, None, None) == STATUS  # no key: the MAC is not asked for
+    forged = json.dumps({**STATUS, "merges": 99}).encode()
+    for data, attachment, why in (
+        (payload, None, "no fleet MAC"),
+        (forged, mac, "MAC is wrong"),
+        (payload, status_mac(payload, b"another key"), "MAC is wrong"),
+        (b"\x00not json", status_mac(b"\x00not json", KEY), "not JSON"),
+        (b" " * (MAX_STATUS_BYTES + 1), None, "exceeds"),
+    ):
+        with pytest.raises(ValueError, match=why):
+            read_status(data, attachment, KEY)
+
+
+@pytest.mark.parametrize(
+    ("bad", "why"),
+    [
+        ([], "not a JSON object"),
+        ({"own_version": "7"}, "own_version has the wrong type"),
+        ({"settled": 1}, "settled has the wrong type"),
+        ({"merges": True}, "merges has the wrong type"),
+        ({"global": {"members": ["r1", 2]}}, "global.members has the wrong type"),
+        ({"robots": {"r1": []}}, "robots.r1 is not an object"),
+        ({"robots": {"r1": {"alive": "yes"}}}, "robots.r1.alive has the wrong type"),
+        ({"links": [{}]}, r"links\[0\] lacks fields"),
+        ({"links": [{**STATUS["links"][0], "score": "high"}]}, r"links\[0\].score"),
+        ({"drops": {"auth": 1.5}}, "drops must map"),
+    ],
+)
+def test_status_fields_of_the_wrong_shape_are_refused(bad: object, why: str) -> None:
+    with pytest.raises(ValueError, match=why):
+        check_status(bad)
+
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=8),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=12), inner, max_size=4)
+    ),
+    max_leaves=30,
+)
+status_like = st.fixed_dictionaries(
+    {},
+    optional={k: json_values | st.just(v) for k, v in STATUS.items()},
+)
+
+
+@given(status_like)
+def test_whatever_is_accepted_can_be_printed(obj: dict) -> None:
+    """A stranger's reply is refused with ValueError, or the table prints it without error."""
+    try:
+        status = check_status(obj)
+    except ValueError:
+        return
+    assert format_table({"r1": status}).startswith("r1: own v")

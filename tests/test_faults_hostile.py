@@ -75,7 +75,9 @@ def attacked() -> dict:
         fleet = NetFleet(lab, Path(tmp), extra=["--speed", "400", "--key-file", str(key)])
         connect = [a for h in lab.hosts[:3] for a in ("--connect", h.endpoint(PORT))]
         rogue_argv = [sys.executable, "tests/rogue.py", "--fleet", fleet.fleet, *connect]
-        rogue_argv += ["--key-file", str(key)]
+        # It also listens, so that the pgvd status run from its host hears its forged replies.
+        rogue_ep = lab.hosts[3].endpoint(PORT)
+        rogue_argv += ["--key-file", str(key), "--listen", rogue_ep]
         rogue = lab.popen(3, rogue_argv, name="rogue", stdin=True)
         assert read_line(rogue).strip() == "READY", lab.stderr_of("rogue")
         for host, (robot, (source, frame)) in enumerate(SOURCES.items()):
@@ -125,10 +127,17 @@ def attacked() -> dict:
         out["agreed_after"] = wait_agreed(fleet, 30)
         after = fleet.statuses()
         out["before"], out["after"] = before, after
-        status_argv = pgvd_argv("status", "--fleet", fleet.fleet, "--json", *connect[:2])
-        status_cli = lab.popen(3, status_argv, name="status")
-        stdout, _ = status_cli.communicate(timeout=60)
-        out["status_rc"], out["status"] = status_cli.returncode, stdout
+        assert command(rogue, "status").startswith("done status 2")
+        status_argv = pgvd_argv(
+            "status", "--fleet", fleet.fleet, "--json", *connect[:2], "--connect", rogue_ep
+        )
+        for name, argv in (
+            ("status", [*status_argv, "--key-file", str(key)]),
+            ("nokey", status_argv),
+        ):
+            status_cli = lab.popen(3, argv, name=name)
+            stdout, _ = status_cli.communicate(timeout=60)
+            out[name] = (status_cli.returncode, stdout, lab.stderr_of(name))
         rogue.stdin.close()
     for name, row in out["attacks"].items():
         print(f"{name}: {row}")
@@ -169,13 +178,24 @@ def test_global_map_and_versions_are_unaffected(attacked: dict) -> None:
 
 
 def test_pgvd_status_shows_the_drops_by_reason(attacked: dict) -> None:
-    assert attacked["status_rc"] == 0
-    statuses = json.loads(attacked["status"])
-    assert set(statuses) == set(SOURCES)
+    rc, stdout, stderr = attacked["status"]
+    assert rc == 0
+    statuses = json.loads(stdout)
+    assert set(statuses) == set(SOURCES)  # the rogue's forged r8 and r9 are not among them
+    assert "status/r9: reply carries no fleet MAC" in stderr, stderr
+    assert "status/r8: reply carries no fleet MAC" in stderr, stderr
     for status in statuses.values():
         want = {"framing", "auth", "limit", "value", "stale_version", "schema"}
         assert want <= set(status["drops"]), status["drops"]
         assert "bad_message" not in status["drops"]  # every drop names what it broke
+
+
+def test_without_the_key_pgvd_status_still_refuses_malformed_replies(attacked: dict) -> None:
+    """No key, no proof of origin: the forged r9 is shown, the malformed r8 is refused."""
+    rc, stdout, stderr = attacked["nokey"]
+    assert rc == 0
+    assert set(json.loads(stdout)) == {*SOURCES, "r9"}
+    assert "status/r8: links[0] lacks fields" in stderr, stderr
 
 
 def test_forged_messages_fail_for_the_intended_reason() -> None:
