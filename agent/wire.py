@@ -7,6 +7,9 @@ slightly different inputs and their global maps would differ (fleet invariant 2)
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 
 from agent.keys import FleetKeys
@@ -48,6 +51,31 @@ def on_the_wire(grid: Grid) -> Grid:
 DATAGRAM_BYTES = 1200
 #: Smaller tiles for datagrams: most 64x64 tiles of a real map compress under DATAGRAM_BYTES.
 DATAGRAM_TILE_SIZE = 64
+#: Tiles per second the ``latest`` queryable encodes for fetches that name tiles. Beyond it a
+#: fetch gets the whole map, whose bytes are prepared in advance: a stranger's flood of fetches
+#: then costs bandwidth it could take anyway, not CPU on Zenoh's callback threads.
+FETCH_TILES_PER_SECOND = 2048
+
+
+class TileBudget:
+    """A token bucket of tiles: ``rate`` per second, at most one second's worth saved."""
+
+    def __init__(self, rate: float, now: float | None = None) -> None:
+        self.rate = rate
+        self._tokens = rate
+        self._at = time.monotonic() if now is None else now
+        self._lock = threading.Lock()  # queryable callbacks may run on several threads
+
+    def take(self, n: int, now: float | None = None) -> bool:
+        """Spend ``n`` tiles if the bucket holds them."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            self._tokens = min(self.rate, self._tokens + (now - self._at) * self.rate)
+            self._at = now
+            if n > self._tokens:
+                return False
+            self._tokens -= n
+            return True
 
 
 class Outbound:
@@ -63,6 +91,7 @@ class Outbound:
         self.datagrams = datagrams
         self._tile_size = DATAGRAM_TILE_SIZE if datagrams else DEFAULT_TILE_SIZE
         self._latest: tuple[int, list[bytes], bytes, Grid] | None = None
+        self.fetch_budget = TileBudget(FETCH_TILES_PER_SECOND)
 
     def prepare(
         self, version: int, grid: Grid, previous: tuple[int, Grid] | None
@@ -104,14 +133,18 @@ class Outbound:
     ) -> list[tuple[str, bytes]]:
         """The answer to a fetch, each message under its own concrete key, manifest last.
 
-        The tiles ``fetch`` names if it asks for the latest version, else the whole latest
-        version (the asker then learns of the newer one).
+        The tiles ``fetch`` names if it asks for the latest version and the fetch budget
+        allows, else the whole latest version (the asker then learns of the newer one).
         """
         latest = self._latest  # one read: the main thread may replace it meanwhile
         if latest is None:
             return []
         version, tiles, manifest, grid = latest
-        if fetch is not None and fetch.version == version:
+        if (
+            fetch is not None
+            and fetch.version == version
+            and self.fetch_budget.take(len(fetch.indices))
+        ):
             tiles = self._encode(version, grid, None, packed=False, indices=fetch.indices)[0]
         out = [(keys.latest_reply(self.robot, version, f"t{i}"), t) for i, t in enumerate(tiles)]
         out.append((keys.latest_reply(self.robot, version, "m"), manifest))

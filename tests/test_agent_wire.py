@@ -111,3 +111,26 @@ def test_lost_datagram_tiles_come_back_in_a_fetch_of_only_those_tiles() -> None:
     stale = out.latest_replies(FleetKeys("f"), protocol.TileFetch(1, frozenset({0})))
     late = wire.Inbound("f", b"k")
     assert [late.feed(late.decode(d)) for _, d in stale][-1][0] == 2
+
+
+def test_tile_budget_refills_at_its_rate_and_saves_at_most_one_second() -> None:
+    t = 1000.0
+    budget = wire.TileBudget(100, now=t)
+    assert budget.take(100, now=t)
+    assert not budget.take(1, now=t)
+    assert budget.take(50, now=t + 0.5) and not budget.take(1, now=t + 0.5)
+    assert not budget.take(101, now=t + 60.0)  # an idle minute saves one second's worth
+    assert budget.take(100, now=t + 60.0)
+
+
+def test_a_flood_of_tile_fetches_gets_the_prepared_whole_map_once_over_budget() -> None:
+    out = wire.Outbound("f", "r1", None, datagrams=True)
+    out.fetch_budget = wire.TileBudget(6)  # two fetches of three tiles a second
+    out.prepare(1, wire.on_the_wire(grid(1, (600, 560))), None)
+    whole = out.latest_replies(FleetKeys("f"))
+    held = sorted({t.index for _, d in whole[:-1] for t in decode(d).tiles})
+    fetch = protocol.TileFetch(1, frozenset(held[:3]))
+    answers = [out.latest_replies(FleetKeys("f"), fetch) for _ in range(4)]
+    sent = [{t.index for _, d in a[:-1] for t in decode(d).tiles} for a in answers]
+    assert sent[:2] == [set(held[:3])] * 2  # within budget: exactly the named tiles
+    assert answers[2:] == [whole, whole]  # then the bytes made in advance, no encoding
