@@ -1,9 +1,10 @@
 """Real ``pgvd agent`` processes, one per namespace of a :class:`netns.Lab`.
 
 Each agent listens on ``tcp/<its address>:7447`` (tiles on ``udp/...:7448`` with ``udp=True``)
-and connects to every other host, so a lossy or partitioned path is the direct one between two
-hosts (no relay around it). Shared memory is off: every byte crosses the veth pairs and their loss
-rules. Status comes from each agent's ``status.json`` (the namespaces share the file system).
+and is linked directly to every other host, so a lossy or partitioned path is the direct one
+between two hosts (no relay around it). Shared memory is off: every byte crosses the veth pairs
+and their loss rules. Status comes from each agent's ``status.json`` (the namespaces share the
+file system).
 """
 
 from __future__ import annotations
@@ -50,13 +51,17 @@ class NetFleet:
         *args: str,
         env: dict[str, str] | None = None,
     ) -> None:
-        """A peer agent listening on its host's address, connected to every other host.
+        """A peer agent listening on its host's address, linked to every other host.
 
-        With ``udp``, tiles go best-effort on a tile session over ``udp/<address>:7448``.
-        ``env`` adds environment variables (e.g. ``PGVD_FAILPOINT``).
+        Each pair is dialled by one side only (the lower host index): with both sides dialling,
+        a lease that expires on one side only lets the other fold the reconnect into its stale
+        transport and never re-send its declarations (eclipse-zenoh/zenoh#2806), and a healed
+        partition once stayed split for good that way. With ``udp``, tiles go best-effort on a
+        tile session over ``udp/<address>:7448``. ``env`` adds environment variables (e.g.
+        ``PGVD_FAILPOINT``).
         """
         me = self.lab.hosts[host]
-        others = [h for h in self.lab.hosts if h is not me]
+        others = [h for h in self.lab.hosts if h.index > host]
         net = ["--listen", me.endpoint(PORT)]
         net += [a for h in others for a in ("--connect", h.endpoint(PORT))]
         if self.udp:

@@ -143,7 +143,9 @@ def scenario(record_testsuite_property) -> dict:
         time.sleep(1.0)
         out["versions_during_split"] = {r: published(fleet, r) - before[r] for r in SOURCES}
         lab.heal()
-        out["heal_s"] = wait(lambda: sees(fleet, "r1", "r2") and sees(fleet, "r3", "r1"), 20)
+        # 45 s, not 20: a TCP connect begun during the split resends its SYN with backoff
+        # (1, 2, 4, 8 s ...), so a reconnect can land well after the heal.
+        out["heal_s"] = wait(lambda: sees(fleet, "r1", "r2") and sees(fleet, "r3", "r1"), 45)
 
         out["agreed_s"] = wait_agreed(fleet, 120)
         out["statuses"] = fleet.statuses()
