@@ -35,10 +35,10 @@ from agent.keys import FleetKeys
 from agent.links import LinkRecord
 from agent.sources import ChangeGate, SourceSpec, epoch_due, make_source
 from agent.state import StateDir, StoredMap, atomic_write_bytes
-from agent.status_reply import status_mac
 from agent.worker import FusionWorker, GlobalState, RegisterFn, merge_registration
 from agent.zenoh_config import ZenohOptions, build_config
 from pgvd.grid import Grid
+from protocol.auth import seal
 from protocol.errors import ProtocolError
 from protocol.fetch import fetch_parameters, parse_fetch
 
@@ -191,7 +191,7 @@ class Agent:
 
     def _answer_status(self, query: zenoh.Query) -> None:
         payload = self._status_bytes
-        mac = None if self.opts.key is None else status_mac(payload, self.opts.key)
+        mac = None if self.opts.key is None else seal(payload, self.opts.key)
         query.reply(self.keys.status(self.me), payload, attachment=mac)
 
     # ---------------------------------------------------------- worker hooks

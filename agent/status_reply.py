@@ -1,26 +1,23 @@
 """An agent's status reply as ``pgvd status`` trusts it: a fleet MAC, then a checked shape.
 
 The reply is the status JSON (:meth:`agent.daemon.Agent.status`); in a keyed fleet its
-HMAC-SHA256 under the fleet key rides as the reply's Zenoh attachment, so that a tool without
-the key can still read the JSON while one with the key refuses forgeries. Whoever answers
-under ``pgvd/<fleet>/status/*`` is a stranger until then, so the JSON is checked field by field
-for what the table prints before anything reads it.
+HMAC-SHA256 under the fleet key (:func:`protocol.auth.seal`, as on every map message) rides as
+the reply's Zenoh attachment, so that a tool without the key can still read the JSON while one
+with the key refuses forgeries. Whoever answers under ``pgvd/<fleet>/status/*`` is a stranger
+until then, so the JSON is checked field by field for what the table prints before anything
+reads it.
 """
 
 from __future__ import annotations
 
-import hashlib
 import hmac
 import json
 from collections.abc import Callable
 
+from protocol.auth import seal
+
 #: Replies larger than this are not parsed (a real status is a few kB per robot).
 MAX_STATUS_BYTES = 4 << 20
-
-
-def status_mac(payload: bytes, key: bytes) -> bytes:
-    """The HMAC-SHA256 of a status payload under the fleet key."""
-    return hmac.new(key, payload, hashlib.sha256).digest()
 
 
 def read_status(payload: bytes, attachment: bytes | None, key: bytes | None) -> dict:
@@ -30,7 +27,7 @@ def read_status(payload: bytes, attachment: bytes | None, key: bytes | None) -> 
     if key is not None:
         if attachment is None:
             raise ValueError("reply carries no fleet MAC")
-        if not hmac.compare_digest(attachment, status_mac(payload, key)):
+        if not hmac.compare_digest(attachment, seal(payload, key)):
             raise ValueError("reply's fleet MAC is wrong")
     try:
         obj = json.loads(payload)

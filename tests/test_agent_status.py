@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 
 from agent.cli import main
 from agent.cmd_status import format_table
-from agent.status_reply import MAX_STATUS_BYTES, check_status, read_status, status_mac
+from agent.status_reply import MAX_STATUS_BYTES, check_status, read_status
+from protocol.auth import seal
 
 V7, V3 = (40 << 31) | 7, (41 << 31) | 3  # epoch 40 minor 7, epoch 41 minor 3
 
@@ -60,15 +61,15 @@ KEY = b"the fleet key"
 
 def test_a_signed_status_reads_back_and_a_forged_one_does_not() -> None:
     payload = json.dumps(STATUS).encode()
-    mac = status_mac(payload, KEY)
+    mac = seal(payload, KEY)
     assert read_status(payload, mac, KEY) == STATUS
     assert read_status(payload, None, None) == STATUS  # no key: the MAC is not asked for
     forged = json.dumps({**STATUS, "merges": 99}).encode()
     for data, attachment, why in (
         (payload, None, "no fleet MAC"),
         (forged, mac, "MAC is wrong"),
-        (payload, status_mac(payload, b"another key"), "MAC is wrong"),
-        (b"\x00not json", status_mac(b"\x00not json", KEY), "not JSON"),
+        (payload, seal(payload, b"another key"), "MAC is wrong"),
+        (b"\x00not json", seal(b"\x00not json", KEY), "not JSON"),
         (b" " * (MAX_STATUS_BYTES + 1), None, "exceeds"),
     ):
         with pytest.raises(ValueError, match=why):
