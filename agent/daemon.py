@@ -25,18 +25,7 @@ from pathlib import Path
 
 import zenoh
 
-from agent.actions import (
-    Action,
-    Drop,
-    Fetch,
-    PersistGlobal,
-    PersistLinks,
-    PersistMap,
-    Publish,
-    Register,
-    Reply,
-    WriteStatus,
-)
+from agent import actions as act
 from agent.failpoints import failpoint
 from agent.globalmap import Component, FuseFn
 from agent.inbox import MAX_BYTES, Inbox, offer_or_drop
@@ -182,9 +171,9 @@ class Agent:
     def _answer_status(self, query: zenoh.Query) -> None:
         self._answer(query, [self.node.answer_status(self._status_bytes)])
 
-    def _answer(self, query: zenoh.Query, actions: list[Action]) -> None:
+    def _answer(self, query: zenoh.Query, actions: list[act.Action]) -> None:
         for action in actions:
-            if isinstance(action, Reply):
+            if isinstance(action, act.Reply):
                 query.reply(action.key, action.payload, attachment=action.attachment)
                 self.counters.add("bytes_sent", len(action.payload))
             else:
@@ -192,36 +181,36 @@ class Agent:
 
     # ------------------------------------------------------ the core's calls
 
-    def _call(self, method: Callable[..., list[Action]], *args: object) -> None:
+    def _call(self, method: Callable[..., list[act.Action]], *args: object) -> None:
         """Call the core (one call at a time), then carry out its actions outside the lock."""
         with self._lock:
             actions = method(*args)
         self._carry_out(actions)
 
-    def _carry_out(self, actions: list[Action]) -> None:
+    def _carry_out(self, actions: list[act.Action]) -> None:
         for action in actions:
             match action:
-                case Publish(key, payload, point):
+                case act.Publish(key, payload, point):
                     self._publish(key, payload)
                     if point is not None:
                         failpoint(point)  # a crash test stops here
-                case Fetch(selector, parameters):
+                case act.Fetch(selector, parameters):
                     assert self.session is not None
                     where = selector if parameters is None else zenoh.Selector(selector, parameters)
                     mode = zenoh.ConsolidationMode.NONE
                     self.session.get(where, self._on_reply, consolidation=mode, timeout=5.0)
-                case PersistMap(robot, stored, point):
+                case act.PersistMap(robot, stored, point):
                     self.state.save_map(robot, stored, point)
                     self._call(self.node.on_persisted, robot, stored.version, _now())
-                case PersistLinks(records):
+                case act.PersistLinks(records):
                     self.state.save_links(list(records))
-                case PersistGlobal(component):
+                case act.PersistGlobal(component):
                     _write_global(self.out_dir, component)
-                case WriteStatus():
+                case act.WriteStatus():
                     self._write_status()
-                case Register():
+                case act.Register():
                     self.worker.wake()
-                case Drop(reason, sender, detail):
+                case act.Drop(reason, sender, detail):
                     self.counters.drop(reason, sender, detail)
 
     def _publish(self, key: str, payload: bytes) -> None:

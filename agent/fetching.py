@@ -43,7 +43,3 @@ class FetchSchedule:
     def sent(self, robot: str, now: float) -> None:
         """A fetch of ``robot`` went out at ``now``."""
         self._last[robot] = now
-
-    def is_due(self, robot: str) -> bool:
-        """Whether a fetch of ``robot`` is waiting to become due."""
-        return robot in self._due
