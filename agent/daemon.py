@@ -41,7 +41,7 @@ log = logging.getLogger("pgvd.agent")
 
 @dataclass(frozen=True)
 class AgentOptions:
-    """Everything ``pgvd agent`` configures; see :mod:`agent.cmd_agent` for the meaning."""
+    """Everything ``pgvd agent`` configures; see :mod:`agent.cli.agent` for the meaning."""
 
     robot: str
     source: SourceSpec
