@@ -11,6 +11,8 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from agent import wire
 from agent.actions import (
@@ -206,6 +208,17 @@ def test_a_message_breaking_a_rule_is_dropped_for_that_reason(crops, reason: str
     assert reasons(actions) == [reason] and len(actions) == 1, actions
     assert r1.book.versions() == before and r1.book.links() == []
     assert r1.tick(at(9.0)) == [WriteStatus()]  # nothing to fetch, persist or publish
+
+
+@settings(max_examples=200, deadline=None)
+@given(key=st.text(max_size=80), payload=st.binary(max_size=300))
+def test_whatever_arrives_is_dropped_with_a_known_reason_never_raised(
+    key: str, payload: bytes
+) -> None:
+    r1 = node("r1")
+    (drop,) = r1.on_message(key, payload, at(0.0))
+    assert isinstance(drop, Drop) and drop.reason in REASONS + RULE_REASONS
+    assert r1.book.versions() == {}
 
 
 def test_a_tile_that_contradicts_its_manifest_is_dropped_and_the_version_fetched(crops) -> None:
