@@ -92,7 +92,20 @@ class Instant:
 
 @dataclass(frozen=True)
 class NodeOptions:
-    """The core's part of ``pgvd agent``'s options (:class:`agent.daemon.AgentOptions`)."""
+    """The core's part of ``pgvd agent``'s options (:class:`agent.daemon.AgentOptions`).
+
+    Attributes
+    ----------
+    robot, fleet : this robot's id and its fleet's name (key chunks, :func:`agent.keys.check_name`).
+    key : the fleet key that authenticates every message, or None for an open fleet.
+    datagrams : pack published tiles for best-effort UDP (:data:`agent.wire.DATAGRAM_BYTES`).
+    announce_period : seconds between re-announcements of the own manifest.
+    status_period : seconds between status writes (a new global map writes one at once).
+    min_change, min_interval : the change gate (:class:`agent.sources.ChangeGate`): the fraction
+        of known cells that must change class, and the seconds between two own versions.
+    epoch_change : the fraction of known cells changed since an epoch began that starts a new
+        registration epoch (:func:`agent.sources.epoch_due`).
+    """
 
     robot: str
     fleet: str = "default"
@@ -106,7 +119,15 @@ class NodeOptions:
 
 
 class FleetNode:
-    """One robot's view of its fleet and the rules that move it (see the module docstring)."""
+    """One robot's view of its fleet and the rules that move it (see the module docstring).
+
+    Parameters
+    ----------
+    opts : NodeOptions
+        The robot, its fleet and the core's periods and thresholds.
+    now : Instant
+        The time the node starts at (the change gate counts its first interval from it).
+    """
 
     def __init__(self, opts: NodeOptions, now: Instant) -> None:
         self.opts = opts
