@@ -41,6 +41,7 @@ class Component:
     members : robot ids, sorted.
     versions : ``{robot: version}`` that went into ``grid``.
     transforms : ``{robot: 3x3}`` from that robot's pixels to the anchor's pixels.
+    covariances : ``{robot: 3x3}`` over ``(x px, y px, psi)`` of that transform, eq. (3).
     used : accepted links the joint solution kept, as sorted ``(a, b)`` pairs.
     rejected : accepted links of its members it dropped as inconsistent around a cycle.
     grid : the fused map.
@@ -53,6 +54,7 @@ class Component:
     members: tuple[str, ...]
     versions: dict[str, int]
     transforms: dict[str, np.ndarray]
+    covariances: dict[str, np.ndarray]
     used: tuple[tuple[str, str], ...]
     rejected: tuple[tuple[str, str], ...]
     grid: Grid
@@ -111,6 +113,7 @@ def build_components(
                 members=members,
                 versions={r: maps[r][0] for r in members},
                 transforms={r: sol.transforms[r] for r in members},
+                covariances={r: sol.covariances[r] for r in members},
                 used=tuple(p for p, u in inside if u),
                 rejected=tuple(
                     ln.pair
