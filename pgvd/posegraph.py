@@ -243,12 +243,14 @@ def _normal_equations(x: np.ndarray, e: _Edges, w: np.ndarray) -> tuple[np.ndarr
     r = _residuals(x, e)
     ja, jb = _jacobians(x, e)
     wo = w[:, None, None] * e.info
+    wor = (wo @ r[:, :, None])[:, :, 0]
     h = np.zeros((n, n, 3, 3))
     g = np.zeros((n, 3))
     for i, ji in ((e.ia, ja), (e.ib, jb)):
-        np.add.at(g, i, np.einsum("mji,mjk,mk->mi", ji, wo, r))
+        jit = ji.transpose(0, 2, 1)
+        np.add.at(g, i, (jit @ wor[:, :, None])[:, :, 0])
         for k, jk in ((e.ia, ja), (e.ib, jb)):
-            np.add.at(h, (i, k), np.einsum("mji,mjl,mlk->mik", ji, wo, jk))
+            np.add.at(h, (i, k), jit @ wo @ jk)
     return h.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n), g.ravel()
 
 
@@ -263,6 +265,13 @@ def _edge_rows(x: np.ndarray, e: _Edges) -> np.ndarray:
     return rows.reshape(len(e.z), 3, 3 * n)
 
 
+def _damped_solve(h: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``h^-1 rhs`` with a tiny damping: unknowns no weighted link constrains stay at 0
+    (their rows are empty) instead of making ``h`` singular."""
+    damping = 1e-12 * (1.0 + np.abs(np.diag(h)).max(initial=0.0))
+    return np.linalg.solve(h + damping * np.eye(len(h)), rhs)
+
+
 def _gauss_newton(x: np.ndarray, e: _Edges, w: np.ndarray, steps: int, free: slice) -> np.ndarray:
     """Weighted least squares from ``x``; node 0 (the anchor) is held fixed.
 
@@ -274,9 +283,7 @@ def _gauss_newton(x: np.ndarray, e: _Edges, w: np.ndarray, steps: int, free: sli
     for _ in range(steps):
         h, g = _normal_equations(x, e, w)
         idx = (np.arange(3 * len(x)).reshape(-1, 3)[1:, free]).ravel()
-        hh = h[np.ix_(idx, idx)]
-        hh = hh + 1e-12 * (1.0 + np.abs(np.diag(hh)).max(initial=0.0)) * np.eye(len(idx))
-        dx = np.linalg.solve(hh, -g[idx])
+        dx = _damped_solve(h[np.ix_(idx, idx)], -g[idx])
         x.reshape(-1)[idx] += dx
         if np.abs(dx).max(initial=0.0) < 1e-9:
             break
@@ -298,7 +305,7 @@ def _chordal_headings(n: int, e: _Edges, w: np.ndarray) -> np.ndarray:
     a *= weight[:, None]
     rhs = -a[:, 0]  # the anchor's z is 1
     real = np.block([[a[:, 1:].real, -a[:, 1:].imag], [a[:, 1:].imag, a[:, 1:].real]])
-    sol = np.linalg.lstsq(real, np.concatenate([rhs.real, rhs.imag]), rcond=None)[0]
+    sol = _damped_solve(real.T @ real, real.T @ np.concatenate([rhs.real, rhs.imag]))
     z = np.concatenate([[1.0 + 0j], sol[: n - 1] + 1j * sol[n - 1 :]])
     return np.where(np.abs(z) > 1e-12, np.angle(z), 0.0)
 
@@ -371,8 +378,8 @@ def _sandwich_covariances(x: np.ndarray, e: _Edges) -> np.ndarray:
     n = len(x)
     h, _ = _normal_equations(x, e, np.ones(len(e.z)))
     hinv = np.linalg.inv(h[3:, 3:])
-    sens = np.einsum("ij,mkj,mkl->mil", hinv, _edge_rows(x, e)[:, :, 3:], e.info)
-    out = np.einsum("mij,mjk,mlk->il", sens, e.cov, sens)
+    sens = hinv @ _edge_rows(x, e)[:, :, 3:].transpose(0, 2, 1) @ e.info
+    out = np.tensordot(sens @ e.cov, sens, axes=([0, 2], [0, 2]))
     covs = np.zeros((n, 3, 3))
     for i in range(1, n):
         block = out[3 * i - 3 : 3 * i, 3 * i - 3 : 3 * i]
