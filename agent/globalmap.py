@@ -25,7 +25,7 @@ import numpy as np
 
 from agent.links import LinkRecord
 from pgvd.grid import Grid, relative_matrix
-from pgvd.posegraph import PoseGraphParams, solve
+from pgvd.posegraph import PoseGraphParams, link_problem, solve
 from protocol.quantize import quantise
 
 FuseFn = Callable[[Grid, Grid, np.ndarray, np.ndarray], Grid]
@@ -98,11 +98,17 @@ def build_components(
     """
     if fuse is None:
         from pgvd.fusion import fuse_maps as fuse
-    usable = sorted(
+    accepted = sorted(
         (ln for ln in links if ln.accepted and ln.a in maps and ln.b in maps),
         key=lambda ln: ln.pair,
     )
+    # A peer's link that is not a rigid transform with a covariance is left out like an
+    # inconsistent one: refusing the whole global map for it would let one bad record stall it.
+    usable = [ln for ln in accepted if link_problem(ln, maps) is None]
     sol = solve(maps, usable, params)
+    dropped = {ln.pair for ln in accepted} - {
+        ln.pair for ln, u in zip(usable, sol.used, strict=True) if u
+    }
     out = []
     for members in sol.components:
         inside = [(ln.pair, u) for ln, u in zip(usable, sol.used, strict=True) if ln.a in members]
@@ -115,11 +121,7 @@ def build_components(
                 transforms={r: sol.transforms[r] for r in members},
                 covariances={r: sol.covariances[r] for r in members},
                 used=tuple(p for p, u in inside if u),
-                rejected=tuple(
-                    ln.pair
-                    for ln, u in zip(usable, sol.used, strict=True)
-                    if not u and (ln.a in members or ln.b in members)
-                ),
+                rejected=tuple(p for p in sorted(dropped) if p[0] in members or p[1] in members),
                 grid=grid,
                 digest=map_digest(grid),
                 unblurred=unblurred,

@@ -50,7 +50,7 @@ nothing is random; the same edges in any order give the same result bit for bit.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -400,15 +400,23 @@ def _prepare(nodes: Sequence[str], links: Sequence[Link], params: PoseGraphParam
     )
 
 
-def _check(nodes: set[str], links: Sequence[Link]) -> None:
-    for ln in links:
-        if ln.a == ln.b or ln.a not in nodes or ln.b not in nodes:
-            raise ValueError(f"link ({ln.a!r}, {ln.b!r}) must join two distinct known nodes")
-        m = np.asarray(ln.matrix, dtype=np.float64)
-        if m.shape != (3, 3) or not np.isfinite(m).all():
-            raise ValueError(f"link ({ln.a!r}, {ln.b!r}): matrix must be a finite 3x3 array")
-        if not np.allclose(m[:2, :2] @ m[:2, :2].T, np.eye(2), atol=1e-6):
-            raise ValueError(f"link ({ln.a!r}, {ln.b!r}): matrix is not rigid")
+def link_problem(link: Link, nodes: Collection[str]) -> str | None:
+    """Why :func:`solve` would refuse ``link``, or None if it is fine."""
+    where = f"link ({link.a!r}, {link.b!r})"
+    if link.a == link.b or link.a not in nodes or link.b not in nodes:
+        return f"{where} must join two distinct known nodes"
+    m = np.asarray(link.matrix, dtype=np.float64)
+    if m.shape != (3, 3) or not np.isfinite(m).all():
+        return f"{where}: matrix must be a finite 3x3 array"
+    if not np.allclose(m[:2, :2] @ m[:2, :2].T, np.eye(2), atol=1e-6) or not np.allclose(
+        m[2], [0.0, 0.0, 1.0]
+    ):
+        return f"{where}: matrix is not rigid"
+    try:
+        check_covariance(link.covariance)
+    except ValueError as exc:
+        return f"{where}: {exc}"
+    return None
 
 
 def _content_key(ln: Link) -> tuple[str, str, bytes, bytes]:
@@ -453,11 +461,14 @@ def solve(
     Raises
     ------
     ValueError
-        On a link to an unknown node or to itself, or a matrix that is not rigid.
+        On a link :func:`link_problem` finds fault with.
     """
     params = params or PoseGraphParams()
     node_list = sorted(set(nodes))
-    _check(set(node_list), links)
+    for ln in links:
+        problem = link_problem(ln, set(node_list))
+        if problem:
+            raise ValueError(problem)
     order = sorted(range(len(links)), key=lambda i: _content_key(links[i]))
     ordered = [links[i] for i in order]
     keep = np.zeros(len(ordered), dtype=bool)

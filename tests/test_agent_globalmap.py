@@ -182,3 +182,16 @@ def test_a_wrong_link_on_cycles_is_dropped_and_the_global_map_is_the_right_one(
     (clean,) = build_components(maps, [ln for ln in good if ln.pair != ("r2", "r3")])
     assert comp.digest == clean.digest
     np.testing.assert_allclose(comp.transforms["r4"], place["r4"], atol=1e-6)
+
+
+def test_a_link_that_is_not_rigid_is_left_out_not_fatal() -> None:
+    """A peer's record can carry any finite matrix; a scaled one is dropped and reported."""
+    blank = Grid(np.zeros((4, 4), np.float32), 0.1)
+    maps = {r: (1, blank) for r in ("r1", "r2", "r3")}
+    good = link("r1", "r2", rigid_matrix(0.1, 2.0, 1.0))
+    scaled = link("r1", "r3", np.diag([2.0, 2.0, 1.0]))
+    comps = build_components(maps, [good, scaled])
+    assert [(c.members, c.used, c.rejected) for c in comps] == [
+        (("r1", "r2"), (("r1", "r2"),), (("r1", "r3"),)),
+        (("r3",), (), (("r1", "r3"),)),
+    ]

@@ -208,6 +208,7 @@ def test_placement_covariance_matches_monte_carlo_on_a_cycle() -> None:
         (Edge("r0", "r0", np.eye(3)), "distinct known nodes"),
         (Edge("r0", "r1", np.diag([2.0, 1.0, 1.0])), "not rigid"),
         (Edge("r0", "r1", np.full((3, 3), np.nan)), "finite 3x3"),
+        (Edge("r0", "r1", np.eye(3), -np.eye(3)), "positive semi-definite"),
     ],
 )
 def test_bad_links_are_refused(edge: Edge, match: str) -> None:
