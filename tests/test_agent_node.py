@@ -450,14 +450,17 @@ def test_a_link_decided_here_is_published_served_and_persisted() -> None:
 # ----------------------------------------------------------------- global map, status
 
 
+def component(versions: dict[str, int], grid: Grid, digest: str) -> Component:
+    """r1 and r2 joined by their one link, anchored at r1 (transforms are not read here)."""
+    return Component("r1", ("r1", "r2"), versions, {}, {}, (("r1", "r2"),), (), grid, digest)
+
+
 def test_a_new_global_map_is_written_once_and_the_status_refreshed(crops) -> None:
     r1 = node("r1")
     assert r1.tick(at(0.0)) == [WriteStatus()]  # the periodic status, next at 1.0
     assert r1.tick(at(0.1)) == []
     grid = crops[0]
-    comp = Component(
-        "r1", ("r1", "r2"), {"r1": 1, "r2": 2}, {}, (("r1", "r2"),), grid, map_digest(grid)
-    )
+    comp = component({"r1": 1, "r2": 2}, grid, map_digest(grid))
     assert r1.on_global(GlobalState([comp], True, T0 + 0.4), at(0.4)) == [PersistGlobal(comp)]
     assert r1.settled_at == T0 + 0.4
     assert r1.tick(at(0.5)) == [WriteStatus()]  # due at once, not at the next period
@@ -477,7 +480,7 @@ def test_the_status_shows_the_fleet_as_the_core_holds_it(crops) -> None:
         "r1", "r2", rigid_matrix(np.pi / 2, 5.0, -2.0), versions=(versions["r1"], versions["r2"])
     )
     r1.on_message("pgvd/lab/link/r1/r2", wire.encode_link("lab", rec, KEY), at(0.2))
-    comp = Component("r1", ("r1", "r2"), versions, {}, (("r1", "r2"),), crops[0], "ab" * 32)
+    comp = component(versions, crops[0], "ab" * 32)
     r1.on_global(GlobalState([comp], True, T0 + 1.0), at(1.0))
     status = r1.status(at(2.0), HOST)
     assert check_status(status) is status
@@ -500,5 +503,7 @@ def test_the_status_shows_the_fleet_as_the_core_holds_it(crops) -> None:
         True,
     )
     assert status["global"] == {"anchor": "r1", "digest": "ab" * 32, "members": ["r1", "r2"]}
+    (shown,) = status["components"]
+    assert (shown["used"], shown["rejected"], shown["shape"]) == ([["r1", "r2"]], [], [256, 256])
     assert status["settled"] and status["settled_at"] == T0 + 1.0
     assert status["counts"]["maps_received"] == 1 and status["counts"]["links_received"] == 1
