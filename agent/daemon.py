@@ -33,7 +33,7 @@ from agent.node import FleetNode, Instant, NodeOptions
 from agent.sources import SourceSpec, make_source
 from agent.state import StateDir, StoredMap
 from agent.status import HostFacts
-from agent.worker import FusionWorker, RegisterFn, merge_registration
+from agent.worker import FusionWorker, RegisterFn, merge_registration, verify_check
 from agent.zenoh_config import ZenohOptions, build_config
 
 log = logging.getLogger("pgvd.agent")
@@ -129,6 +129,9 @@ class Agent:
             lambda state: self._call(self.node.on_global, state, _now()),
             opts.link_timeout,
             fuse,
+            # an injected registration (tests) decides alone; the real one verifies first
+            check=verify_check(opts.min_agreement) if register is None else None,
+            counters=self.counters,
         )
 
     def _load_state(self) -> StoredMap | None:

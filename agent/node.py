@@ -395,6 +395,7 @@ class FleetNode:
             return [Drop("own_map_unencodable", self.me, str(exc))]
         if new_epoch:
             self._epoch_base = sent
+            self.counters.add("epochs")  # the bench counts registrations per epoch
         # Persisted first, published by on_persisted: a peer never holds a version we could lose.
         return [PersistMap(self.me, StoredMap(version, grid, resume), point="state-write")]
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
-from agent.worker import FusionWorker, GlobalState, Registration
+from agent.worker import FusionWorker, GlobalState, Registration, predict
 from pgvd.grid import Grid, rigid_matrix
 
 
@@ -131,3 +131,86 @@ def test_unsettled_previews_are_rate_limited_settled_maps_are_not() -> None:
     h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
     h.worker.step(now=3.6)
     assert len(h.globals) == 3 and h.globals[-1].settled
+
+
+def _link(a: str, b: str, m: np.ndarray, by: str = "r9") -> LinkRecord:
+    return LinkRecord(a, V(1), b, V(1), True, m, np.eye(3) * 0.1, 0.95, by)
+
+
+class Checking(Harness):
+    """A harness whose worker checks predictions; ``verdict`` is what the check answers."""
+
+    def __init__(self, me: str, verdict: Registration | None) -> None:
+        super().__init__(me)
+        self.checked: list[np.ndarray] = []
+        self.verdict = verdict
+        self.worker.check = self.check
+
+    def check(self, a: Grid, b: Grid, predicted: np.ndarray) -> Registration | None:
+        self.checked.append(predicted)
+        return self.verdict
+
+
+def _chain(h: Harness) -> None:
+    """r1 - r2 - r3 linked; r1 - r3 still needed, and r3's to register first."""
+    for r in ("r1", "r2", "r3"):
+        h.book.put_map(r, V(1), tiny(int(r[1])))
+    h.book.add_link(_link("r1", "r2", rigid_matrix(0.0, 10.0, 0.0)))
+    h.book.add_link(_link("r2", "r3", rigid_matrix(np.pi / 2, 0.0, 5.0)))
+
+
+def test_a_chained_pair_is_checked_on_the_composed_prediction_not_searched() -> None:
+    confirmed = Registration(True, rigid_matrix(0.1, 1.0, 1.0), np.eye(3) * 0.2, 0.97)
+    h = Checking("r3", confirmed)
+    _chain(h)
+    assert h.worker.step(now=0.0)
+    expected = rigid_matrix(0.0, 10.0, 0.0) @ rigid_matrix(np.pi / 2, 0.0, 5.0)
+    (predicted,) = h.checked
+    np.testing.assert_allclose(predicted, expected, atol=1e-9)
+    assert h.calls == []  # no full search
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r3") and rec.accepted
+    np.testing.assert_array_equal(rec.matrix, confirmed.matrix)
+    counts = h.worker.counters.snapshot()["counts"]
+    assert counts == {"checks": 1, "checks_confirmed": 1}
+
+
+def test_an_inconclusive_check_falls_back_to_the_full_search() -> None:
+    h = Checking("r3", None)
+    _chain(h)
+    assert h.worker.step(now=0.0)
+    assert len(h.checked) == 1 and len(h.calls) == 1
+    assert h.links[0].matrix[0, 2] == 1.0  # the search's answer (Harness.register)
+    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "searches": 1}
+
+
+def test_a_disjoint_verdict_rejects_without_search() -> None:
+    h = Checking("r3", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    _chain(h)
+    assert h.worker.step(now=0.0)
+    assert h.calls == [] and [ln.accepted for ln in h.links] == [False]
+    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "checks_disjoint": 1}
+
+
+def test_a_pair_no_chain_reaches_is_searched_unchecked() -> None:
+    h = Checking("r1", None)
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    assert h.worker.step(now=0.0)
+    assert h.checked == [] and len(h.calls) == 1
+    assert h.worker.counters.snapshot()["counts"] == {"searches": 1}
+
+
+def test_a_link_inconsistent_around_cycles_does_not_enter_the_prediction() -> None:
+    """r1..r4 all linked consistently except r1-r3, 40 px and 20 deg off: r1-r5 via r4."""
+    truth = {f"r{i}": rigid_matrix(0.3 * i, 50.0 * i, -20.0 * i) for i in range(1, 6)}
+    maps = {r: (V(1), tiny(i + 1)) for i, r in enumerate(truth)}
+
+    def rel(a: str, b: str) -> np.ndarray:
+        return np.linalg.inv(truth[a]) @ truth[b]
+
+    pairs = [("r1", "r2"), ("r1", "r4"), ("r2", "r3"), ("r2", "r4"), ("r3", "r4"), ("r4", "r5")]
+    links = [_link(a, b, rel(a, b)) for a, b in pairs]
+    links.append(_link("r1", "r3", rigid_matrix(np.radians(20), 40.0, 0.0) @ rel("r1", "r3")))
+    np.testing.assert_allclose(predict(maps, links, "r1", "r5"), rel("r1", "r5"), atol=1e-6)
+    assert predict(maps, links[:1], "r1", "r5") is None
