@@ -37,7 +37,7 @@ from agent.globalmap import Component, FuseFn, build_components
 from agent.links import LinkKey, LinkRecord, due_keys
 from agent.memory import release_free_memory
 from pgvd.grid import Grid
-from pgvd.posegraph import link_problem, solve
+from pgvd.posegraph import Solution, link_problem, solve
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
     from pgvd.merge import MergeParams
@@ -130,19 +130,18 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     return check
 
 
-def predict(
-    maps: dict[str, tuple[int, Grid]], links: list[LinkRecord], a: str, b: str
-) -> np.ndarray | None:
-    """The B-pixel -> A-pixel matrix the accepted ``links`` imply for ``(a, b)``, or None.
+def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
+    """The robust pose graph (:func:`pgvd.posegraph.solve`, GNC-TLS) of the accepted links.
 
-    From the robust pose graph's placements (:func:`pgvd.posegraph.solve`, GNC-TLS), so
-    a link inconsistent around a cycle does not enter the prediction; None when the
-    links kept do not put ``a`` and ``b`` in one component.
+    A link inconsistent around a cycle is not kept, so it does not enter a prediction.
     """
     usable = [ln for ln in links if ln.accepted and link_problem(ln, maps) is None]
-    if not usable:
-        return None
-    sol = solve(maps, usable)
+    return solve(maps, usable)
+
+
+def predict(sol: Solution, a: str, b: str) -> np.ndarray | None:
+    """The B-pixel -> A-pixel matrix the placements imply for ``(a, b)``; None when the
+    links kept do not put ``a`` and ``b`` in one component."""
     if not any(a in c and b in c for c in sol.components):
         return None
     return np.linalg.inv(sol.transforms[a]) @ sol.transforms[b]
@@ -196,7 +195,7 @@ class FusionWorker:
         self.fuse = fuse
         self.check = check
         self.counters = counters or Counters()
-        self._prediction: tuple[object, dict[tuple[str, str], np.ndarray | None]] = (None, {})
+        self._placements: tuple[object, Solution | None] = (None, None)
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
@@ -250,6 +249,10 @@ class FusionWorker:
             snap.alive,
         )
         if due:
+            # Checks first: they take tens of milliseconds, and each link they add may
+            # turn a pair waiting for a full search into one more check.
+            if self.check is not None:
+                due.sort(key=lambda k: self._predicted(snap, k[0], k[2]) is None)
             self._register(snap, due[0])
             return True
         signature = (
@@ -319,17 +322,15 @@ class FusionWorker:
         return res
 
     def _predicted(self, snap: Snapshot, a: str, b: str) -> np.ndarray | None:
-        """:func:`predict`, solved once per set of links and maps (a round shares them)."""
+        """:func:`predict` from :func:`placements`, solved once per set of maps and links."""
         signature = (
             tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
             tuple((ln.key, ln.decided_by, ln.accepted) for ln in snap.links),
         )
-        if self._prediction[0] != signature:
-            self._prediction = (signature, {})
-        cache = self._prediction[1]
-        if (a, b) not in cache:
-            cache[(a, b)] = predict(snap.maps, snap.links, a, b)
-        return cache[(a, b)]
+        if self._placements[0] != signature:
+            self._placements = (signature, placements(snap.maps, snap.links))
+        sol = self._placements[1]
+        return None if sol is None else predict(sol, a, b)
 
     def _rebuild(self, snap: Snapshot) -> None:
         components = build_components(snap.maps, snap.links, self.fuse)

@@ -8,7 +8,11 @@ in random frames, and we measure:
 - bytes sent and received per robot (agent counters);
 - CPU per agent: user+system seconds from /proc over the run, and as % of one core;
 - RSS per agent: peak resident memory (VmHWM) from /proc;
-- registrations per agent and their mean time (the unit of work being shared).
+- registrations per agent and their mean time (the unit of work being shared);
+- full searches and checks of predicted transforms (verify before you search,
+  :mod:`agent.worker`), fleet-wide, and per fleet epoch: divided by the mean number of
+  registration epochs the robots went through (each robot's map starts a new epoch when it
+  changed enough, and every pair of it must be decided again).
 
 Run: ``python3 -m bench.fleet [--robots 2 4 8] [--speed 100]``; writes
 ``bench/results/fleet.md`` (and ``fleet.json``).
@@ -80,6 +84,9 @@ def run_fleet(n: int, speed: float, timeout: float, workdir: Path) -> dict:
     wall = time.time() - t0
     last_update = max((s.get("last_update") or 0 for s in st.values() if s), default=0)
     merges = [s["merges"] for s in st.values() if s]
+    counts = [s["counts"] for s in st.values() if s]
+    total = {k: sum(c.get(k, 0) for c in counts) for k in ("searches", "checks", "epochs")}
+    epochs = total["epochs"] / max(len(counts), 1)
     merge_s = sum(s["merge_seconds"] for s in st.values() if s)
     sent = [s["bytes_sent"] for s in st.values() if s]
     recv = [s["bytes_received"] for s in st.values() if s]
@@ -101,6 +108,11 @@ def run_fleet(n: int, speed: float, timeout: float, workdir: Path) -> dict:
         "rss_mb_max_agent": round(float(np.max(rss)) / 2**20, 1),
         "merges_per_agent": round(float(np.mean(merges)), 1),
         "merge_s_mean": round(merge_s / max(sum(merges), 1), 3),
+        "searches": total["searches"],
+        "checks": total["checks"],
+        "epochs_per_robot": round(epochs, 1),
+        "searches_per_epoch": round(total["searches"] / max(epochs, 1.0), 1),
+        "checks_per_epoch": round(total["checks"] / max(epochs, 1.0), 1),
         # Agreement in units of one registration measured in the same run: the critical
         # path, which the machine's load (other jobs) does not scale away.
         "agreement_in_registrations": None
@@ -116,9 +128,10 @@ def table(rows: list[dict]) -> str:
         "| agents | agreed | agreement after last update (s) | sent / robot (kB) "
         "| received / robot (kB) | CPU / agent (s, mean / max) | CPU / agent (% core) "
         "| peak RSS / agent (MB, mean / max) | registrations / agent | mean registration (s) "
-        "| agreement / mean registration | machine load before / after |"
+        "| agreement / mean registration | full searches / checks (all) "
+        "| epochs / robot | full searches / checks per epoch | machine load before / after |"
     )
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 15]
     for r in rows:
         lines.append(
             f"| {r['robots']} | {'yes' if r['agreed'] else 'NO'} | {r['agreement_s']} "
@@ -127,6 +140,8 @@ def table(rows: list[dict]) -> str:
             f"| {r['cpu_s_per_agent']} / {r['cpu_s_max_agent']} | {r['cpu_pct_per_agent']} "
             f"| {r['rss_mb_per_agent']} / {r['rss_mb_max_agent']} | {r['merges_per_agent']} "
             f"| {r['merge_s_mean']} | {r['agreement_in_registrations']} "
+            f"| {r['searches']} / {r['checks']} | {r['epochs_per_robot']} "
+            f"| {r['searches_per_epoch']} / {r['checks_per_epoch']} "
             f"| {r['load_before_after'][0]} / {r['load_before_after'][1]} |"
         )
     return "\n".join(lines)
@@ -158,7 +173,10 @@ def main() -> None:
         "holding the same settled global map (polled every 0.1 s).  CPU and peak RSS are "
         "read from /proc for each agent process over the whole run.  The machine load is the "
         "1-minute load average before and after each run: other jobs shared the 2 cores, and "
-        "registration time (hence agreement time) grows with it.\n"
+        "registration time (hence agreement time) grows with it.  Full searches are the merge's "
+        "whole pipeline (Fig. 1); checks verify the transform the accepted links predict "
+        "(pgvd.verify).  Per epoch: fleet-wide counts over the mean number of registration "
+        "epochs per robot; a pair needs a decision once per epoch of either robot.\n"
     )
     (RESULTS / "fleet.md").write_text(md)
     (RESULTS / "fleet.json").write_text(json.dumps(rows, indent=1))

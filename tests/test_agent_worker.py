@@ -6,7 +6,7 @@ import numpy as np
 
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
-from agent.worker import FusionWorker, GlobalState, Registration, predict
+from agent.worker import FusionWorker, GlobalState, Registration, placements, predict
 from pgvd.grid import Grid, rigid_matrix
 
 
@@ -212,5 +212,16 @@ def test_a_link_inconsistent_around_cycles_does_not_enter_the_prediction() -> No
     pairs = [("r1", "r2"), ("r1", "r4"), ("r2", "r3"), ("r2", "r4"), ("r3", "r4"), ("r4", "r5")]
     links = [_link(a, b, rel(a, b)) for a, b in pairs]
     links.append(_link("r1", "r3", rigid_matrix(np.radians(20), 40.0, 0.0) @ rel("r1", "r3")))
-    np.testing.assert_allclose(predict(maps, links, "r1", "r5"), rel("r1", "r5"), atol=1e-6)
-    assert predict(maps, links[:1], "r1", "r5") is None
+    sol = placements(maps, links)
+    np.testing.assert_allclose(predict(sol, "r1", "r5"), rel("r1", "r5"), atol=1e-6)
+    assert predict(placements(maps, links[:1]), "r1", "r5") is None
+
+
+def test_pairs_a_check_can_decide_go_before_searches() -> None:
+    """r1-r3 (predicted through r2) is checked before r0-r1, which nothing predicts."""
+    h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    _chain(h)
+    h.book.put_map("r0", V(1), tiny(0))
+    h.worker.link_timeout = 0.0  # every pair is due for r1 at once
+    assert h.worker.step(now=0.0)
+    assert [ln.pair for ln in h.links] == [("r1", "r3")] and h.calls == []
