@@ -130,6 +130,11 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     return check
 
 
+def _identity(ln: LinkRecord) -> tuple[object, ...]:
+    """What tells one link candidate from another (:meth:`agent.links.LinkCache.get`)."""
+    return (ln.key, ln.decided_by, ln.version_a, ln.version_b)
+
+
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
     """The robust pose graph (:func:`pgvd.posegraph.solve`, GNC-TLS) of the accepted links.
 
@@ -257,7 +262,9 @@ class FusionWorker:
             return True
         signature = (
             tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
-            tuple(ln.key for ln in snap.links),
+            # the candidate used, not only its key: a preferred candidate arriving for a
+            # key (another agent's, or a liar's) changes the global map
+            tuple(_identity(ln) for ln in snap.links),
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
         # would take CPU from the registrations the settled map waits for.
@@ -325,7 +332,7 @@ class FusionWorker:
         """:func:`predict` from :func:`placements`, solved once per set of maps and links."""
         signature = (
             tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
-            tuple((ln.key, ln.decided_by, ln.accepted) for ln in snap.links),
+            tuple(_identity(ln) for ln in snap.links),
         )
         if self._placements[0] != signature:
             self._placements = (signature, placements(snap.maps, snap.links))

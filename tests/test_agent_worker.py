@@ -225,3 +225,15 @@ def test_pairs_a_check_can_decide_go_before_searches() -> None:
     h.worker.link_timeout = 0.0  # every pair is due for r1 at once
     assert h.worker.step(now=0.0)
     assert [ln.pair for ln in h.links] == [("r1", "r3")] and h.calls == []
+
+
+def test_a_preferred_candidate_for_a_held_key_rebuilds_the_global_map() -> None:
+    h = Harness("r1")
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    h.book.add_link(_link("r1", "r2", rigid_matrix(0.0, 1.0, 2.0), by="r2"))
+    assert not h.worker.step(now=0.0) and len(h.globals) == 1
+    moved = rigid_matrix(0.0, 5.0, 2.0)
+    assert h.book.add_link(_link("r1", "r2", moved, by="r0"))  # same key, preferred
+    assert not h.worker.step(now=0.1) and len(h.globals) == 2
+    np.testing.assert_array_equal(h.globals[-1].components[0].transforms["r2"], moved)
