@@ -61,6 +61,7 @@ class AgentOptions:
     min_interval: float = NodeOptions.min_interval
     min_agreement: float | None = None
     epoch_change: float = NodeOptions.epoch_change
+    forget_after: float = NodeOptions.forget_after
     inbox_bytes: int = MAX_BYTES
 
     def node_options(self) -> NodeOptions:
@@ -75,6 +76,7 @@ class AgentOptions:
             self.min_change,
             self.min_interval,
             self.epoch_change,
+            self.forget_after,
         )
 
 
@@ -207,6 +209,8 @@ class Agent:
                     self._call(self.node.on_persisted, robot, stored.version, _now())
                 case act.PersistLinks(records):
                     self.state.save_links(list(records))
+                case act.ForgetMap(robot):
+                    self.state.forget_map(robot)
                 case act.PersistGlobal(component):
                     _write_global(self.out_dir, component)
                 case act.WriteStatus():
