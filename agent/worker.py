@@ -14,7 +14,9 @@ component (the robust pose graph's placements, :func:`predict`), that prediction
 first (:func:`verify_check`: a local refinement and the overlay acceptance, tens of
 milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where the check is
 inconclusive.  A prediction under which the two maps share too few walls to be accepted by
-any merge is a decided rejection: a search could only find a transform the chain contradicts.
+any merge is a decided rejection -- a search could only find a transform the chain
+contradicts -- but only for a pair a search already found disjoint in an earlier epoch: were
+the chain wrong, a first search is what finds the true link that exposes it around a cycle.
 So full searches grow with the robots (each joins its component once, plus the pairs whose
 chain is off), not with the pairs.  Which way a link was decided does not enter the global
 map, which stays a function of the maps and the links (fleet invariant 2).
@@ -108,8 +110,9 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     Confirmed: the refined transform is the link.  Rejected with fewer than
     ``min_overlap`` metres of walls of either map on the other's known space (agreeing or
     not) at the *predicted* transform: the pair is rejected without a search, because at
-    the place the chain puts them the maps cannot pass the merge's overlap test.  Any
-    other rejection (disagreeing walls, a correction beyond the basin) is inconclusive.
+    the place the chain puts them the maps cannot pass the merge's overlap test (the worker
+    takes that only for a pair a search found disjoint before).  Any other rejection
+    (disagreeing walls, a correction beyond the basin) is inconclusive.
     """
     from pgvd.matching import WallMap, map_agreement
     from pgvd.verify import verify
@@ -128,6 +131,12 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         return None
 
     return check
+
+
+def _rejected_before(links: list[LinkRecord], a: str, b: str) -> bool:
+    """Whether the link standing in for ``(a, b)`` (an earlier epoch's) is a rejection."""
+    held = next((ln for ln in links if ln.pair == (a, b)), None)
+    return held is not None and not held.accepted
 
 
 def _identity(ln: LinkRecord) -> tuple[object, ...]:
@@ -324,6 +333,11 @@ class FusionWorker:
             return None
         self.counters.add("checks")
         res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
+        if res is not None and not res.accepted and not _rejected_before(snap.links, a, b):
+            # Only a search may find a pair disjoint first: were the chain wrong (a false
+            # link on a bridge), skipping it would lose the true link that closes a cycle
+            # around the false one and lets the pose graph reject it.
+            res = None
         if res is not None:
             self.counters.add("checks_confirmed" if res.accepted else "checks_disjoint")
         return res

@@ -184,9 +184,22 @@ def test_an_inconclusive_check_falls_back_to_the_full_search() -> None:
     assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "searches": 1}
 
 
-def test_a_disjoint_verdict_rejects_without_search() -> None:
+def test_a_disjoint_verdict_is_searched_the_first_time() -> None:
     h = Checking("r3", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
     _chain(h)
+    assert h.worker.step(now=0.0)
+    assert len(h.checked) == 1 and len(h.calls) == 1
+    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "searches": 1}
+
+
+def test_a_disjoint_verdict_on_a_pair_rejected_before_rejects_without_search() -> None:
+    h = Checking("r3", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    h.book.put_map("r1", V(0), tiny(1))
+    h.book.put_map("r3", V(0), tiny(3))
+    h.book.add_link(
+        LinkRecord("r1", V(0), "r3", V(0), False, np.eye(3), np.zeros((3, 3)), 0.1, "r3")
+    )
+    _chain(h)  # epoch 1 of every map: r1-r3 needs a link again
     assert h.worker.step(now=0.0)
     assert h.calls == [] and [ln.accepted for ln in h.links] == [False]
     assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "checks_disjoint": 1}
