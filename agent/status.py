@@ -69,6 +69,7 @@ def component_json(comp: Component) -> dict[str, object]:
         # each member's pixels -> the anchor's pixels: compared with the truth
         # (agent.evaluate) and between consecutive global maps (steadiness, bench.soak)
         "transforms": {r: np.round(m, 6).tolist() for r, m in sorted(comp.transforms.items())},
+        "evidence": [list(e) for e in comp.evidence],
         "digest": comp.digest,
         "shape": list(comp.grid.shape),
         "unblurred": list(comp.unblurred),

@@ -23,9 +23,11 @@ Reported:
   materially: any move is jitter. Reported for all consecutive maps, and for those whose
   links were the same candidates (a pure function of them: the move must be zero);
 - churn (``--churn``): a quarter into the run the last robot leaves (SIGTERM), half-way a new
-  robot joins, three quarters in the one that left comes back; the seconds each change takes
-  to reach agreement among the agents running, and the robots each agent holds over time,
-  with ``--forget-after`` short enough that a departed robot is forgotten within the run.
+  robot joins, three quarters in the one that left comes back. The sources hold still after
+  each change until the running agents agree (at most :data:`CHURN_HOLD` s), so that the
+  seconds each change takes to reach agreement can be measured; the robots each agent holds
+  just before each change show whether a departed robot was forgotten (``--forget-after``
+  short enough to happen within the run).
 
 Run: ``python3 -m bench.soak [--robots 8] [--minutes 10] [--sources cycle|replay] [--churn]``;
 writes ``bench/results/soak-<sources>[-churn].md``, ``.json`` and ``.png``.
@@ -49,6 +51,8 @@ from agent.scenario import LOG, random_frames, segments
 from pgvd.grid import Grid, matrix_to_pose
 
 RESULTS = Path(__file__).resolve().parent / "results"
+#: Seconds the sources hold still after a churn event, at most, waiting for agreement.
+CHURN_HOLD = 45.0
 #: Canvas side (cells) over which a placement's move is measured when the source has no size.
 DEFAULT_SIDE = 400
 INTEL_MAP = Path(__file__).resolve().parents[2] / "shared" / "maps" / "intel" / "intel.yaml"
@@ -177,11 +181,7 @@ def _record_placements(history: dict[str, list], statuses: dict[str, dict | None
         seen = history.setdefault(robot, [])
         if seen and seen[-1]["digest"] == comp["digest"]:
             continue
-        links = sorted(
-            (ln["a"], ln["b"], ln["decided_by"], ln["version_a"], ln["version_b"])
-            for ln in status.get("links", [])
-            if ln["accepted"] and ln["a"] in comp["members"]
-        )
+        links = comp.get("evidence", [])
         seen.append(
             {
                 "t": now,
@@ -234,16 +234,24 @@ def soak(
         pending: dict | None = None
         while time.time() - t0 < minutes * 60:
             now = time.time()
-            sources.step(now - t0)
+            if pending is None or now - t0 - pending["t"] >= CHURN_HOLD:
+                sources.step(now - t0)
             while plan and now - t0 >= plan[0][0]:
                 _, kind, robot = plan.pop(0)
+                held_now = {r: rows[-1][1] for r, rows in held.items() if rows}
                 if kind == "leave":
                     fleet.agents[robot].stop()
                 elif kind == "join":
                     fleet.add(robot, *later[robot])
                 else:
                     fleet.restart(robot)
-                pending = {"t": now - t0, "event": kind, "robot": robot, "agreed_after_s": None}
+                pending = {
+                    "t": round(now - t0, 1),
+                    "event": kind,
+                    "robot": robot,
+                    "agreed_after_s": None,
+                    "robots_held_before": held_now,
+                }
                 changes.append(pending)
                 print(f"{now - t0:6.0f} s  {robot} {kind}", flush=True)
             running = {r for r, a in fleet.agents.items() if a.alive()}
@@ -508,7 +516,9 @@ def main() -> None:
         f"of those whose links were the same candidates: {summary['jumps']['same_links']} "
         "(target <= 1 cell and <= 0.1 deg where the link evidence did not change)",
         f"- global maps seen per agent: {summary['global_maps_per_agent']}",
-        f"- churn (event, seconds into the run, seconds to agreement among running agents): "
+        f"- churn (event, seconds into the run, seconds to agreement among running agents "
+        f"with the sources held for at most {CHURN_HOLD:g} s, robots each agent held just "
+        "before): "
         f"{summary['churn'] or 'none'}",
         f"- robots held at most per agent: {summary['robots_held_max']} "
         f"(--forget-after {args.forget_after:g} s)",
