@@ -64,6 +64,7 @@ def fuse_maps(
     matrix: np.ndarray,
     covariance: np.ndarray,
     center: tuple[float, float] = (0.0, 0.0),
+    propagation: bool = True,
 ) -> Grid:
     """Fuse map B into map A on a canvas that holds both whole (Fig. 1, last blocks).
 
@@ -81,6 +82,8 @@ def fuse_maps(
         (``rigid_matrix(psi, tx, ty)``), as :class:`pgvd.merge.MergeResult` reports it.
     center : B pixel about which that heading error acts: eq. (1) rotates
         about B's pixel origin, the default.
+    propagation : False is the ablation "without propagation": B is only warped
+        (bilinear), as if the transform were exact; ``covariance`` is not used.
 
     Returns
     -------
@@ -95,7 +98,7 @@ def fuse_maps(
     moved = propagate(
         b.probability(),
         offset @ np.asarray(matrix, dtype=np.float64),
-        covariance,
+        covariance if propagation else np.zeros((3, 3)),
         shape,
         center=center,
         cval=0.5,

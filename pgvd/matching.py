@@ -444,6 +444,68 @@ def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
     return np.column_stack([np.cos(theta), np.sin(theta)])
 
 
+@dataclass(frozen=True)
+class AlignmentFit:
+    """The point-to-line alignment of B's walls on A's at a given matrix (Gauss-Newton terms).
+
+    Attributes
+    ----------
+    info : 3x3 ``J^T J`` over ``(tx, ty, psi)`` (psi about B's pixel origin, eq. (1)).
+    sigma2 : residual variance along A's wall normals, px^2 (at least 1/12, quantisation).
+    count : wall cells of B that found a wall of A within the radius (over all of B's walls).
+    centroid : ``(x, y)`` mean of those cells in B's pixels.
+    psi : heading of the matrix, eq. (2).
+    """
+
+    info: np.ndarray
+    sigma2: float
+    count: int
+    centroid: np.ndarray
+    psi: float
+
+
+def alignment_fit(
+    walls_a: cKDTree,
+    walls_b: np.ndarray,
+    matrix: np.ndarray,
+    radius: float = 2.0,
+    max_points: int = 4000,
+) -> AlignmentFit | None:
+    """Gauss-Newton terms of the point-to-line alignment of B's walls on A's at ``matrix``.
+
+    Each wall cell of B that lands within ``radius`` of A's walls gives a
+    residual ``r_i = n_i . (R x_i + t - y_i)`` along A's wall normal ``n_i``
+    with Jacobian ``J_i = [n_x, n_y, n_i . dR/dpsi x_i]`` (the ``r1, r2`` of
+    eq. (7)).  An even subsample of at most ``max_points`` cells is used;
+    ``info`` and ``count`` are scaled back to all of B's walls (every cell of
+    the subsample stands for ``stride`` cells).  None when fewer than 3 match.
+    """
+    step = -(-len(walls_b) // max_points)
+    pts = walls_b[::step]
+    moved = _apply(matrix, pts)
+    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    if ok.sum() < 3:
+        return None
+    x, y = pts[ok], walls_a.data[idx[ok]]
+    n = _normals(walls_a, y)
+    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
+    c, s = np.cos(psi), np.sin(psi)
+    dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
+    jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
+    res = np.sum(n * (moved[ok] - y), axis=1)
+    info = jac.T @ jac
+    # a tiny prior keeps a degenerate direction finite instead of singular
+    info += np.diag([1e-9, 1e-9, 1e-9 * max(1.0, float(np.abs(x).max())) ** 2])
+    return AlignmentFit(
+        info=info * step,
+        sigma2=max(float(np.mean(res**2)), 1.0 / 12.0),
+        count=int(ok.sum()) * step,
+        centroid=x.mean(axis=0),
+        psi=float(psi),
+    )
+
+
 def alignment_covariance(
     walls_a: cKDTree,
     walls_b: np.ndarray,
@@ -452,36 +514,84 @@ def alignment_covariance(
     max_points: int = 4000,
     correlation_length: float = 1.0,
 ) -> np.ndarray:
-    """Covariance of ``(tx, ty, psi)`` of ``matrix`` from the point-to-line alignment of walls.
+    """Laplace covariance of ``(tx, ty, psi)`` of ``matrix`` from :func:`alignment_fit`.
 
-    Each wall cell of B that lands within ``radius`` of A's walls gives a
-    residual ``r_i = n_i . (R x_i + t - y_i)`` along A's wall normal ``n_i``
-    with Jacobian ``J_i = [n_x, n_y, n_i . dR/dpsi x_i]`` (the ``r1, r2`` of
-    eq. (7)).  The Gauss-Newton curvature of the agreement peak gives
-    ``Sigma = sigma^2 (J^T J)^-1`` with ``sigma^2`` the residual variance
-    (at least the variance of grid quantisation, 1/12 cell^2).  Along a
-    featureless corridor ``J^T J`` is nearly singular and the variance large.
-
-    Neighbouring wall cells are not independent observations; the variance
-    is multiplied by ``correlation_length``, the number of consecutive wall
-    cells counted as one observation.
+    The Gauss-Newton curvature of the agreement peak gives
+    ``Sigma = sigma^2 (J^T J)^-1`` with ``sigma^2`` the residual variance.
+    Along a featureless corridor ``J^T J`` is nearly singular and the variance
+    large.  Neighbouring wall cells are not independent observations; the
+    variance is multiplied by ``correlation_length``, the number of
+    consecutive wall cells counted as one observation.  This is the noise of
+    the residuals only: it misses the bias that map content puts into the fit,
+    which :func:`calibrated_covariance` adds.
     """
-    pts = walls_b[:: -(-len(walls_b) // max_points)]
-    moved = _apply(matrix, pts)
-    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
-    ok = np.isfinite(dist)
-    if ok.sum() < 3:
+    fit = alignment_fit(walls_a, walls_b, matrix, radius, max_points)
+    if fit is None:
         return np.diag([np.inf, np.inf, np.inf])
-    x, y = pts[ok], walls_a.data[idx[ok]]
-    n = _normals(walls_a, y)
-    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
-    c, s = np.cos(psi), np.sin(psi)
-    dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
-    jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
-    res = np.sum(n * (moved[ok] - y), axis=1)
-    sigma2 = max(float(np.mean(res**2)), 1.0 / 12.0)
-    info = jac.T @ jac
-    # a tiny prior keeps a degenerate direction finite instead of singular
-    info += np.diag([1e-9, 1e-9, 1e-9 * max(1.0, float(np.abs(x).max())) ** 2])
-    cov = correlation_length * sigma2 * np.linalg.inv(info)
+    cov = correlation_length * fit.sigma2 * np.linalg.inv(fit.info)
+    return 0.5 * (cov + cov.T)
+
+
+@dataclass(frozen=True)
+class CovarianceModel:
+    """Constants of :func:`calibrated_covariance` (lengths in metres, so any resolution works).
+
+    Attributes
+    ----------
+    correlation : wall cells per independent residual (scales the residual noise).
+    bias_m : standard deviation of an offset common to all matched wall cells of one
+        pair along their normals: what map content (where walls were seen, how
+        they were ray-cast) puts into the fit and no amount of walls averages out.
+    floor_m : isotropic translation floor at the centroid of the matched walls.
+    floor_rad : heading floor (radians).
+    """
+
+    correlation: float
+    bias_m: float
+    floor_m: float
+    floor_rad: float
+
+
+#: Fitted by ``python3 -m bench.covariance fit`` (maximum likelihood) on one half of
+#: the development pairs (intel and freiburg-079 logs); reported on the other half
+#: in ``bench/results/covariance.md``.
+CALIBRATED = CovarianceModel(correlation=1.0, bias_m=0.0, floor_m=0.0, floor_rad=0.0)
+
+
+def calibrated_covariance(
+    fit: AlignmentFit | None, resolution: float, model: CovarianceModel = CALIBRATED
+) -> np.ndarray:
+    """Covariance of ``(tx, ty, psi)`` (eq. (3); px, px, rad) calibrated on real pairs.
+
+    The model, with ``S = (J^T J)^-1`` and ``N`` matched wall cells from
+    :func:`alignment_fit`, ``sigma^2`` their residual variance and lengths in
+    cells (metres over ``resolution``)::
+
+        Sigma = (correlation sigma^2 + bias^2 N) S  +  A^-1 diag(f^2, f^2, f_psi^2) A^-T
+
+    * ``correlation sigma^2 S`` is the Laplace approximation of
+      :func:`alignment_covariance`: residual noise, shrinking as ``1 / N``.
+    * ``bias^2 N S`` is an offset of ``bias`` common to every matched wall
+      cell along its normal: it does not shrink with ``N`` and keeps the
+      shape of ``S``, so a corridor stays uncertain along its length, and the
+      heading uncertainty grows as the matched walls get shorter.
+    * ``f, f_psi`` are a floor on translation and heading at the centroid
+      ``c`` of the matched walls; ``A = [[I, dR/dpsi c], [0, 1]]`` moves the
+      pose from ``c`` to B's pixel origin, the reference point of eq. (1)
+      (a heading error about ``c`` moves the origin by ``dR/dpsi c dpsi``).
+
+    Returns ``inf`` on the diagonal when no walls matched (``fit`` is None).
+    """
+    if fit is None:
+        return np.diag([np.inf, np.inf, np.inf])
+    if not resolution > 0:
+        raise ValueError(f"resolution must be > 0, got {resolution}")
+    s = np.linalg.inv(fit.info)
+    bias, floor = model.bias_m / resolution, model.floor_m / resolution
+    cov = (model.correlation * fit.sigma2 + bias**2 * fit.count) * s
+    # T = T_c - R c, so a heading error about the centroid moves B's origin by -dR/dpsi c
+    (cx, cy), c, sn = fit.centroid, np.cos(fit.psi), np.sin(fit.psi)
+    a_inv = np.eye(3)
+    a_inv[:2, 2] = [sn * cx - c * cy, c * cx + sn * cy]
+    cov += a_inv @ np.diag([floor**2, floor**2, model.floor_rad**2]) @ a_inv.T
     return 0.5 * (cov + cov.T)
