@@ -666,28 +666,31 @@ def alignment_covariance(
 
 @dataclass(frozen=True)
 class CovarianceModel:
-    """Constants of :func:`calibrated_covariance` (lengths in metres, so any resolution works).
+    """Constants of :func:`calibrated_covariance`.
 
     Attributes
     ----------
-    correlation : wall cells per independent residual (scales the residual noise).
-    bias_m : standard deviation of an offset common to all matched wall cells of one
-        pair along their normals: what map content (where walls were seen, how
-        they were ray-cast) puts into the fit and no amount of walls averages out.
-    floor_m : isotropic translation floor at the centroid of the matched walls.
+    correlation : wall cells per independent residual at a residual of grid
+        quantisation (scales the Laplace covariance).
+    misfit_power : how steeply the covariance grows with the residual variance
+        ``sigma^2`` beyond quantisation: ``(12 sigma^2) ** (misfit_power - 1)``.
+    floor_m : isotropic translation floor (metres) at the centroid of the matched walls.
     floor_rad : heading floor (radians).
     """
 
     correlation: float
-    bias_m: float
+    misfit_power: float
     floor_m: float
     floor_rad: float
 
 
 #: Fitted by ``python3 -m bench.covariance fit`` (maximum likelihood) on one half of
-#: the development pairs (intel and freiburg-079 logs); reported on the other half
-#: in ``bench/results/covariance.md``.
-CALIBRATED = CovarianceModel(correlation=1.0, bias_m=0.0, floor_m=0.0, floor_rad=0.0)
+#: the development pairs (intel and freiburg-079 logs, 0.05 m cells); reported on the
+#: other half in ``bench/results/covariance.md``.  The floor came out at about a
+#: fiftieth of a cell and no heading: on these pairs the misfit term carries it all.
+CALIBRATED = CovarianceModel(
+    correlation=15.958, misfit_power=2.8981, floor_m=9.2033e-4, floor_rad=3.3113e-10
+)
 
 
 def calibrated_covariance(
@@ -695,22 +698,26 @@ def calibrated_covariance(
 ) -> np.ndarray:
     """Covariance of ``(tx, ty, psi)`` (eq. (3); px, px, rad) calibrated on real pairs.
 
-    The model, with ``S = (J^T J)^-1`` and ``N`` matched wall cells from
-    :func:`alignment_fit`, ``sigma^2`` their residual variance and lengths in
-    cells (metres over ``resolution``)::
+    The model, with ``S = (J^T J)^-1``, ``sigma^2`` the residual variance
+    (px^2) of :func:`alignment_fit` and ``q = 1/12`` that of grid
+    quantisation::
 
-        Sigma = (correlation sigma^2 + bias^2 N) S  +  A^-1 diag(f^2, f^2, f_psi^2) A^-T
+        Sigma = correlation sigma^2 (sigma^2 / q) ** (misfit_power - 1) S
+                + A^-1 diag(f^2, f^2, f_psi^2) A^-T
 
-    * ``correlation sigma^2 S`` is the Laplace approximation of
-      :func:`alignment_covariance`: residual noise, shrinking as ``1 / N``.
-    * ``bias^2 N S`` is an offset of ``bias`` common to every matched wall
-      cell along its normal: it does not shrink with ``N`` and keeps the
-      shape of ``S``, so a corridor stays uncertain along its length, and the
-      heading uncertainty grows as the matched walls get shorter.
-    * ``f, f_psi`` are a floor on translation and heading at the centroid
-      ``c`` of the matched walls; ``A = [[I, dR/dpsi c], [0, 1]]`` moves the
-      pose from ``c`` to B's pixel origin, the reference point of eq. (1)
-      (a heading error about ``c`` moves the origin by ``dR/dpsi c dpsi``).
+    * The first term is the Laplace approximation of
+      :func:`alignment_covariance` (noise of the residuals, shrinking as one
+      over the matched walls, with the shape of ``S``: a corridor stays
+      uncertain along its length), inflated as the residuals grow beyond
+      quantisation.  On real pairs the errors are biased by map content
+      (walls seen from one side, drift within a map); the residual misfit is
+      what signals it, and the error grows faster than the residual variance
+      (``misfit_power`` > 1).
+    * ``f, f_psi`` are a floor on translation (metres over ``resolution``)
+      and heading at the centroid ``c`` of the matched walls;
+      ``A = [[I, dR/dpsi c], [0, 1]]`` moves the pose from ``c`` to B's pixel
+      origin, the reference point of eq. (1) (a heading error about ``c``
+      moves the origin by ``-dR/dpsi c dpsi``).
 
     Parameters
     ----------
@@ -736,9 +743,9 @@ def calibrated_covariance(
         return np.diag([np.inf, np.inf, np.inf])
     if not resolution > 0:
         raise ValueError(f"resolution must be > 0, got {resolution}")
-    s = np.linalg.inv(fit.info)
-    bias, floor = model.bias_m / resolution, model.floor_m / resolution
-    cov = (model.correlation * fit.sigma2 + bias**2 * fit.count) * s
+    misfit = (12.0 * fit.sigma2) ** (model.misfit_power - 1.0)
+    cov = model.correlation * fit.sigma2 * misfit * np.linalg.inv(fit.info)
+    floor = model.floor_m / resolution
     # T = T_c - R c, so a heading error about the centroid moves B's origin by -dR/dpsi c
     (cx, cy), c, sn = fit.centroid, np.cos(fit.psi), np.sin(fit.psi)
     a_inv = np.eye(3)

@@ -245,7 +245,7 @@ def test_calibrated_covariance_grows_with_fewer_supporting_walls(shared) -> None
     assert np.linalg.det(part) > 2.0 * np.linalg.det(full)
     # the calibrated covariance is never tighter than the Laplace one it contains
     laplace = calibrated_covariance(
-        alignment_fit(wm.tree, walls_b, m), g.resolution, CovarianceModel(1.0, 0.0, 0.0, 0.0)
+        alignment_fit(wm.tree, walls_b, m), g.resolution, CovarianceModel(1.0, 1.0, 0.0, 0.0)
     )
     assert np.linalg.eigvalsh(full - laplace).min() > -1e-12
 
@@ -256,7 +256,7 @@ def test_calibrated_covariance_floor_acts_about_the_matched_walls() -> None:
     # no residual information at all: only the floor, about a centroid c of B's pixels
     c, psi0 = np.array([100.0, 40.0]), 0.3
     fit = AlignmentFit(np.eye(3) * 1e12, 0.1, 10, c, psi0)
-    model = CovarianceModel(correlation=1.0, bias_m=0.0, floor_m=0.05, floor_rad=0.01)
+    model = CovarianceModel(correlation=1.0, misfit_power=1.0, floor_m=0.05, floor_rad=0.01)
     cov = calibrated_covariance(fit, 0.05, model)
     assert cov[2, 2] == pytest.approx(1e-4)
     # a pose error (t, p) at the centroid, P2 = R(psi0 + p) (P1 - c) + R(psi0) c + t,
