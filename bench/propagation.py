@@ -8,13 +8,13 @@ frame.  Each link R(i+1) -> Ri is merged (:func:`pgvd.merge.merge`); the
 links are composed into Rk -> R0 with their covariances
 (:func:`pgvd.uncertainty.compose_covariance`), and Rk is fused into R0
 (:func:`pgvd.fusion.fuse_maps`) twice: with propagation (8) and without (a
-plain warp).  Both are scored against the reference: the same fusion at the
-true Rk -> R0 transform.
+plain warp).
 
 Measure: the cross-entropy (nats per cell) of the fused map's probability
-against the reference's labels (occupied where its probability > 0.5, else
-free) over the cells that Rk knows under the true transform (|p - 0.5| >
-0.15), also split into wall and free cells; lower is truer.  Writes
+against the true-frame map of Rk: Rk's scans ray-cast at their true poses
+straight into R0's frame (labels: occupied where its probability > 0.5, else
+free), over the cells that map knows (|p - 0.5| > 0.15), also split into
+wall and free cells; lower is truer.  Writes
 ``bench/results/propagation.md`` and ``propagation.json``.
 """
 
@@ -29,12 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from pgvd.fusion import fuse_maps
-from pgvd.grid import Grid
-from pgvd.integrate import frame_for, integrate, select_segment
+from pgvd.grid import Grid, relative_matrix
+from pgvd.integrate import MapFrame, frame_for, integrate, select_segment
 from pgvd.io import LaserScan, read_carmen
 from pgvd.merge import MergeParams, merge
 from pgvd.pairs import random_frame, true_matrix
-from pgvd.transform import union_canvas, warp
 from pgvd.uncertainty import compose_covariance
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,15 +48,18 @@ KNOWN = 0.15
 
 def robots(
     scans: list[LaserScan], start: float, hops: int, seed: int
-) -> list[tuple[Grid, np.ndarray]]:
-    """``hops + 1`` maps of consecutive half-overlapping segments, each in a random frame."""
+) -> list[tuple[Grid, np.ndarray, list[LaserScan]]]:
+    """``hops + 1`` maps of consecutive half-overlapping segments, each in a random frame.
+
+    Each robot is its map, its world-to-map transform and its scans.
+    """
     rng = np.random.default_rng(seed)
     out = []
     for i in range(hops + 1):
         lo = start + i * SEGMENT / 2
         part = select_segment(scans, (lo, lo + SEGMENT))
         transform = random_frame(rng)
-        out.append((integrate(part, frame_for(part, 0.05, transform)), transform))
+        out.append((integrate(part, frame_for(part, 0.05, transform)), transform, part))
     return out
 
 
@@ -80,21 +82,33 @@ def cross_entropy(p: np.ndarray, label: np.ndarray) -> float:
     return float(-np.mean(np.where(label, np.log(p), np.log1p(-p))))
 
 
-def score(a: Grid, d: Grid, truth: np.ndarray, est: np.ndarray, cov: np.ndarray) -> dict:
-    """Cross-entropies of the fusion of ``d`` into ``a`` at ``est``, with and without (8)."""
-    shape, offset = union_canvas(a.shape, d.shape, truth)
-    known = np.abs(warp(d.probability(), offset @ truth, shape, order=1, cval=0.5) - 0.5) > KNOWN
-    label = fuse_maps(a, d, truth, np.zeros((3, 3)), propagation=False).probability() > 0.5
+def truth_frame_map(scans: list[LaserScan], a_from_world: np.ndarray, canvas: Grid) -> Grid:
+    """The scans ray-cast at their true poses straight into ``canvas``'s cells (A's frame)."""
+    frame = MapFrame(canvas.resolution, canvas.shape, a_from_world, canvas.origin[:2])
+    return integrate(scans, frame)
+
+
+def score(
+    a: Grid, d: Grid, truth_d: Grid, est: np.ndarray, cov: np.ndarray
+) -> dict[str, dict[str, float]]:
+    """Cross-entropies of the fusion of ``d`` into ``a`` at ``est``, with and without (8).
+
+    ``truth_d`` is Rk's scans rendered at their true poses in A's frame, on a
+    canvas that is A shifted by whole cells (as every fused map is).
+    """
+    p_true = truth_d.probability()
+    known = np.abs(p_true - 0.5) > KNOWN
+    label = p_true > 0.5
     out = {}
     for name, prop in (("with", True), ("without", False)):
-        _, off_est = union_canvas(a.shape, d.shape, est)
-        dx, dy = (off_est - offset)[:2, 2].astype(int)
-        p_est = fuse_maps(a, d, est, cov, propagation=prop).probability()
-        # both canvases hold A at whole-cell offsets: reference cell (r, c) is (r + dy, c + dx)
-        p = np.full(shape, 0.5)
-        rows = slice(max(0, -dy), min(shape[0], p_est.shape[0] - dy))
-        cols = slice(max(0, -dx), min(shape[1], p_est.shape[1] - dx))
-        p[rows, cols] = p_est[rows.start + dy : rows.stop + dy, cols.start + dx : cols.stop + dx]
+        fused = fuse_maps(a, d, est, cov, propagation=prop)
+        # both canvases hold A at whole-cell offsets: truth cell (r, c) is (r + dy, c + dx)
+        dx, dy = np.rint(relative_matrix(fused, truth_d)[:2, 2]).astype(int)
+        p = np.full(truth_d.shape, 0.5)
+        pf = fused.probability()
+        rows = slice(max(0, -dy), min(p.shape[0], pf.shape[0] - dy))
+        cols = slice(max(0, -dx), min(p.shape[1], pf.shape[1] - dx))
+        p[rows, cols] = pf[rows.start + dy : rows.stop + dy, cols.start + dx : cols.stop + dx]
         out[name] = {
             "all": cross_entropy(p[known], label[known]),
             "walls": cross_entropy(p[known & label], label[known & label]),
@@ -114,7 +128,7 @@ def run(logs: list[str], hops_list: list[int], n_starts: int, seed: int) -> list
             span = SEGMENT * (1 + hops / 2)
             for k, start in enumerate(np.linspace(0.0, 1.0 - span, n_starts)):
                 chain = robots(scans, float(start), hops, seed + 100 * hops + k)
-                maps = [g for g, _ in chain]
+                maps = [g for g, _, _ in chain]
                 rec = {"log": log, "hops": hops, "start": round(float(start), 4)}
                 found = compose_chain(maps)
                 if found is None:
@@ -123,15 +137,17 @@ def run(logs: list[str], hops_list: list[int], n_starts: int, seed: int) -> list
                     print(f"{log} hops {hops} start {start:.3f}: a link was rejected", flush=True)
                     continue
                 est, cov = found
-                (a, ta), (d, td) = chain[0], chain[-1]
+                (a, ta, _), (d, td, d_scans) = chain[0], chain[-1]
                 truth = true_matrix(a, ta, d, td)
+                canvas = fuse_maps(a, d, truth, np.zeros((3, 3)), propagation=False)
+                truth_d = truth_frame_map(d_scans, ta, canvas)
                 err = pose_error(truth, est)
                 rec.update(
                     accepted=True,
                     error=err.tolist(),
                     sigma=np.sqrt(np.diag(cov)).tolist(),
                     nees=float(nees(err[None], cov[None])[0]),
-                    cross_entropy=score(a, d, truth, est, cov),
+                    cross_entropy=score(a, d, truth_d, est, cov),
                 )
                 records.append(rec)
                 ce = rec["cross_entropy"]
