@@ -633,16 +633,8 @@ def alignment_covariance(
 
     Parameters
     ----------
-    walls_a : scipy.spatial.cKDTree
-        A's wall cells ``(x, y)``.
-    walls_b : numpy.ndarray
-        (N, 2) B's wall cells ``(x, y)``.
-    matrix : numpy.ndarray
-        3x3 transform at the optimum, B pixel -> A pixel.
-    radius : float, optional
-        Cells of B farther than this from A's walls are not counted.
-    max_points : int, optional
-        Subsample size of B's walls.
+    walls_a, walls_b, matrix, radius, max_points
+        As for :func:`alignment_fit`.
     correlation_length : float, optional
         Consecutive wall cells counted as one observation.
 
