@@ -95,7 +95,6 @@ def collect(n_pairs: int, seed: int, out: Path) -> int:
                     reported=np.asarray(result.covariance).tolist(),
                     info=fit.info.tolist(),
                     sigma2=fit.sigma2,
-                    count=fit.count,
                     centroid=fit.centroid.tolist(),
                     psi=fit.psi,
                     walls_b=len(wb.walls),
@@ -112,7 +111,6 @@ def alignment(rec: dict) -> AlignmentFit:
     return AlignmentFit(
         info=np.array(rec["info"]),
         sigma2=rec["sigma2"],
-        count=rec["count"],
         centroid=np.array(rec["centroid"]),
         psi=rec["psi"],
     )

@@ -12,9 +12,11 @@
   translation counts only when *several* edge pairs pass (32) there.
 * :func:`map_agreement` overlays the whole maps: walls of one map that fall
   on walls of the other agree, walls that fall on clear free space disagree.
-* :func:`refine` aligns the wall cells at full resolution (trimmed ICP) and
+* :func:`refine` aligns the wall cells at full resolution (trimmed ICP);
   :func:`alignment_covariance` reads the covariance from the curvature of the
-  alignment cost at its minimum (a Laplace approximation).
+  alignment cost at its minimum (a Laplace approximation), and
+  :func:`calibrated_covariance` inflates it by the residual misfit, with
+  constants fitted on real pairs, so that it matches the errors the merge makes.
 """
 
 from __future__ import annotations
@@ -538,14 +540,12 @@ class AlignmentFit:
     ----------
     info : 3x3 ``J^T J`` over ``(tx, ty, psi)`` (psi about B's pixel origin, eq. (1)).
     sigma2 : residual variance along A's wall normals, px^2 (at least 1/12, quantisation).
-    count : wall cells of B that found a wall of A within the radius (over all of B's walls).
     centroid : ``(x, y)`` mean of those cells in B's pixels.
     psi : heading of the matrix, eq. (2).
     """
 
     info: np.ndarray
     sigma2: float
-    count: int
     centroid: np.ndarray
     psi: float
 
@@ -563,8 +563,8 @@ def alignment_fit(
     residual ``r_i = n_i . (R x_i + t - y_i)`` along A's wall normal ``n_i``
     with Jacobian ``J_i = [n_x, n_y, n_i . dR/dpsi x_i]`` (the ``r1, r2`` of
     eq. (7)).  An even subsample of at most ``max_points`` cells is used;
-    ``info`` and ``count`` are scaled back to all of B's walls (every cell of
-    the subsample stands for ``stride`` cells).
+    ``info`` is scaled back to all of B's walls (every cell of the subsample
+    stands for ``stride`` cells).
 
     Parameters
     ----------
@@ -604,7 +604,6 @@ def alignment_fit(
     return AlignmentFit(
         info=info * step,
         sigma2=max(float(np.mean(res**2)), 1.0 / 12.0),
-        count=int(ok.sum()) * step,
         centroid=x.mean(axis=0),
         psi=float(psi),
     )

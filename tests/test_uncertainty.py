@@ -255,7 +255,7 @@ def test_calibrated_covariance_floor_acts_about_the_matched_walls() -> None:
 
     # no residual information at all: only the floor, about a centroid c of B's pixels
     c, psi0 = np.array([100.0, 40.0]), 0.3
-    fit = AlignmentFit(np.eye(3) * 1e12, 0.1, 10, c, psi0)
+    fit = AlignmentFit(np.eye(3) * 1e12, 0.1, c, psi0)
     model = CovarianceModel(correlation=1.0, misfit_power=1.0, floor_m=0.05, floor_rad=0.01)
     cov = calibrated_covariance(fit, 0.05, model)
     assert cov[2, 2] == pytest.approx(1e-4)
