@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from pgvd.graph import Edge
 from pgvd.grid import rigid_matrix
 from pgvd.morphology import grow
+from pgvd.sampling import subsample
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
 _BLOCK_CELLS = 1 << 21
@@ -383,8 +384,7 @@ def map_agreement(
     """
     wb, wa = b.walls, a.walls
     if max_points > 0:
-        wb = wb[:: -(-len(wb) // max_points)]
-        wa = wa[:: -(-len(wa) // max_points)]
+        wb, wa = subsample(wb, max_points), subsample(wa, max_points)
     ag1, dis1 = a.count(_apply(matrix, wb), tolerance)
     ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), wa), tolerance)
     return Agreement(ag1 + ag2, dis1 + dis2)
@@ -416,7 +416,7 @@ def refine(
     All but the last radius use an even subsample of ``max_points`` cells.
     """
     m = matrix.copy()
-    sub = walls_b[:: -(-len(walls_b) // max_points)]
+    sub = subsample(walls_b, max_points)
     for k, radius in enumerate(radii):
         pts = walls_b if k == len(radii) - 1 else sub
         for _ in range(iterations):
@@ -466,7 +466,7 @@ def alignment_covariance(
     is multiplied by ``correlation_length``, the number of consecutive wall
     cells counted as one observation.
     """
-    pts = walls_b[:: -(-len(walls_b) // max_points)]
+    pts = subsample(walls_b, max_points)
     moved = _apply(matrix, pts)
     dist, idx = walls_a.query(moved, distance_upper_bound=radius)
     ok = np.isfinite(dist)
