@@ -37,7 +37,7 @@ from agent.sources import ChangeGate, SourceSpec, epoch_due, make_source
 from agent.state import StateDir, StoredMap, atomic_write_bytes
 from agent.worker import FusionWorker, GlobalState, RegisterFn, merge_registration
 from agent.zenoh_config import ZenohOptions, build_config
-from pgvd.grid import Grid
+from pgvd.grid import Grid, heading
 from protocol.auth import seal
 from protocol.errors import ProtocolError
 from protocol.fetch import fetch_parameters, parse_fetch
@@ -538,7 +538,7 @@ class Agent:
 
 
 def _link_json(rec: LinkRecord, versions: dict[str, int]) -> dict[str, object]:
-    psi = float(np.degrees(np.arctan2(rec.matrix[0, 1], rec.matrix[0, 0])))
+    psi = float(np.degrees(heading(rec.matrix)))
     return {
         "a": rec.a,
         "version_a": rec.version_a,

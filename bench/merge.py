@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pgvd.grid import Grid
+from pgvd.grid import Grid, heading
 from pgvd.io import read_carmen
 from pgvd.pairs import (
     DISJOINT_LENGTHS,
@@ -113,12 +113,12 @@ def methods(exhaustive_step: float = 1.0, exhaustive_coarse: int = 4) -> dict[st
 def errors(pair: MapPair, matrix: np.ndarray) -> tuple[float, float]:
     """Heading error (deg) and mean cell error of B's occupied cells against the truth."""
     truth = pair.truth
-    dpsi = np.arctan2(matrix[0, 1], matrix[0, 0]) - np.arctan2(truth[0, 1], truth[0, 0])
-    heading = abs(np.degrees((dpsi + np.pi) % (2 * np.pi) - np.pi))
+    dpsi = heading(matrix) - heading(truth)
+    heading_error = abs(np.degrees((dpsi + np.pi) % (2 * np.pi) - np.pi))
     rows, cols = np.nonzero(pair.b.logodds > 0)
     pts = np.vstack([cols, rows, np.ones_like(rows)]).astype(np.float64)
     cell = float(np.mean(np.linalg.norm((matrix @ pts - truth @ pts)[:2], axis=0)))
-    return float(heading), cell
+    return float(heading_error), cell
 
 
 def evaluate(pair: MapPair, accepted: bool, matrix: np.ndarray, cell_scale: float = 1.0) -> dict:

@@ -129,6 +129,17 @@ def rigid_matrix(psi: float, tx: float, ty: float) -> np.ndarray:
     return np.array([[c, s, tx], [-s, c, ty], [0.0, 0.0, 1.0]])
 
 
+def heading(m: np.ndarray) -> float:
+    """The rotation ``psi`` of a rigid pixel-frame matrix, in radians in ``[-pi, pi]``.
+
+    Read as :func:`rigid_matrix` writes it, ``R_psi = [[cos, sin], [-sin, cos]]``
+    of eq. (2): ``psi = atan2(m[0, 1], m[0, 0])``.  Rows point down in the
+    pixel frame, so this is the negative of the angle ``atan2(m[1, 0], m[0, 0])``
+    a y-up (metric) frame would read from the same matrix.
+    """
+    return float(np.arctan2(m[0, 1], m[0, 0]))
+
+
 def matrix_to_pose(m: np.ndarray) -> tuple[float, float, float]:
     """Inverse of :func:`rigid_matrix`: ``(psi, tx, ty)`` of a rigid 3x3 matrix."""
-    return float(np.arctan2(m[0, 1], m[0, 0])), float(m[0, 2]), float(m[1, 2])
+    return heading(m), float(m[0, 2]), float(m[1, 2])

@@ -27,7 +27,7 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
-from pgvd.grid import rigid_matrix
+from pgvd.grid import heading, rigid_matrix
 from pgvd.morphology import grow
 from pgvd.sampling import subsample
 
@@ -474,7 +474,7 @@ def alignment_covariance(
         return np.diag([np.inf, np.inf, np.inf])
     x, y = pts[ok], walls_a.data[idx[ok]]
     n = _normals(walls_a, y)
-    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
+    psi = heading(matrix)
     c, s = np.cos(psi), np.sin(psi)
     dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
     jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])

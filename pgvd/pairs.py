@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from pgvd.grid import Grid, heading, world_pose_to_pixel_matrix
 from pgvd.integrate import (
     DEFAULT_MODEL,
     InverseSensorModel,
@@ -286,9 +286,7 @@ def write_pair(
     write_map(b_path, pair.b)
     doc = {
         "matrix": None if pair.truth is None else np.round(pair.truth, 9).tolist(),
-        "rotation_deg": None
-        if pair.truth is None
-        else float(np.degrees(np.arctan2(pair.truth[0, 1], pair.truth[0, 0]))),
+        "rotation_deg": None if pair.truth is None else float(np.degrees(heading(pair.truth))),
         "overlap": pair.overlap,
         "name": pair.name,
         **pair.info,
