@@ -183,6 +183,28 @@ def _read_meta(path: Path) -> dict[str, YamlValue]:
     return meta
 
 
+def map_image_path(path: str | os.PathLike[str]) -> Path:
+    """The image file a map_server YAML names, found as :func:`read_map` finds it.
+
+    Parameters
+    ----------
+    path : the ``.yaml``/``.yml`` file.
+
+    Returns
+    -------
+    The image path: relative names are relative to the YAML; an absolute path
+    that does not exist falls back to the YAML's directory.  The image itself
+    is not checked.
+
+    Raises
+    ------
+    MapFormatError
+        If the YAML cannot be read or lacks a valid key.
+    """
+    path = Path(path)
+    return _image_path(path, str(_read_meta(path)["image"]))
+
+
 def _image_path(yaml_path: Path, image: str) -> Path:
     """The image named in the YAML: relative to the YAML; an absolute path that does not
     exist falls back to the YAML's directory (files copied from another machine)."""
