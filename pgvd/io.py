@@ -484,14 +484,29 @@ def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
 # ----------------------------------------------------------------------------- write
 
 
-def _atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
-    """Write via a temporary file in the same directory, then ``os.replace``.
+def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], object]) -> None:
+    """Write a file so that a crash or power cut leaves either the old or the new one whole.
 
-    The temporary file is created with mode 0666 minus the umask, like any
-    ``open()`` (``tempfile.mkstemp`` would leave the map readable by its owner only).
+    ``write`` fills a temporary file ``.<name>.<random>.tmp`` in the same
+    directory; the file is fsynced, renamed over ``path``, and the directory
+    fsynced so that the rename itself is on disk.  On any error the temporary
+    file is removed and the old file, if any, is untouched.
+
+    Parameters
+    ----------
+    path : the file to create or replace; missing parent directories are created.
+    write : called once with the temporary file, opened for binary writing.
+
+    Raises
+    ------
+    OSError
+        If the directory or the file cannot be written; whatever ``write`` raises.
     """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+    # mode 0666 minus the umask, like any open(): tempfile.mkstemp would leave the file
+    # readable by its owner only
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(fd, "wb") as f:
@@ -502,6 +517,11 @@ def _atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
@@ -516,7 +536,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     prob = grid.probability()
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        _atomic_write(path, lambda f: np.save(f, prob.astype(np.float32), allow_pickle=False))
+        atomic_write(path, lambda f: np.save(f, prob.astype(np.float32), allow_pickle=False))
         return
     if suffix not in (".yaml", ".yml"):
         raise ValueError(f"{path}: unknown map format (expected .yaml, .yml or .npy)")
@@ -525,7 +545,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     pixels[prob < FREE_THRESH] = 254
     image = path.with_suffix(".pgm")
     header = f"P5\n{pixels.shape[1]} {pixels.shape[0]}\n255\n".encode()
-    _atomic_write(image, lambda f: f.write(header + pixels.tobytes()))
+    atomic_write(image, lambda f: f.write(header + pixels.tobytes()))
     ox, oy, yaw = (float(v) for v in grid.origin)
     text = (
         f"image: {image.name}\n"
@@ -536,7 +556,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
         f"occupied_thresh: {OCCUPIED_THRESH}\n"
         f"free_thresh: {FREE_THRESH}\n"
     )
-    _atomic_write(path, lambda f: f.write(text.encode()))
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
@@ -568,7 +588,7 @@ def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
         + chunk(b"IDAT", zlib.compress(raw, 6))
         + chunk(b"IEND", b"")
     )
-    _atomic_write(Path(path), lambda f: f.write(png))
+    atomic_write(Path(path), lambda f: f.write(png))
 
 
 # =====================================================================================
