@@ -160,8 +160,8 @@ class CarmenSource:
         speed: float,
         resume: tuple[np.ndarray, int] | None = None,
     ) -> None:
+        from pgvd.carmen import read_carmen
         from pgvd.integrate import frame_for, se2, select_segment
-        from pgvd.io import read_carmen
 
         scans = read_carmen(spec.path)
         self.scans = select_segment(scans, spec.segment)

@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pgvd.carmen import read_carmen
 from pgvd.grid import Grid, heading
-from pgvd.io import read_carmen
 from pgvd.pairs import (
     DISJOINT_LENGTHS,
     MIN_OVERLAP,

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pgvd.carmen import LaserScan
 from pgvd.grid import Grid, heading
-from pgvd.io import LaserScan
 
 #: Rays are sampled at this fraction of a cell so that no crossed cell is skipped
 #: except at the very corners.

@@ -14,8 +14,8 @@ pytest.importorskip("cv2")
 pytest.importorskip("matplotlib")
 
 from bench.merge import errors, main, methods, upsample
+from pgvd.carmen import read_carmen
 from pgvd.grid import rigid_matrix
-from pgvd.io import read_carmen
 from pgvd.pairs import make_pair
 
 
