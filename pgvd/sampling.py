@@ -13,12 +13,15 @@ def subsample(points: np.ndarray, max_points: int) -> np.ndarray:
 
     Parameters
     ----------
-    points : array whose first axis indexes the points (any number of them, 0 included).
-    max_points : the most rows to keep, >= 1.
+    points : numpy.ndarray
+        Array whose first axis indexes the points (any number of them, 0 included).
+    max_points : int
+        The most rows to keep, >= 1.
 
     Returns
     -------
-    A view of ``points``: all of it when it holds at most ``max_points`` rows.
+    numpy.ndarray
+        A view of ``points``: all of it when it holds at most ``max_points`` rows.
 
     Raises
     ------
