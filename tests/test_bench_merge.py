@@ -72,13 +72,13 @@ def test_pgvd_det_column_fails_loudly_without_its_switch(monkeypatch):
     """pgvd-det is MergeParams(probabilistic=False); a core without it is an error, never a
     table that silently lacks the column."""
     import dataclasses
-
-    import pgvd.merge
+    import importlib
 
     @dataclasses.dataclass
     class WithoutSwitch:
         diagnostics: bool = True
 
-    monkeypatch.setattr(pgvd.merge, "MergeParams", WithoutSwitch)
+    # the submodule: the attribute pgvd.merge is the function merge
+    monkeypatch.setattr(importlib.import_module("pgvd.merge"), "MergeParams", WithoutSwitch)
     with pytest.raises(TypeError, match="probabilistic"):
         methods()
