@@ -56,10 +56,6 @@ def atomic_write_bytes(path: Path, data: bytes, point: str | None = None) -> Non
     atomic_write(path, write)
 
 
-def atomic_write_json(path: Path, obj: object) -> None:
-    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True).encode())
-
-
 class StateDir:
     """Load and save an agent's persisted state under one directory."""
 
@@ -109,8 +105,9 @@ class StateDir:
         except (OSError, ValueError) as exc:
             return [], [f"links.json: {exc}"]
 
-    def save_status(self, status: dict[str, object]) -> None:
-        atomic_write_json(self.root / "status.json", status)
+    def save_status(self, payload: bytes) -> None:
+        """Write the status JSON ``payload`` (the bytes a status query is answered with)."""
+        atomic_write_bytes(self.root / "status.json", payload)
 
 
 def remove_temporaries(*patterns: Path) -> list[str]:

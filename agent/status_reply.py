@@ -1,6 +1,6 @@
 """An agent's status reply as ``pgvd status`` trusts it: a fleet MAC, then a checked shape.
 
-The reply is the status JSON (:meth:`agent.daemon.Agent.status`); in a keyed fleet its
+The reply is the status JSON (:meth:`agent.node.FleetNode.status`); in a keyed fleet its
 HMAC-SHA256 under the fleet key (:func:`protocol.auth.seal`, as on every map message) rides as
 the reply's Zenoh attachment, so that a tool without the key can still read the JSON while one
 with the key refuses forgeries. Whoever answers under ``pgvd/<fleet>/status/*`` is a stranger
