@@ -9,7 +9,8 @@
 ``map:FILE.yaml``
     Follows a map_server file that an external SLAM rewrites: a new map is read only when
     the YAML and image have been unchanged for one poll (a writer may be half-way), and a
-    file that fails to parse is retried on the next poll.
+    file that fails to read is counted (``read_errors`` in the status) and retried on the
+    next poll.
 
 A source bumps its *version* only through :class:`ChangeGate`, when the map changed
 enough, so every version is worth registering again (:mod:`agent.links`).
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from pgvd.io import MapFormatError, map_image_path, read_map
 
 _CARMEN = re.compile(r"^carmen:(?P<path>.+?)(?:@(?P<lo>[0-9.]+)-(?P<hi>[0-9.]+))?$")
 
@@ -158,8 +160,8 @@ class CarmenSource:
         speed: float,
         resume: tuple[np.ndarray, int] | None = None,
     ) -> None:
+        from pgvd.carmen import read_carmen
         from pgvd.integrate import frame_for, se2, select_segment
-        from pgvd.io import read_carmen
 
         scans = read_carmen(spec.path)
         self.scans = select_segment(scans, spec.segment)
@@ -245,8 +247,6 @@ class MapFileSource:
     done = False
 
     def step(self, now: float) -> bool:
-        from pgvd.io import MapFormatError, read_map
-
         if now < self._next:
             return False
         self._next = now + self.poll
@@ -269,21 +269,22 @@ class MapFileSource:
         return True
 
     def _stat(self) -> tuple[object, ...] | None:
-        from pgvd.io import parse_map_yaml
+        """Size and mtime of the YAML and its image; None while there is no YAML yet.
 
+        An image that cannot be found (bad YAML, missing file) is stamped None
+        rather than skipped, so once the files hold still :func:`read_map` runs
+        and its error is counted: a map that never loads never goes unnoticed.
+        """
         try:
             yaml_stat = self.spec.path.stat()
-            meta = parse_map_yaml(self.spec.path.read_text(), self.spec.path)
-            image = self.spec.path.parent / str(meta.get("image", ""))
-            image_stat = image.stat()
-        except (OSError, ValueError):
+        except OSError:
             return None
-        return (
-            yaml_stat.st_size,
-            yaml_stat.st_mtime_ns,
-            image_stat.st_size,
-            image_stat.st_mtime_ns,
-        )
+        try:
+            image_stat = map_image_path(self.spec.path).stat()
+            image: tuple[int, int] | None = (image_stat.st_size, image_stat.st_mtime_ns)
+        except (MapFormatError, OSError):
+            image = None
+        return (yaml_stat.st_size, yaml_stat.st_mtime_ns, image)
 
     def grid(self) -> Grid:
         if self._grid is None:

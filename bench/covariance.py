@@ -64,7 +64,7 @@ def _wall_error(b_walls: np.ndarray, truth: np.ndarray, estimate: np.ndarray) ->
 
 def collect(n_pairs: int, seed: int, out: Path) -> int:
     """Merge ``n_pairs`` overlapping pairs per log; store errors and alignment terms."""
-    from pgvd.io import read_carmen
+    from pgvd.carmen import read_carmen
     from pgvd.matching import WallMap, alignment_fit
     from pgvd.merge import MergeParams, merge
     from pgvd.pairs import make_pairs

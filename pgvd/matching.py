@@ -29,8 +29,9 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
-from pgvd.grid import rigid_matrix
+from pgvd.grid import heading, rigid_matrix
 from pgvd.morphology import grow
+from pgvd.sampling import subsample
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
 _BLOCK_CELLS = 1 << 21
@@ -451,8 +452,7 @@ def map_agreement(
     """
     wb, wa = b.walls, a.walls
     if max_points > 0:
-        wb = wb[:: -(-len(wb) // max_points)]
-        wa = wa[:: -(-len(wa) // max_points)]
+        wb, wa = subsample(wb, max_points), subsample(wa, max_points)
     ag1, dis1 = a.count(_apply(matrix, wb), tolerance)
     ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), wa), tolerance)
     return Agreement(ag1 + ag2, dis1 + dis2)
@@ -504,7 +504,7 @@ def refine(
         The refined 3x3 rigid matrix (eqs. (1)-(2)), B pixel -> A pixel.
     """
     m = matrix.copy()
-    sub = walls_b[:: -(-len(walls_b) // max_points)]
+    sub = subsample(walls_b, max_points)
     for k, radius in enumerate(radii):
         pts = walls_b if k == len(radii) - 1 else sub
         for _ in range(iterations):
@@ -562,9 +562,9 @@ def alignment_fit(
     Each wall cell of B that lands within ``radius`` of A's walls gives a
     residual ``r_i = n_i . (R x_i + t - y_i)`` along A's wall normal ``n_i``
     with Jacobian ``J_i = [n_x, n_y, n_i . dR/dpsi x_i]`` (the ``r1, r2`` of
-    eq. (7)).  An even subsample of at most ``max_points`` cells is used;
-    ``info`` is scaled back to all of B's walls (every cell of the subsample
-    stands for ``stride`` cells).
+    eq. (7)).  An even subsample of at most ``max_points`` cells is used
+    (:func:`pgvd.sampling.subsample`); ``info`` is scaled back to all of B's
+    walls, each kept cell standing for the cells between it and the next.
 
     Parameters
     ----------
@@ -584,8 +584,7 @@ def alignment_fit(
     AlignmentFit or None
         None when fewer than 3 cells of B land near A's walls.
     """
-    step = -(-len(walls_b) // max_points)
-    pts = walls_b[::step]
+    pts = subsample(walls_b, max_points)
     moved = _apply(matrix, pts)
     dist, idx = walls_a.query(moved, distance_upper_bound=radius)
     ok = np.isfinite(dist)
@@ -593,7 +592,7 @@ def alignment_fit(
         return None
     x, y = pts[ok], walls_a.data[idx[ok]]
     n = _normals(walls_a, y)
-    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
+    psi = heading(matrix)
     c, s = np.cos(psi), np.sin(psi)
     dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
     jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
@@ -602,7 +601,7 @@ def alignment_fit(
     # a tiny prior keeps a degenerate direction finite instead of singular
     info += np.diag([1e-9, 1e-9, 1e-9 * max(1.0, float(np.abs(x).max())) ** 2])
     return AlignmentFit(
-        info=info * step,
+        info=info * (len(walls_b) / len(pts)),
         sigma2=max(float(np.mean(res**2)), 1.0 / 12.0),
         centroid=x.mean(axis=0),
         psi=float(psi),

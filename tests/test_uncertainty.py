@@ -274,7 +274,7 @@ def test_calibrated_covariance_floor_acts_about_the_matched_walls() -> None:
 
 def test_merge_covariance_is_consistent_on_real_pairs(shared) -> None:
     from bench.covariance import nees, pose_error
-    from pgvd.io import read_carmen
+    from pgvd.carmen import read_carmen
     from pgvd.merge import MergeParams, merge
     from pgvd.pairs import make_pairs
 
