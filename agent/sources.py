@@ -12,7 +12,8 @@
 ``map:FILE.yaml``
     Follows a map_server file that an external SLAM rewrites: a new map is read only when
     the YAML and image have been unchanged for one poll (a writer may be half-way), and a
-    file that fails to parse is retried on the next poll.
+    file that fails to read is counted (``read_errors`` in the status) and retried on the
+    next poll.
 ``ros2:/TOPIC``
     Follows a ``nav_msgs/msg/OccupancyGrid`` topic: the host subscribes
     (:class:`agent.ros2_io.RosMapSubscription`) and hands the source its ``take``.
@@ -33,9 +34,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from pgvd.io import MapFormatError, map_image_path, read_map
 
 if TYPE_CHECKING:
-    from pgvd.io import LaserScan
+    from pgvd.carmen import LaserScan
     from protocol.ros2.occupancy import RosMap
 
 _CARMEN = re.compile(r"^carmen:(?P<path>.+?)(?:@(?P<lo>[0-9.]+)-(?P<hi>[0-9.]+))?$")
@@ -190,7 +192,7 @@ def load_scans(spec: SourceSpec) -> list[LaserScan]:
         from pgvd.rosbag import read_rosbag_scans
 
         return read_rosbag_scans(spec.path, spec.topic)
-    from pgvd.io import read_carmen
+    from pgvd.carmen import read_carmen
 
     return read_carmen(spec.path)
 
@@ -304,8 +306,6 @@ class MapFileSource:
     done = False
 
     def step(self, now: float) -> bool:
-        from pgvd.io import MapFormatError, read_map
-
         if now < self._next:
             return False
         self._next = now + self.poll
@@ -328,21 +328,22 @@ class MapFileSource:
         return True
 
     def _stat(self) -> tuple[object, ...] | None:
-        from pgvd.io import parse_map_yaml
+        """Size and mtime of the YAML and its image; None while there is no YAML yet.
 
+        An image that cannot be found (bad YAML, missing file) is stamped None
+        rather than skipped, so once the files hold still :func:`read_map` runs
+        and its error is counted: a map that never loads never goes unnoticed.
+        """
         try:
             yaml_stat = self.spec.path.stat()
-            meta = parse_map_yaml(self.spec.path.read_text(), self.spec.path)
-            image = self.spec.path.parent / str(meta.get("image", ""))
-            image_stat = image.stat()
-        except (OSError, ValueError):
+        except OSError:
             return None
-        return (
-            yaml_stat.st_size,
-            yaml_stat.st_mtime_ns,
-            image_stat.st_size,
-            image_stat.st_mtime_ns,
-        )
+        try:
+            image_stat = map_image_path(self.spec.path).stat()
+            image: tuple[int, int] | None = (image_stat.st_size, image_stat.st_mtime_ns)
+        except (MapFormatError, OSError):
+            image = None
+        return (yaml_stat.st_size, yaml_stat.st_mtime_ns, image)
 
     def grid(self) -> Grid:
         if self._grid is None:

@@ -27,8 +27,9 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
-from pgvd.grid import rigid_matrix
+from pgvd.grid import heading, rigid_matrix
 from pgvd.morphology import grow
+from pgvd.sampling import subsample
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
 _BLOCK_CELLS = 1 << 21
@@ -449,8 +450,7 @@ def map_agreement(
     """
     wb, wa = b.walls, a.walls
     if max_points > 0:
-        wb = wb[:: -(-len(wb) // max_points)]
-        wa = wa[:: -(-len(wa) // max_points)]
+        wb, wa = subsample(wb, max_points), subsample(wa, max_points)
     ag1, dis1 = a.count(_apply(matrix, wb), tolerance)
     ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), wa), tolerance)
     return Agreement(ag1 + ag2, dis1 + dis2)
@@ -502,7 +502,7 @@ def refine(
         The refined 3x3 rigid matrix (eqs. (1)-(2)), B pixel -> A pixel.
     """
     m = matrix.copy()
-    sub = walls_b[:: -(-len(walls_b) // max_points)]
+    sub = subsample(walls_b, max_points)
     for k, radius in enumerate(radii):
         pts = walls_b if k == len(radii) - 1 else sub
         for _ in range(iterations):
@@ -578,7 +578,7 @@ def alignment_covariance(
     .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
        using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (3), (7).
     """
-    pts = walls_b[:: -(-len(walls_b) // max_points)]
+    pts = subsample(walls_b, max_points)
     moved = _apply(matrix, pts)
     dist, idx = walls_a.query(moved, distance_upper_bound=radius)
     ok = np.isfinite(dist)
@@ -586,7 +586,7 @@ def alignment_covariance(
         return np.diag([np.inf, np.inf, np.inf])
     x, y = pts[ok], walls_a.data[idx[ok]]
     n = _normals(walls_a, y)
-    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
+    psi = heading(matrix)
     c, s = np.cos(psi), np.sin(psi)
     dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
     jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])

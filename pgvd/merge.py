@@ -66,6 +66,7 @@ from pgvd.matching import (
     rho_threshold,
 )
 from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
+from pgvd.sampling import subsample
 from pgvd.transform import warp
 from pgvd.uncertainty import rotation_blur
 
@@ -427,7 +428,7 @@ def _decide(
     a subsample of B's walls and scored on subsamples (quick); the winner is
     then refined on all wall cells.  Returns it with its B->A pixel matrix.
     """
-    sub_b = fine_b.walls[:: -(-len(fine_b.walls) // params.refine_points)]
+    sub_b = subsample(fine_b.walls, params.refine_points)
     scored = []
     for h in finalists:
         m = to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k))

@@ -25,6 +25,7 @@ from agent.sources import (
     parse_source,
 )
 from pgvd.grid import Grid
+from pgvd.io import read_map
 from protocol.ros2.occupancy import RosMap
 
 INTEL = Path(__file__).resolve().parents[1] / "agent" / "data" / "intel-corrected.log.gz"
@@ -79,8 +80,8 @@ def test_a_rosbag_replays_like_the_carmen_log_it_was_written_from(tmp_path: Path
     pytest.importorskip("rosbags")
     import bags
 
+    from pgvd.carmen import read_carmen
     from pgvd.integrate import select_segment
-    from pgvd.io import read_carmen
 
     bags.write_scan_bag(tmp_path / "bag", select_segment(read_carmen(INTEL), (0.0, 0.05)))
     frame = (1.0, -2.0, 0.3)
@@ -171,6 +172,45 @@ def test_map_file_source_waits_for_stable_files_and_survives_bad_ones(
     assert not source.step(3.0)
     assert source.step(4.0)
     assert source.grid().shape[0] > 100 and not source.step(5.0)
+
+
+def _follow(yaml: Path) -> MapFileSource:
+    """A map source that has polled ``yaml`` twice: long enough to read a stable file."""
+    source = MapFileSource(parse_source(f"map:{yaml}"), poll=0.0)
+    source.step(0.0)
+    source.step(1.0)
+    return source
+
+
+@pytest.mark.parametrize("case", ["byte-order mark", "moved absolute image"])
+def test_map_file_source_reads_what_read_map_reads(shared: Path, tmp_path: Path, case) -> None:
+    """A YAML with a BOM, or naming an absolute image path that moved beside it (a map
+    copied from another machine): read_map reads both, so the source must too."""
+    src_dir = shared / "maps" / "intel_split_gt"
+    shutil.copy(src_dir / "intel_partA.pgm", tmp_path / "intel_partA.pgm")
+    text = (src_dir / "intel_partA.yaml").read_text()
+    yaml = tmp_path / "map.yaml"
+    if case == "byte-order mark":
+        yaml.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    else:
+        yaml.write_text(text.replace("intel_partA.pgm", "/gone/robot1/maps/intel_partA.pgm"))
+    expected = read_map(yaml)
+    source = _follow(yaml)
+    assert source.errors == 0 and source.last_error is None
+    np.testing.assert_array_equal(source.grid().logodds, expected.logodds)
+
+
+def test_map_file_source_counts_a_yaml_whose_image_is_missing(shared: Path, tmp_path: Path) -> None:
+    yaml = tmp_path / "map.yaml"
+    yaml.write_text((shared / "maps/intel_split_gt/intel_partA.yaml").read_text())
+    source = _follow(yaml)
+    assert source.errors == 1 and "intel_partA.pgm: no such file" in source.last_error
+    assert source.describe()["read_errors"] == 1
+    source.step(2.0)  # still missing: retried and counted again
+    assert source.errors == 2
+    shutil.copy(shared / "maps/intel_split_gt/intel_partA.pgm", tmp_path)
+    assert not source.step(3.0)  # the image appeared: wait one poll, then read it
+    assert source.step(4.0) and source.errors == 2
 
 
 def test_epoch_due_on_big_change_or_moved_canvas() -> None:

@@ -29,8 +29,9 @@ from agent.evaluate import link_error, true_matrix
 from agent.launcher import ROOT, LocalFleet, free_port, wait_for
 from agent.scenario import LOG, random_frames, segments
 from agent.state import StateDir
+from pgvd.carmen import read_carmen
 from pgvd.integrate import frame_for, integrate_scan, se2, select_segment
-from pgvd.io import read_carmen, read_map
+from pgvd.io import read_map
 
 pytestmark = [pytest.mark.fleet, pytest.mark.slow]
 
