@@ -37,7 +37,9 @@ Stages (``timings_ms`` keys):
 ``refine``
     trimmed ICP of the wall cells at full resolution.
 ``covariance``
-    Gauss-Newton (point-to-line) covariance of ``(x, y, psi)`` at the optimum.
+    covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
+    curvature plus a bias and a floor calibrated on real pairs
+    (:func:`pgvd.matching.calibrated_covariance`).
 """
 
 from __future__ import annotations
@@ -58,7 +60,8 @@ from pgvd.matching import (
     OverlayScores,
     PairSupport,
     WallMap,
-    alignment_covariance,
+    alignment_fit,
+    calibrated_covariance,
     map_agreement,
     pair_support,
     refine,
@@ -655,7 +658,7 @@ def merge(
             matrix,
             agreement.ratio,
         )
-    cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
+    cov = calibrated_covariance(alignment_fit(fine_a.tree, fine_b.walls, matrix), a.resolution)
     clock.lap("covariance")
     diag = (
         _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))
