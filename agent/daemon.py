@@ -20,7 +20,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import zenoh
@@ -30,7 +30,9 @@ from agent.failpoints import failpoint
 from agent.globalmap import Component, FuseFn
 from agent.inbox import MAX_BYTES, Inbox, offer_or_drop
 from agent.node import FleetNode, Instant, NodeOptions
-from agent.sources import SourceSpec, make_source
+from agent.outputs import OutputOptions, Outputs
+from agent.ros2_io import RosMapSubscription
+from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap
 from agent.status import HostFacts
 from agent.worker import FusionWorker, RegisterFn, merge_registration, verify_check
@@ -63,6 +65,7 @@ class AgentOptions:
     epoch_change: float = NodeOptions.epoch_change
     forget_after: float = NodeOptions.forget_after
     inbox_bytes: int = MAX_BYTES
+    outputs: OutputOptions = field(default_factory=OutputOptions)
 
     def node_options(self) -> NodeOptions:
         """The core's part; tiles on a session of their own go out packed for datagrams."""
@@ -78,6 +81,12 @@ class AgentOptions:
             self.epoch_change,
             self.forget_after,
         )
+
+    def session_options(self) -> ZenohOptions:
+        """The main session's; ROS 2's advanced publishers and subscribers need timestamps."""
+        if self.source.kind != "ros2" and self.outputs.publish is None:
+            return self.zenoh
+        return replace(self.zenoh, extra={**self.zenoh.extra, "timestamping/enabled": True})
 
 
 BLOCK, REMOTE = zenoh.CongestionControl.BLOCK, zenoh.Locality.REMOTE
@@ -247,7 +256,8 @@ class Agent:
     def run(self, stop: threading.Event) -> int:
         """Serve until ``stop`` is set; returns 0 after a clean shutdown."""
         k, me = self.keys, self.opts.robot
-        with zenoh.open(build_config(self.opts.zenoh)) as session, contextlib.ExitStack() as stack:
+        config = build_config(self.opts.session_options())
+        with zenoh.open(config) as session, contextlib.ExitStack() as stack:
             self.session = session
             manifests = session.declare_publisher(k.manifest(me), congestion_control=BLOCK)
             self._publishers = {
@@ -265,10 +275,13 @@ class Agent:
             stack.enter_context(
                 session.liveliness().declare_subscriber(k.alive(), self._on_alive, history=True)
             )
+            self._follow_ros_topic(session, stack)
+            outputs = Outputs(self.opts.outputs, me, session, self.counters)
+            stack.callback(outputs.close)
             log.info("agent %s up in fleet %s (pid %d)", me, self.opts.fleet, os.getpid())
             self.worker.start()
             try:
-                self._loop(stop)
+                self._loop(stop, outputs)
             finally:
                 self.worker.stop(timeout=0.5)
                 self._call(self.node.flush)
@@ -291,7 +304,21 @@ class Agent:
         publisher = tiles.declare_publisher(key, congestion_control=drop, reliability=best_effort)
         return stack.enter_context(publisher)
 
-    def _loop(self, stop: threading.Event) -> None:
+    def _follow_ros_topic(self, session: zenoh.Session, stack: contextlib.ExitStack) -> None:
+        """A ``ros2:`` source reads the topic's subscription; refusals count as ``ros2_*``."""
+        if not isinstance(self.source, RosTopicSource):
+            return
+        topic = self.opts.source.topic
+        assert topic is not None
+
+        def on_drop(what: str, detail: str) -> None:
+            self.counters.drop(f"ros2_{what}", topic, detail)
+
+        sub = RosMapSubscription(session, topic, self.opts.outputs.ros, on_drop)
+        stack.callback(sub.close)
+        self.source.attach(sub.take)
+
+    def _loop(self, stop: threading.Event, outputs: Outputs) -> None:
         while not stop.is_set():
             self._drain_inbox(deadline=time.monotonic() + 0.1)
             now = _now()
@@ -299,6 +326,7 @@ class Agent:
             if src.step(now.mono):
                 self._call(self.node.on_source, src.grid(), now, src.done, src.resume_state())
             self._call(self.node.tick, now)
+            outputs.tick(now.mono, self.node.global_component(), self.node.book)
 
     def _drain_inbox(self, deadline: float) -> None:
         while time.monotonic() < deadline:

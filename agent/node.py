@@ -74,6 +74,7 @@ from protocol.errors import ProtocolError
 from protocol.fetch import fetch_parameters, parse_fetch
 
 if TYPE_CHECKING:  # the worker's thread is the host's business, not the core's
+    from agent.globalmap import Component
     from agent.worker import GlobalState
 
 log = logging.getLogger("pgvd.agent")
@@ -326,6 +327,11 @@ class FleetNode:
         """The reply carrying the status JSON ``payload``, with the fleet MAC if keyed."""
         mac = None if self.opts.key is None else seal(payload, self.opts.key)
         return Reply(self.keys.status(self.me), payload, mac)
+
+    def global_component(self) -> Component | None:
+        """The last rebuilt component holding this robot (its global map), or None yet."""
+        glob = self._global
+        return None if glob is None else component_of(glob.components, self.me)
 
     # ----------------------------------------------------------------- status
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from agent.globalmap import Component
 from agent.links import LinkRecord
+from pgvd.grid import heading
 
 
 @dataclass(frozen=True)
@@ -42,7 +43,7 @@ def robots_json(
 
 def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]:
     """A link as the status shows it, with its rotation in degrees."""
-    psi = float(np.degrees(np.arctan2(rec.matrix[0, 1], rec.matrix[0, 0])))
+    psi = float(np.degrees(heading(rec.matrix)))
     return {
         "a": rec.a,
         "version_a": rec.version_a,
