@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pgvd.carmen import read_carmen
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
-from pgvd.io import read_carmen, read_map
+from pgvd.io import read_map
 from pgvd.merge import MergeParams
 from pgvd.pairs import make_pair
 from pgvd.transform import resample
