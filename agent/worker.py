@@ -13,9 +13,9 @@ Verify before you search: when the accepted links already place both robots of a
 component (the robust pose graph's placements, :func:`predict`), that prediction is checked
 first (:func:`verify_check`: a local refinement and the overlay acceptance, tens of
 milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where the check is
-inconclusive.  A prediction under which the two maps share too few walls to be accepted by
-any merge is a decided rejection -- a search could only find a transform the chain
-contradicts -- but only for a pair a search already found disjoint in an earlier epoch: were
+inconclusive.  A prediction under which the two maps share too few walls, or disagree once
+refined within the basin, is a decided rejection -- a search could only find a transform the
+chain contradicts -- but only for a pair a search already rejected in an earlier epoch: were
 the chain wrong, a first search is what finds the true link that exposes it around a cycle.
 So full searches grow with the robots (each joins its component once, plus the pairs whose
 chain is off), not with the pairs.  Which way a link was decided does not enter the global
@@ -107,15 +107,16 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
 def verify_check(min_agreement: float | None = None) -> CheckFn:
     """:func:`pgvd.verify.verify` as a :data:`CheckFn`, with the merge's thresholds.
 
-    Confirmed: the refined transform is the link.  Rejected with fewer than
-    ``min_overlap`` metres of walls of either map on the other's known space (agreeing or
-    not) at the *predicted* transform: the pair is rejected without a search, because at
-    the place the chain puts them the maps cannot pass the merge's overlap test (the worker
-    takes that only for a pair a search found disjoint before).  Any other rejection
-    (disagreeing walls, a correction beyond the basin) is inconclusive.
+    Confirmed: the refined transform is the link.  Rejected (a verdict the worker takes
+    only for a pair a search rejected before) when, at the place the chain puts the maps,
+    they cannot pass the merge's tests: fewer than ``min_overlap`` metres of walls of either
+    map on the other's known space (agreeing or not) at the *predicted* transform, or the
+    overlay refined within the basin (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still
+    disagrees.  A search there could only find a transform the chain contradicts.  A
+    correction beyond the basin is inconclusive: the chain may be off, the search decides.
     """
     from pgvd.matching import WallMap, map_agreement
-    from pgvd.verify import verify
+    from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, verify
 
     params = _merge_params(min_agreement)
 
@@ -128,6 +129,11 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         seen = map_agreement(fine_a, fine_b, predicted)
         if 0.5 * (seen.agree + seen.disagree) * a.resolution < params.min_overlap:
             return Registration(False, *_REJECTED, 0.0)
+        if len(fine_b.walls) == 0:
+            return None
+        shift_px, turn_deg = basin_move(predicted, res.matrix, fine_b.walls)
+        if shift_px * a.resolution <= BASIN_M and turn_deg <= BASIN_DEG:
+            return Registration(False, *_REJECTED, res.score)
         return None
 
     return check
@@ -184,7 +190,7 @@ class FusionWorker:
     fuse : fusion function for :func:`agent.globalmap.build_components`.
     check : checks a pair's predicted transform before a full search (:data:`CheckFn`);
         None always searches.
-    counters : where ``searches``, ``checks``, ``checks_confirmed`` and ``checks_disjoint``
+    counters : where ``searches``, ``checks``, ``checks_confirmed`` and ``checks_rejected``
         are counted (the status shows them).
     """
 
@@ -334,12 +340,12 @@ class FusionWorker:
         self.counters.add("checks")
         res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
         if res is not None and not res.accepted and not _rejected_before(snap.links, a, b):
-            # Only a search may find a pair disjoint first: were the chain wrong (a false
+            # Only a search may reject a pair first: were the chain wrong (a false
             # link on a bridge), skipping it would lose the true link that closes a cycle
             # around the false one and lets the pose graph reject it.
             res = None
         if res is not None:
-            self.counters.add("checks_confirmed" if res.accepted else "checks_disjoint")
+            self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
         return res
 
     def _predicted(self, snap: Snapshot, a: str, b: str) -> np.ndarray | None:

@@ -2,12 +2,24 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
-from agent.worker import FusionWorker, GlobalState, Registration, placements, predict
+from agent.worker import (
+    FusionWorker,
+    GlobalState,
+    Registration,
+    placements,
+    predict,
+    verify_check,
+)
 from pgvd.grid import Grid, rigid_matrix
+from pgvd.io import read_map
 
 
 def V(epoch: int, minor: int = 0) -> int:
@@ -202,7 +214,7 @@ def test_a_disjoint_verdict_on_a_pair_rejected_before_rejects_without_search() -
     _chain(h)  # epoch 1 of every map: r1-r3 needs a link again
     assert h.worker.step(now=0.0)
     assert h.calls == [] and [ln.accepted for ln in h.links] == [False]
-    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "checks_disjoint": 1}
+    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "checks_rejected": 1}
 
 
 def test_a_pair_no_chain_reaches_is_searched_unchecked() -> None:
@@ -250,3 +262,27 @@ def test_a_preferred_candidate_for_a_held_key_rebuilds_the_global_map() -> None:
     assert h.book.add_link(_link("r1", "r2", moved, by="r0"))  # same key, preferred
     assert not h.worker.step(now=0.1) and len(h.globals) == 2
     np.testing.assert_array_equal(h.globals[-1].components[0].transforms["r2"], moved)
+
+
+@pytest.fixture(scope="module")
+def intel_pair() -> tuple[Grid, Grid, np.ndarray]:
+    """The bundled Intel pair and its true B->A matrix."""
+    root = Path(__file__).resolve().parents[1] / "examples"
+    truth = np.array(json.loads((root / "truth.json").read_text())["matrix"])
+    return read_map(root / "intel_a.yaml"), read_map(root / "intel_b.yaml"), truth
+
+
+def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
+    a, b, truth = intel_pair
+    check = verify_check()
+    confirmed = check(a, b, truth)
+    assert confirmed is not None and confirmed.accepted
+    assert np.abs(confirmed.matrix - truth)[:2, 2].max() < 2.0
+    far = rigid_matrix(0.0, 5000.0, 0.0) @ truth  # the chain puts B far outside A
+    rejected = check(a, b, far)
+    assert rejected is not None and not rejected.accepted and rejected.score == 0.0
+    off = rigid_matrix(np.radians(20.0), 60.0, 0.0) @ truth  # overlapping, disagreeing
+    verdict = check(a, b, off)
+    assert verdict is not None and not verdict.accepted
+    monkeypatch.setattr("pgvd.verify.BASIN_M", 1e-3)  # any correction leaves the basin
+    assert verify_check()(a, b, off) is None
