@@ -82,6 +82,13 @@ class PersistLinks:
 
 
 @dataclass(frozen=True)
+class ForgetMap:
+    """Delete ``robot``'s persisted map: the robot left long ago and is forgotten."""
+
+    robot: str
+
+
+@dataclass(frozen=True)
 class PersistGlobal:
     """Write the global map of this robot's component (YAML, image and PNG) for people."""
 
@@ -119,6 +126,7 @@ Action = (
     | Reply
     | PersistMap
     | PersistLinks
+    | ForgetMap
     | PersistGlobal
     | WriteStatus
     | Register

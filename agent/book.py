@@ -90,6 +90,16 @@ class FleetBook:
             self._links.prune({r: v for r, (v, _) in self._maps.items()})
         return True
 
+    def forget(self, robot: str) -> bool:
+        """Drop ``robot``'s map and links; True if a map was held."""
+        with self._lock:
+            held = self._maps.pop(robot, None)
+            self._links.forget(robot)
+            self._first_needed = {
+                k: t for k, t in self._first_needed.items() if robot not in (k[0], k[2])
+            }
+        return held is not None
+
     def add_link(self, rec: LinkRecord) -> bool:
         """Cache ``rec``; True if it is now the link used for its epochs."""
         with self._lock:

@@ -35,7 +35,7 @@ from agent.ros2_io import RosMapSubscription
 from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap
 from agent.status import HostFacts
-from agent.worker import FusionWorker, RegisterFn, merge_registration
+from agent.worker import FusionWorker, RegisterFn, merge_registration, verify_check
 from agent.zenoh_config import ZenohOptions, build_config
 
 log = logging.getLogger("pgvd.agent")
@@ -63,6 +63,7 @@ class AgentOptions:
     min_interval: float = NodeOptions.min_interval
     min_agreement: float | None = None
     epoch_change: float = NodeOptions.epoch_change
+    forget_after: float = NodeOptions.forget_after
     inbox_bytes: int = MAX_BYTES
     outputs: OutputOptions = field(default_factory=OutputOptions)
 
@@ -78,6 +79,7 @@ class AgentOptions:
             self.min_change,
             self.min_interval,
             self.epoch_change,
+            self.forget_after,
         )
 
     def session_options(self) -> ZenohOptions:
@@ -138,6 +140,9 @@ class Agent:
             lambda state: self._call(self.node.on_global, state, _now()),
             opts.link_timeout,
             fuse,
+            # an injected registration (tests) decides alone; the real one verifies first
+            check=verify_check(opts.min_agreement) if register is None else None,
+            counters=self.counters,
         )
 
     def _load_state(self) -> StoredMap | None:
@@ -213,6 +218,8 @@ class Agent:
                     self._call(self.node.on_persisted, robot, stored.version, _now())
                 case act.PersistLinks(records):
                     self.state.save_links(list(records))
+                case act.ForgetMap(robot):
+                    self.state.forget_map(robot)
                 case act.PersistGlobal(component):
                     _write_global(self.out_dir, component)
                 case act.WriteStatus():

@@ -29,6 +29,11 @@ class FetchSchedule:
         """``robot``'s map is complete: no fetch is due."""
         self._due.pop(robot, None)
 
+    def forget(self, robot: str) -> None:
+        """Drop everything held about ``robot``."""
+        self._due.pop(robot, None)
+        self._last.pop(robot, None)
+
     def pop_due(self, now: float) -> list[str]:
         """The robots whose fetch is due at ``now``, forgotten as due."""
         due = [robot for robot, when in self._due.items() if now >= when]

@@ -48,6 +48,9 @@ class Component:
     digest : hex SHA-256 of the quantised fused map (see :func:`map_digest`).
     unblurred : robots whose map had to be fused without its uncertainty blur because
         the blur failed on these inputs (reported in the status).
+    evidence : ``(a, b, decided_by, version_a, version_b)`` of every accepted link of its
+        members that went into the solution, used or rejected: the placements are a
+        function of these (the soak's steadiness measure compares them).
     """
 
     anchor: str
@@ -60,6 +63,7 @@ class Component:
     grid: Grid
     digest: str
     unblurred: tuple[str, ...] = ()
+    evidence: tuple[tuple[str, str, str, int, int], ...] = ()
 
 
 def map_digest(grid: Grid) -> str:
@@ -125,6 +129,11 @@ def build_components(
                 grid=grid,
                 digest=map_digest(grid),
                 unblurred=unblurred,
+                evidence=tuple(
+                    (ln.a, ln.b, ln.decided_by, ln.version_a, ln.version_b)
+                    for ln in usable
+                    if ln.a in members
+                ),
             )
         )
     return out

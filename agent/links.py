@@ -151,6 +151,10 @@ class LinkCache:
         """Every link held, for persistence and for peers' queries."""
         return [r for k in sorted(self._by_key) for r in sorted(self._by_key[k], key=_preference)]
 
+    def forget(self, robot: str) -> None:
+        """Drop every link of ``robot``."""
+        self._by_key = {k: v for k, v in self._by_key.items() if robot not in (k[0], k[2])}
+
     def prune(self, versions: Mapping[str, int]) -> None:
         """Drop links of superseded epochs, but keep per pair the newest of those.
 

@@ -43,6 +43,7 @@ from agent.actions import (
     Action,
     Drop,
     Fetch,
+    ForgetMap,
     PersistGlobal,
     PersistLinks,
     PersistMap,
@@ -106,6 +107,9 @@ class NodeOptions:
         of known cells that must change class, and the seconds between two own versions.
     epoch_change : the fraction of known cells changed since an epoch began that starts a new
         registration epoch (:func:`agent.sources.epoch_due`).
+    forget_after : seconds after a robot left (its liveliness token went away) before its
+        map, links and reassembly state are dropped, so that what an agent holds is bounded
+        by the robots present, not by every robot it has ever seen.
     """
 
     robot: str
@@ -117,6 +121,7 @@ class NodeOptions:
     min_change: float = 0.05
     min_interval: float = 1.0
     epoch_change: float = 0.15
+    forget_after: float = 300.0
 
 
 class FleetNode:
@@ -143,6 +148,7 @@ class FleetNode:
         self.gate = ChangeGate(opts.min_change, opts.min_interval)
         self.gate.reset(None, now.mono)
         self.alive: dict[str, bool] = {}
+        self._left: dict[str, float] = {}  # robot -> monotonic time its token went away
         self.started = now.wall
         self.last_update: float | None = None
         self.settled_at: float | None = None
@@ -204,6 +210,10 @@ class FleetNode:
         self.alive[robot] = alive
         self.book.set_alive({self.me} | {r for r, up in self.alive.items() if up})
         actions: list[Action] = [Register()]
+        if alive:
+            self._left.pop(robot, None)
+        else:
+            self._left.setdefault(robot, now.mono)
         if alive and not was:
             log.info("robot %s joined", robot)
             actions += self._fetch(robot, now, links=True)
@@ -270,6 +280,9 @@ class FleetNode:
     def tick(self, now: Instant) -> list[Action]:
         """Time passed: publish a gated own map, fetch what is due, re-announce, write status."""
         actions = self._publish_pending(now)
+        for robot, left in sorted(self._left.items()):
+            if now.mono - left >= self.opts.forget_after:
+                actions += self._forget(robot)
         for robot in self.fetches.pop_due(now.mono):
             actions += self._fetch(robot, now, links=False)
         if now.mono >= self._next_announce:
@@ -354,6 +367,19 @@ class FleetNode:
 
     # ---------------------------------------------------------------- helpers
 
+    def _forget(self, robot: str) -> list[Action]:
+        """Drop a robot gone for ``forget_after`` s: its map, links, fetches, reassembly."""
+        log.info("robot %s forgotten (gone for %.0f s)", robot, self.opts.forget_after)
+        del self._left[robot]
+        self.alive.pop(robot, None)
+        self.book.set_alive({self.me} | {r for r, up in self.alive.items() if up})
+        self.book.forget(robot)
+        self.inbound.forget(robot)
+        self.fetches.forget(robot)
+        self._links_dirty = True
+        self.counters.add("robots_forgotten")
+        return [ForgetMap(robot), Register()]
+
     def _admit_link(self, msg: wire.Link, sender: str) -> list[Action]:
         try:
             rec = wire.link_record(msg)
@@ -401,6 +427,7 @@ class FleetNode:
             return [Drop("own_map_unencodable", self.me, str(exc))]
         if new_epoch:
             self._epoch_base = sent
+            self.counters.add("epochs")  # the bench counts registrations per epoch
         # Persisted first, published by on_persisted: a peer never holds a version we could lose.
         return [PersistMap(self.me, StoredMap(version, grid, resume), point="state-write")]
 

@@ -93,6 +93,10 @@ class StateDir:
                 errors.append(f"{path.name}: {exc}")
         return maps, errors
 
+    def forget_map(self, robot: str) -> None:
+        """Delete ``robot``'s persisted map, if any."""
+        (self.maps_dir / f"{check_name(robot, 'robot id')}.npz").unlink(missing_ok=True)
+
     def save_links(self, records: list[LinkRecord]) -> None:
         atomic_write_bytes(self.root / "links.json", dumps(records).encode())
 

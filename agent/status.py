@@ -67,6 +67,10 @@ def component_json(comp: Component) -> dict[str, object]:
         "versions": comp.versions,
         "used": [list(p) for p in comp.used],
         "rejected": [list(p) for p in comp.rejected],
+        # each member's pixels -> the anchor's pixels: compared with the truth
+        # (agent.evaluate) and between consecutive global maps (steadiness, bench.soak)
+        "transforms": {r: np.round(m, 6).tolist() for r, m in sorted(comp.transforms.items())},
+        "evidence": [list(e) for e in comp.evidence],
         "digest": comp.digest,
         "shape": list(comp.grid.shape),
         "unblurred": list(comp.unblurred),

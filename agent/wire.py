@@ -211,6 +211,10 @@ class Inbound:
             return None
         return reasm.pending_version, reasm.missing()
 
+    def forget(self, robot: str) -> None:
+        """Drop ``robot``'s reassembly state (the robot left and is forgotten)."""
+        self._reassemblers.pop(robot, None)
+
     def incomplete(self, robot: str) -> bool:
         """True if a manifest of ``robot`` waits for tiles that are not held."""
         reasm = self._reassemblers.get(robot)

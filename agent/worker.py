@@ -8,6 +8,18 @@ job at a time:
 1. if some pair lacks a link of its latest versions and it is this agent's turn
    (:func:`agent.links.due_keys`), register it, cache and publish the link, loop;
 2. otherwise, if the maps or the chosen links changed, rebuild the global maps.
+
+Verify before you search: when the accepted links already place both robots of a pair in one
+component (the robust pose graph's placements, :func:`predict`), that prediction is checked
+first (:func:`verify_check`: a local refinement and the overlay acceptance, tens of
+milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where the check is
+inconclusive.  A prediction under which the two maps share too few walls, or disagree once
+refined within the basin, is a decided rejection -- a search could only find a transform the
+chain contradicts -- but only for a pair a search already rejected in an earlier epoch: were
+the chain wrong, a first search is what finds the true link that exposes it around a cycle.
+So full searches grow with the robots (each joins its component once, plus the pairs whose
+chain is off), not with the pairs.  Which way a link was decided does not enter the global
+map, which stays a function of the maps and the links (fleet invariant 2).
 """
 
 from __future__ import annotations
@@ -16,15 +28,21 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from agent.book import FleetBook, Snapshot
+from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, build_components
 from agent.links import LinkKey, LinkRecord, due_keys
 from agent.memory import release_free_memory
 from pgvd.grid import Grid
+from pgvd.posegraph import Solution, link_problem, solve
+
+if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
+    from pgvd.merge import MergeParams
 
 log = logging.getLogger("pgvd.agent")
 
@@ -40,6 +58,32 @@ class Registration:
 
 
 RegisterFn = Callable[[Grid, Grid], Registration]
+#: ``check(a, b, predicted)``: a :class:`Registration` when the prediction decides the pair
+#: (confirmed, or the maps do not overlap under it), None when a full search must decide.
+CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
+
+#: What a rejection records: its transform means nothing; finite for the wire.
+_REJECTED = (np.eye(3), np.zeros((3, 3)))
+
+
+def _merge_params(min_agreement: float | None) -> MergeParams:
+    """The merge's parameters for a fleet, ``min_agreement`` overridden unless None."""
+    from pgvd.merge import MergeParams
+
+    params = MergeParams(diagnostics=False)
+    return params if min_agreement is None else replace(params, min_agreement=min_agreement)
+
+
+def _registration(
+    accepted: bool, matrix: np.ndarray, cov: np.ndarray, score: float
+) -> Registration:
+    """A merge or check result as a :class:`Registration`, finite whatever happened."""
+    matrix = np.asarray(matrix, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    score = float(score) if np.isfinite(score) else 0.0
+    if not (accepted and np.isfinite(matrix).all() and np.isfinite(cov).all()):
+        return Registration(False, *_REJECTED, score)
+    return Registration(True, matrix, cov, score)
 
 
 def merge_registration(min_agreement: float | None = None) -> RegisterFn:
@@ -49,25 +93,78 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
     (None keeps the merge's own): a fleet may want it stricter than a one-off merge,
     because a false link corrupts the global map of every agent, not one output file.
     """
-    from dataclasses import replace
+    from pgvd.merge import merge
 
-    from pgvd.merge import MergeParams, merge
-
-    params = MergeParams(diagnostics=False)
-    if min_agreement is not None:
-        params = replace(params, min_agreement=min_agreement)
+    params = _merge_params(min_agreement)
 
     def register(a: Grid, b: Grid) -> Registration:
         res = merge(a, b, params)
-        matrix = np.asarray(res.matrix, dtype=np.float64)
-        cov = np.asarray(res.covariance, dtype=np.float64)
-        score = float(res.score) if np.isfinite(res.score) else 0.0
-        if not (res.accepted and np.isfinite(matrix).all() and np.isfinite(cov).all()):
-            # A rejection's transform means nothing; keep the record finite for the wire.
-            return Registration(False, np.eye(3), np.zeros((3, 3)), score)
-        return Registration(True, matrix, cov, score)
+        return _registration(res.accepted, res.matrix, res.covariance, res.score)
 
     return register
+
+
+def verify_check(min_agreement: float | None = None) -> CheckFn:
+    """:func:`pgvd.verify.verify` as a :data:`CheckFn`, with the merge's thresholds.
+
+    Confirmed: the refined transform is the link.  Rejected (a verdict the worker takes
+    only for a pair a search rejected before) when, at the place the chain puts the maps,
+    they cannot pass the merge's tests: fewer than ``min_overlap`` metres of walls of either
+    map on the other's known space (agreeing or not) at the *predicted* transform, or the
+    overlay refined within the basin (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still
+    disagrees.  A search there could only find a transform the chain contradicts.  A
+    correction beyond the basin is inconclusive: the chain may be off, the search decides.
+    """
+    from pgvd.matching import WallMap, map_agreement
+    from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, verify
+
+    params = _merge_params(min_agreement)
+
+    def check(a: Grid, b: Grid, predicted: np.ndarray) -> Registration | None:
+        res = verify(a, b, predicted, params)
+        if res.accepted:
+            return _registration(True, res.matrix, res.covariance, res.score)
+        fine_a = WallMap(a.probability(), params.occupied, params.free)
+        fine_b = WallMap(b.probability(), params.occupied, params.free)
+        seen = map_agreement(fine_a, fine_b, predicted)
+        if 0.5 * (seen.agree + seen.disagree) * a.resolution < params.min_overlap:
+            return Registration(False, *_REJECTED, 0.0)
+        if len(fine_b.walls) == 0:
+            return None
+        shift_px, turn_deg = basin_move(predicted, res.matrix, fine_b.walls)
+        if shift_px * a.resolution <= BASIN_M and turn_deg <= BASIN_DEG:
+            return Registration(False, *_REJECTED, res.score)
+        return None
+
+    return check
+
+
+def _rejected_before(links: list[LinkRecord], a: str, b: str) -> bool:
+    """Whether the link standing in for ``(a, b)`` (an earlier epoch's) is a rejection."""
+    held = next((ln for ln in links if ln.pair == (a, b)), None)
+    return held is not None and not held.accepted
+
+
+def _identity(ln: LinkRecord) -> tuple[object, ...]:
+    """What tells one link candidate from another (:meth:`agent.links.LinkCache.get`)."""
+    return (ln.key, ln.decided_by, ln.version_a, ln.version_b)
+
+
+def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
+    """The robust pose graph (:func:`pgvd.posegraph.solve`, GNC-TLS) of the accepted links.
+
+    A link inconsistent around a cycle is not kept, so it does not enter a prediction.
+    """
+    usable = [ln for ln in links if ln.accepted and link_problem(ln, maps) is None]
+    return solve(maps, usable)
+
+
+def predict(sol: Solution, a: str, b: str) -> np.ndarray | None:
+    """The B-pixel -> A-pixel matrix the placements imply for ``(a, b)``; None when the
+    links kept do not put ``a`` and ``b`` in one component."""
+    if not any(a in c and b in c for c in sol.components):
+        return None
+    return np.linalg.inv(sol.transforms[a]) @ sol.transforms[b]
 
 
 @dataclass(frozen=True)
@@ -91,6 +188,10 @@ class FusionWorker:
     on_global : called with each new :class:`GlobalState`.
     link_timeout : seconds to wait for the lower robot's agent before registering.
     fuse : fusion function for :func:`agent.globalmap.build_components`.
+    check : checks a pair's predicted transform before a full search (:data:`CheckFn`);
+        None always searches.
+    counters : where ``searches``, ``checks``, ``checks_confirmed`` and ``checks_rejected``
+        are counted (the status shows them).
     """
 
     def __init__(
@@ -102,6 +203,8 @@ class FusionWorker:
         on_global: Callable[[GlobalState], None],
         link_timeout: float = 4.0,
         fuse: FuseFn | None = None,
+        check: CheckFn | None = None,
+        counters: Counters | None = None,
     ) -> None:
         self.me = me
         self.book = book
@@ -110,6 +213,9 @@ class FusionWorker:
         self.on_global = on_global
         self.link_timeout = link_timeout
         self.fuse = fuse
+        self.check = check
+        self.counters = counters or Counters()
+        self._placements: tuple[object, Solution | None] = (None, None)
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
@@ -163,11 +269,17 @@ class FusionWorker:
             snap.alive,
         )
         if due:
+            # Checks first: they take tens of milliseconds, and each link they add may
+            # turn a pair waiting for a full search into one more check.
+            if self.check is not None:
+                due.sort(key=lambda k: self._predicted(snap, k[0], k[2]) is None)
             self._register(snap, due[0])
             return True
         signature = (
             tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
-            tuple(ln.key for ln in snap.links),
+            # the candidate used, not only its key: a preferred candidate arriving for a
+            # key (another agent's, or a liar's) changes the global map
+            tuple(_identity(ln) for ln in snap.links),
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
         # would take CPU from the registrations the settled map waits for.
@@ -196,21 +308,56 @@ class FusionWorker:
         a, _, b, _ = key  # epochs; the link records the versions it was computed on
         va, vb = snap.maps[a][0], snap.maps[b][0]
         t0 = time.monotonic()
+        how = "searched"
         try:
-            res = self.register(snap.maps[a][1], snap.maps[b][1])
+            res = self._checked(snap, a, b)
+            if res is None:
+                self.counters.add("searches")
+                res = self.register(snap.maps[a][1], snap.maps[b][1])
+            else:
+                how = "checked"
         except Exception as exc:  # bad maps are an outcome (rejected), not a crash
             log.warning("registration of %s v%d / %s v%d failed: %s", a, va, b, vb, exc)
-            res = Registration(False, np.eye(3), np.zeros((3, 3)), 0.0)
+            res = Registration(False, *_REJECTED, 0.0)
         self.merges += 1
         self.merge_seconds += time.monotonic() - t0
         rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)
         log.info(
-            "link %s v%d - %s v%d: %s score %.3f (%.2f s)",
-            a, va, b, vb, "accepted" if res.accepted else "rejected", res.score,
+            "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s)",
+            a, va, b, vb, "accepted" if res.accepted else "rejected", res.score, how,
             time.monotonic() - t0,
         )  # fmt: skip
         if self.book.add_link(rec):
             self.on_link(rec)
+
+    def _checked(self, snap: Snapshot, a: str, b: str) -> Registration | None:
+        """The check of the links' prediction for ``(a, b)``, or None: search instead."""
+        if self.check is None:
+            return None
+        predicted = self._predicted(snap, a, b)
+        if predicted is None:
+            return None
+        self.counters.add("checks")
+        res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
+        if res is not None and not res.accepted and not _rejected_before(snap.links, a, b):
+            # Only a search may reject a pair first: were the chain wrong (a false
+            # link on a bridge), skipping it would lose the true link that closes a cycle
+            # around the false one and lets the pose graph reject it.
+            res = None
+        if res is not None:
+            self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
+        return res
+
+    def _predicted(self, snap: Snapshot, a: str, b: str) -> np.ndarray | None:
+        """:func:`predict` from :func:`placements`, solved once per set of maps and links."""
+        signature = (
+            tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
+            tuple(_identity(ln) for ln in snap.links),
+        )
+        if self._placements[0] != signature:
+            self._placements = (signature, placements(snap.maps, snap.links))
+        sol = self._placements[1]
+        return None if sol is None else predict(sol, a, b)
 
     def _rebuild(self, snap: Snapshot) -> None:
         components = build_components(snap.maps, snap.links, self.fuse)

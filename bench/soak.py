@@ -16,16 +16,28 @@ Reported:
   publication (the owner's ``last_update``) to the first moment every agent is settled on
   the same global map and holds that version or a newer one. With updates that never stop,
   full agreement happens only in lulls, so the propagation lag is reported too: the seconds
-  until every agent holds that version or a newer one (whatever else is still moving).
+  until every agent holds that version or a newer one (whatever else is still moving);
+- steadiness: between consecutive global maps of an agent (same members), the largest move of
+  each robot's placement, in cells (over its canvas corners) and degrees. With ``cycle``
+  sources each map alternates between two fixed variants, so no link evidence changes
+  materially: any move is jitter. Reported for all consecutive maps, and for those whose
+  links were the same candidates (a pure function of them: the move must be zero);
+- churn (``--churn``): a quarter into the run the last robot leaves (SIGTERM), half-way a new
+  robot joins, three quarters in the one that left comes back. The sources hold still after
+  each change until the running agents agree (at most :data:`CHURN_HOLD` s), so that the
+  seconds each change takes to reach agreement can be measured; the robots each agent holds
+  just before each change show whether a departed robot was forgotten (``--forget-after``
+  short enough to happen within the run).
 
-Run: ``python3 -m bench.soak [--robots 8] [--minutes 10] [--sources cycle|replay]``; writes
-``bench/results/soak-<sources>.md``, ``.json`` and ``.png``.
+Run: ``python3 -m bench.soak [--robots 8] [--minutes 10] [--sources cycle|replay] [--churn]``;
+writes ``bench/results/soak-<sources>[-churn].md``, ``.json`` and ``.png``.
 """
 
 from __future__ import annotations
 
 import argparse
 import gzip
+import itertools
 import json
 import os
 import tempfile
@@ -36,9 +48,13 @@ import numpy as np
 
 from agent.launcher import LocalFleet, agreement
 from agent.scenario import LOG, random_frames, segments
-from pgvd.grid import Grid
+from pgvd.grid import Grid, matrix_to_pose
 
 RESULTS = Path(__file__).resolve().parent / "results"
+#: Seconds the sources hold still after a churn event, at most, waiting for agreement.
+CHURN_HOLD = 45.0
+#: Canvas side (cells) over which a placement's move is measured when the source has no size.
+DEFAULT_SIDE = 400
 INTEL_MAP = Path(__file__).resolve().parents[2] / "shared" / "maps" / "intel" / "intel.yaml"
 TICK = os.sysconf("SC_CLK_TCK")
 
@@ -91,6 +107,10 @@ class ReplaySources:
     def step(self, elapsed: float) -> None:
         """Nothing to do: the agents replay on their own."""
 
+    def shape(self, i: int) -> tuple[int, int]:
+        """Canvas of robot ``i`` for the steadiness measure: unknown here, a fixed square."""
+        return (DEFAULT_SIDE, DEFAULT_SIDE)
+
 
 class CycleSources:
     """Map files an external "SLAM" rewrites every ``period`` s, alternating two versions.
@@ -136,6 +156,10 @@ class CycleSources:
             if turn != self.written[i]:
                 self._write(i, turn)
 
+    def shape(self, i: int) -> tuple[int, int]:
+        side = int(min(self.base.shape) * 0.6)
+        return (side, side)
+
     def _write(self, i: int, turn: int) -> None:
         from pgvd.io import write_map
 
@@ -143,66 +167,193 @@ class CycleSources:
         self.written[i] = turn
 
 
+def _own_component(status: dict) -> dict | None:
+    own = status.get("robot")
+    return next((c for c in status.get("components", []) if own in c["members"]), None)
+
+
+def _record_placements(history: dict[str, list], statuses: dict[str, dict | None], now: float):
+    """Append each agent's own component when its global map changed (new digest)."""
+    for robot, status in statuses.items():
+        comp = status and _own_component(status)
+        if not comp or "transforms" not in comp:
+            continue
+        seen = history.setdefault(robot, [])
+        if seen and seen[-1]["digest"] == comp["digest"]:
+            continue
+        links = comp.get("evidence", [])
+        seen.append(
+            {
+                "t": now,
+                "digest": comp["digest"],
+                "members": comp["members"],
+                "transforms": comp["transforms"],
+                "links": links,
+            }
+        )
+
+
+def _churn_plan(robots: int, minutes: float) -> list[tuple[float, str, str]]:
+    """(second, leave|join|return, robot): the last robot leaves, a new one joins, it returns."""
+    total = minutes * 60
+    last, new = f"r{robots}", f"r{robots + 1}"
+    return [(total / 4, "leave", last), (total / 2, "join", new), (3 * total / 4, "return", last)]
+
+
 def soak(
-    sources: ReplaySources | CycleSources, minutes: float, workdir: Path, settle: float = 90.0
+    sources: ReplaySources | CycleSources,
+    minutes: float,
+    workdir: Path,
+    settle: float = 90.0,
+    churn: list[tuple[float, str, str]] | None = None,
+    agent_args: list[str] | None = None,
 ) -> dict:
-    """Run the fleet for ``minutes``; the raw time series and events."""
+    """Run the fleet for ``minutes``; the raw time series and events.
+
+    With ``churn``, the robot of a ``join`` event is the last of ``sources.agents`` and is
+    started only then; ``leave`` stops a robot with SIGTERM and ``return`` restarts it.
+    """
     series: dict[str, list[tuple[float, float, float]]] = {}
     published: dict[tuple[str, int], float] = {}
     agreed: list[tuple[float, dict[str, int]]] = []
     held_by_all: list[tuple[float, dict[str, int]]] = []
+    history: dict[str, list] = {}
+    held: dict[str, list[tuple[float, int]]] = {}
+    changes: list[dict] = []
     drops: dict[str, int] = {}
-    with LocalFleet("soak", workdir / "fleet") as fleet:
-        for i, (source, args) in enumerate(sources.agents(workdir)):
-            fleet.add(f"r{i + 1}", source, args)
+    plan = sorted(churn or [])
+    joiners = {r for _, kind, r in plan if kind == "join"}
+    with LocalFleet("soak", workdir / "fleet", agent_args or []) as fleet:
+        declared = [(f"r{i + 1}", a) for i, a in enumerate(sources.agents(workdir))]
+        later = {r: a for r, a in declared if r in joiners}
+        for robot, (source, args) in declared:
+            if robot not in joiners:
+                fleet.add(robot, source, args)
         t0 = time.time()
         next_sample = next_print = t0
+        pending: dict | None = None
         while time.time() - t0 < minutes * 60:
             now = time.time()
-            sources.step(now - t0)
-            statuses = fleet.statuses()
+            if pending is None or now - t0 - pending["t"] >= CHURN_HOLD:
+                sources.step(now - t0)
+            while plan and now - t0 >= plan[0][0]:
+                _, kind, robot = plan.pop(0)
+                held_now = {r: rows[-1][1] for r, rows in held.items() if rows}
+                if kind == "leave":
+                    fleet.agents[robot].stop()
+                elif kind == "join":
+                    fleet.add(robot, *later[robot])
+                else:
+                    fleet.restart(robot)
+                pending = {
+                    "t": round(now - t0, 1),
+                    "event": kind,
+                    "robot": robot,
+                    "agreed_after_s": None,
+                    "robots_held_before": held_now,
+                }
+                changes.append(pending)
+                print(f"{now - t0:6.0f} s  {robot} {kind}", flush=True)
+            running = {r for r, a in fleet.agents.items() if a.alive()}
+            statuses = {r: s for r, s in fleet.statuses().items() if r in running}
             for robot, status in statuses.items():
                 if status and status.get("own_version") and status.get("last_update"):
                     published.setdefault((robot, status["own_version"]), status["last_update"])
+                if status:
+                    count = sum(1 for v in status["robots"].values() if v["version"] is not None)
+                    held.setdefault(robot, []).append((now - t0, count))
+            _record_placements(history, statuses, now - t0)
             if all(statuses.values()):
                 held_by_all.append((now, least_held(statuses)))  # type: ignore[arg-type]
             if agreement(statuses):
-                held = next(iter(statuses.values()))["robots"]  # type: ignore[index]
-                agreed.append((now, {r: v["version"] or 0 for r, v in held.items()}))
+                first = next(iter(statuses.values()))["robots"]  # type: ignore[index]
+                agreed.append((now, {r: v["version"] or 0 for r, v in first.items()}))
+                if pending is not None and _includes_change(statuses, pending):
+                    pending["agreed_after_s"] = round(now - t0 - pending["t"], 1)
+                    pending = None
             if now >= next_sample:
                 for robot, agent in fleet.agents.items():
-                    sample = agent.proc and proc_sample(agent.proc.pid)
+                    sample = agent.alive() and agent.proc and proc_sample(agent.proc.pid)
                     if sample:
                         series.setdefault(robot, []).append((now - t0, *sample))
                 next_sample = now + 5
             if now >= next_print:
-                dead = [r for r, a in fleet.agents.items() if not a.alive()]
                 versions = [(s or {}).get("own_version") for s in statuses.values()]
                 print(f"{now - t0:6.0f} s  versions {versions}", flush=True)
-                print(f"        agreements {len(agreed)}  dead {dead}", flush=True)
+                print(f"        agreements {len(agreed)}  running {sorted(running)}", flush=True)
                 next_print = now + 30
             time.sleep(0.5)
         # Updates stop here: give the fleet up to ``settle`` s to agree on the last ones.
+        running = {r for r, a in fleet.agents.items() if a.alive()}
+
+        def live() -> dict[str, dict | None]:
+            return {r: s for r, s in fleet.statuses().items() if r in running}
+
         deadline = time.time() + settle
-        while time.time() < deadline and not agreement(fleet.statuses()):
+        while time.time() < deadline and not agreement(live()):
             time.sleep(0.5)
-        statuses = fleet.statuses()
+        statuses = live()
         if agreement(statuses):
-            held = next(iter(statuses.values()))["robots"]  # type: ignore[index]
-            agreed.append((time.time(), {r: v["version"] or 0 for r, v in held.items()}))
-        for status in fleet.statuses().values():
+            first = next(iter(statuses.values()))["robots"]  # type: ignore[index]
+            agreed.append((time.time(), {r: v["version"] or 0 for r, v in first.items()}))
+        for status in statuses.values():
             for reason, n in (status or {}).get("drops", {}).items():
                 drops[reason] = drops.get(reason, 0) + n
-        dead = [r for r, a in fleet.agents.items() if not a.alive()]
+        dead = [r for r, a in fleet.agents.items() if not a.alive() and r in running]
     return {
         "t0": t0,
         "series": series,
         "published": published,
         "agreed": agreed,
         "held_by_all": held_by_all,
+        "history": history,
+        "held": held,
+        "changes": changes,
         "drops": drops,
         "dead": dead,
     }
+
+
+def _includes_change(statuses: dict[str, dict | None], change: dict) -> bool:
+    """Whether agreed statuses reflect a churn event: the robot held (join/return) by all."""
+    if change["event"] == "leave":
+        return True  # the others agreeing again is the convergence
+    return all(
+        (s or {}).get("robots", {}).get(change["robot"], {}).get("version") is not None
+        for s in statuses.values()
+    )
+
+
+def placement_move(before: list, after: list, shape: tuple[int, int]) -> tuple[float, float]:
+    """(cells over the canvas corners, degrees) between two placements of one robot."""
+    m0, m1 = np.array(before, float), np.array(after, float)
+    h, w = shape
+    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float).T
+    cells = float(np.linalg.norm((m1 @ corners - m0 @ corners)[:2], axis=0).max())
+    turn = matrix_to_pose(m1)[0] - matrix_to_pose(m0)[0]
+    return cells, float(np.degrees(abs(np.angle(np.exp(1j * turn)))))
+
+
+def jumps(history: dict[str, list], shape_of) -> dict[str, dict[str, float]]:
+    """Largest move of any robot between consecutive global maps with the same members.
+
+    ``all``: every such pair of maps; ``same_links``: those whose accepted links were the same
+    candidates (the placements are a function of them, so the move must be zero).
+    """
+    out = {k: {"cells": 0.0, "deg": 0.0, "pairs": 0} for k in ("all", "same_links")}
+    for maps in history.values():
+        for prev, cur in itertools.pairwise(maps):
+            if prev["members"] != cur["members"]:
+                continue
+            kinds = ["all"] + (["same_links"] if prev["links"] == cur["links"] else [])
+            for robot, m in cur["transforms"].items():
+                cells, deg = placement_move(prev["transforms"][robot], m, shape_of(robot))
+                for k in kinds:
+                    out[k]["cells"] = max(out[k]["cells"], round(cells, 3))
+                    out[k]["deg"] = max(out[k]["deg"], round(deg, 4))
+            for k in kinds:
+                out[k]["pairs"] += 1
+    return out
 
 
 def least_held(statuses: dict[str, dict]) -> dict[str, int]:
@@ -224,7 +375,7 @@ def lags(published: dict[tuple[str, int], float], agreed: list[tuple[float, dict
     return out
 
 
-def summarise(run: dict, minutes: float) -> dict:
+def summarise(run: dict, minutes: float, shape_of=lambda robot: (DEFAULT_SIDE,) * 2) -> dict:
     warm = minutes * 60 / 4
     growth = {}
     for robot, rows in run["series"].items():
@@ -263,6 +414,10 @@ def summarise(run: dict, minutes: float) -> dict:
         "cpu_pct_of_core": {r: round(c, 1) for r, c in sorted(cpu.items())},
         "drops": run["drops"],
         "dead": run["dead"],
+        "jumps": jumps(run["history"], shape_of),
+        "global_maps_per_agent": {r: len(h) for r, h in sorted(run["history"].items())},
+        "churn": run["changes"],
+        "robots_held_max": {r: max(c for _, c in rows) for r, rows in sorted(run["held"].items())},
     }
 
 
@@ -310,16 +465,25 @@ def main() -> None:
         "--settle", type=float, default=90.0, help="s to wait for agreement after the run"
     )
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument(
+        "--churn", action="store_true", help="a robot leaves, a new one joins, the first returns"
+    )
+    parser.add_argument(
+        "--forget-after", type=float, default=30.0, help="the agents' --forget-after (s)"
+    )
     args = parser.parse_args()
+    declared = args.robots + (1 if args.churn else 0)  # the joiner is declared last
     if args.sources == "cycle":
-        sources: ReplaySources | CycleSources = CycleSources(args.robots)
+        sources: ReplaySources | CycleSources = CycleSources(declared)
     else:
-        sources = ReplaySources(args.robots, args.minutes)
+        sources = ReplaySources(declared, args.minutes)
+    plan = _churn_plan(args.robots, args.minutes) if args.churn else None
     print(f"{args.robots} agents, {args.sources} sources, {args.minutes:g} min", flush=True)
+    agent_args = ["--forget-after", f"{args.forget_after:g}"]
     with tempfile.TemporaryDirectory(prefix="pgvd-soak-") as tmp:
-        run = soak(sources, args.minutes, Path(tmp), args.settle)
-    summary = summarise(run, args.minutes)
-    name = f"soak-{args.sources}"
+        run = soak(sources, args.minutes, Path(tmp), args.settle, plan, agent_args)
+    summary = summarise(run, args.minutes, lambda robot: sources.shape(int(robot[1:]) - 1))
+    name = f"soak-{args.sources}" + ("-churn" if args.churn else "")
     args.out.mkdir(parents=True, exist_ok=True)
     raw = {"series": run["series"], "published": [[*k, v] for k, v in run["published"].items()]}
     (args.out / f"{name}.json").write_text(json.dumps({"summary": summary, "raw": raw}))
@@ -329,7 +493,9 @@ def main() -> None:
         f"# Soak ({args.sources} sources)",
         "",
         f"`python3 -m bench.soak --robots {args.robots} --minutes {args.minutes:g} --sources "
-        f"{args.sources} --settle {args.settle:g}` on {os.cpu_count()} cores, "
+        f"{args.sources} --settle {args.settle:g}"
+        f"{' --churn' if args.churn else ''} --forget-after {args.forget_after:g}` "
+        f"on {os.cpu_count()} cores, "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
         "",
         (sources.__doc__ or "").strip().replace("\n    ", " "),
@@ -345,6 +511,17 @@ def main() -> None:
         f"- CPU (% of one core): {summary['cpu_pct_of_core']}",
         f"- messages dropped: {summary['drops'] or 'none'}",
         f"- agents that died: {summary['dead'] or 'none'}",
+        f"- largest placement move between consecutive global maps with the same members "
+        f"(cells over the robot's canvas corners, degrees): {summary['jumps']['all']}; "
+        f"of those whose links were the same candidates: {summary['jumps']['same_links']} "
+        "(target <= 1 cell and <= 0.1 deg where the link evidence did not change)",
+        f"- global maps seen per agent: {summary['global_maps_per_agent']}",
+        f"- churn (event, seconds into the run, seconds to agreement among running agents "
+        f"with the sources held for at most {CHURN_HOLD:g} s, robots each agent held just "
+        "before): "
+        f"{summary['churn'] or 'none'}",
+        f"- robots held at most per agent: {summary['robots_held_max']} "
+        f"(--forget-after {args.forget_after:g} s)",
         "",
         f"![soak]({name}.png)",
     ]

@@ -19,6 +19,7 @@ from agent.actions import (
     RULE_REASONS,
     Drop,
     Fetch,
+    ForgetMap,
     PersistGlobal,
     PersistLinks,
     PersistMap,
@@ -307,6 +308,29 @@ def test_membership_moves_the_book_and_ignores_this_robots_own_token() -> None:
     assert r1.book.snapshot(1.0).alive == {"r1"}
     robots = r1.status(at(1.0), HOST)["robots"]
     assert robots == {"r2": {"version": None, "alive": False}}
+
+
+def test_a_robot_gone_for_forget_after_is_forgotten_and_one_back_in_time_is_not(crops) -> None:
+    r1 = FleetNode(NodeOptions("r1", "lab", KEY, forget_after=60.0), at(0.0))
+    for peer, t in (("r2", 0.0), ("r3", 0.5)):
+        deliver(r1, publish(node(peer), crops[0], t), t + 0.1)
+        r1.on_alive(peer, True, at(t + 0.2))
+    rec = LinkRecord("r2", r1.book.version("r2"), "r3", r1.book.version("r3"), True,
+                     np.eye(3), np.eye(3), 0.9, "r2")  # fmt: skip
+    r1.book.add_link(rec)
+    r1.on_alive("r2", False, at(1.0))
+    r1.on_alive("r3", False, at(1.0))
+    r1.on_alive("r3", True, at(30.0))  # back before the bound: kept
+    assert not any(isinstance(a, ForgetMap) for a in r1.tick(at(60.9)))
+    actions = r1.tick(at(61.0))
+    assert ForgetMap("r2") in actions and Register() in actions
+    assert ForgetMap("r3") not in actions
+    assert r1.book.version("r2") is None and r1.book.version("r3") is not None
+    assert r1.book.links() == [] and "r2" not in r1.status(at(61.0), HOST)["robots"]
+    assert r1.counters.get("robots_forgotten") == 1
+    assert not any(isinstance(a, ForgetMap) for a in r1.tick(at(200.0)))  # once
+    # If it comes back it is fetched again like any robot that joins.
+    assert Fetch("pgvd/lab/latest/r2/**") in r1.on_alive("r2", True, at(201.0))
 
 
 # ------------------------------------------------------------------- own-map publication

@@ -2,12 +2,24 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
-from agent.worker import FusionWorker, GlobalState, Registration
+from agent.worker import (
+    FusionWorker,
+    GlobalState,
+    Registration,
+    placements,
+    predict,
+    verify_check,
+)
 from pgvd.grid import Grid, rigid_matrix
+from pgvd.io import read_map
 
 
 def V(epoch: int, minor: int = 0) -> int:
@@ -131,3 +143,146 @@ def test_unsettled_previews_are_rate_limited_settled_maps_are_not() -> None:
     h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
     h.worker.step(now=3.6)
     assert len(h.globals) == 3 and h.globals[-1].settled
+
+
+def _link(a: str, b: str, m: np.ndarray, by: str = "r9") -> LinkRecord:
+    return LinkRecord(a, V(1), b, V(1), True, m, np.eye(3) * 0.1, 0.95, by)
+
+
+class Checking(Harness):
+    """A harness whose worker checks predictions; ``verdict`` is what the check answers."""
+
+    def __init__(self, me: str, verdict: Registration | None) -> None:
+        super().__init__(me)
+        self.checked: list[np.ndarray] = []
+        self.verdict = verdict
+        self.worker.check = self.check
+
+    def check(self, a: Grid, b: Grid, predicted: np.ndarray) -> Registration | None:
+        self.checked.append(predicted)
+        return self.verdict
+
+
+def _chain(h: Harness) -> None:
+    """r1 - r2 - r3 linked; r1 - r3 still needed, and r3's to register first."""
+    for r in ("r1", "r2", "r3"):
+        h.book.put_map(r, V(1), tiny(int(r[1])))
+    h.book.add_link(_link("r1", "r2", rigid_matrix(0.0, 10.0, 0.0)))
+    h.book.add_link(_link("r2", "r3", rigid_matrix(np.pi / 2, 0.0, 5.0)))
+
+
+def test_a_chained_pair_is_checked_on_the_composed_prediction_not_searched() -> None:
+    confirmed = Registration(True, rigid_matrix(0.1, 1.0, 1.0), np.eye(3) * 0.2, 0.97)
+    h = Checking("r3", confirmed)
+    _chain(h)
+    assert h.worker.step(now=0.0)
+    expected = rigid_matrix(0.0, 10.0, 0.0) @ rigid_matrix(np.pi / 2, 0.0, 5.0)
+    (predicted,) = h.checked
+    np.testing.assert_allclose(predicted, expected, atol=1e-9)
+    assert h.calls == []  # no full search
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r3") and rec.accepted
+    np.testing.assert_array_equal(rec.matrix, confirmed.matrix)
+    counts = h.worker.counters.snapshot()["counts"]
+    assert counts == {"checks": 1, "checks_confirmed": 1}
+
+
+def test_an_inconclusive_check_falls_back_to_the_full_search() -> None:
+    h = Checking("r3", None)
+    _chain(h)
+    assert h.worker.step(now=0.0)
+    assert len(h.checked) == 1 and len(h.calls) == 1
+    assert h.links[0].matrix[0, 2] == 1.0  # the search's answer (Harness.register)
+    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "searches": 1}
+
+
+def test_a_disjoint_verdict_is_searched_the_first_time() -> None:
+    h = Checking("r3", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    _chain(h)
+    assert h.worker.step(now=0.0)
+    assert len(h.checked) == 1 and len(h.calls) == 1
+    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "searches": 1}
+
+
+def test_a_disjoint_verdict_on_a_pair_rejected_before_rejects_without_search() -> None:
+    h = Checking("r3", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    h.book.put_map("r1", V(0), tiny(1))
+    h.book.put_map("r3", V(0), tiny(3))
+    h.book.add_link(
+        LinkRecord("r1", V(0), "r3", V(0), False, np.eye(3), np.zeros((3, 3)), 0.1, "r3")
+    )
+    _chain(h)  # epoch 1 of every map: r1-r3 needs a link again
+    assert h.worker.step(now=0.0)
+    assert h.calls == [] and [ln.accepted for ln in h.links] == [False]
+    assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "checks_rejected": 1}
+
+
+def test_a_pair_no_chain_reaches_is_searched_unchecked() -> None:
+    h = Checking("r1", None)
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    assert h.worker.step(now=0.0)
+    assert h.checked == [] and len(h.calls) == 1
+    assert h.worker.counters.snapshot()["counts"] == {"searches": 1}
+
+
+def test_a_link_inconsistent_around_cycles_does_not_enter_the_prediction() -> None:
+    """r1..r4 all linked consistently except r1-r3, 40 px and 20 deg off: r1-r5 via r4."""
+    truth = {f"r{i}": rigid_matrix(0.3 * i, 50.0 * i, -20.0 * i) for i in range(1, 6)}
+    maps = {r: (V(1), tiny(i + 1)) for i, r in enumerate(truth)}
+
+    def rel(a: str, b: str) -> np.ndarray:
+        return np.linalg.inv(truth[a]) @ truth[b]
+
+    pairs = [("r1", "r2"), ("r1", "r4"), ("r2", "r3"), ("r2", "r4"), ("r3", "r4"), ("r4", "r5")]
+    links = [_link(a, b, rel(a, b)) for a, b in pairs]
+    links.append(_link("r1", "r3", rigid_matrix(np.radians(20), 40.0, 0.0) @ rel("r1", "r3")))
+    sol = placements(maps, links)
+    np.testing.assert_allclose(predict(sol, "r1", "r5"), rel("r1", "r5"), atol=1e-6)
+    assert predict(placements(maps, links[:1]), "r1", "r5") is None
+
+
+def test_pairs_a_check_can_decide_go_before_searches() -> None:
+    """r1-r3 (predicted through r2) is checked before r0-r1, which nothing predicts."""
+    h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    _chain(h)
+    h.book.put_map("r0", V(1), tiny(0))
+    h.worker.link_timeout = 0.0  # every pair is due for r1 at once
+    assert h.worker.step(now=0.0)
+    assert [ln.pair for ln in h.links] == [("r1", "r3")] and h.calls == []
+
+
+def test_a_preferred_candidate_for_a_held_key_rebuilds_the_global_map() -> None:
+    h = Harness("r1")
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    h.book.add_link(_link("r1", "r2", rigid_matrix(0.0, 1.0, 2.0), by="r2"))
+    assert not h.worker.step(now=0.0) and len(h.globals) == 1
+    moved = rigid_matrix(0.0, 5.0, 2.0)
+    assert h.book.add_link(_link("r1", "r2", moved, by="r0"))  # same key, preferred
+    assert not h.worker.step(now=0.1) and len(h.globals) == 2
+    np.testing.assert_array_equal(h.globals[-1].components[0].transforms["r2"], moved)
+
+
+@pytest.fixture(scope="module")
+def intel_pair() -> tuple[Grid, Grid, np.ndarray]:
+    """The bundled Intel pair and its true B->A matrix."""
+    root = Path(__file__).resolve().parents[1] / "examples"
+    truth = np.array(json.loads((root / "truth.json").read_text())["matrix"])
+    return read_map(root / "intel_a.yaml"), read_map(root / "intel_b.yaml"), truth
+
+
+def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
+    a, b, truth = intel_pair
+    check = verify_check()
+    confirmed = check(a, b, truth)
+    assert confirmed is not None and confirmed.accepted
+    assert np.abs(confirmed.matrix - truth)[:2, 2].max() < 2.0
+    far = rigid_matrix(0.0, 5000.0, 0.0) @ truth  # the chain puts B far outside A
+    rejected = check(a, b, far)
+    assert rejected is not None and not rejected.accepted and rejected.score == 0.0
+    off = rigid_matrix(np.radians(20.0), 60.0, 0.0) @ truth  # overlapping, disagreeing
+    verdict = check(a, b, off)
+    assert verdict is not None and not verdict.accepted
+    monkeypatch.setattr("pgvd.verify.BASIN_M", 1e-3)  # any correction leaves the basin
+    assert verify_check()(a, b, off) is None

@@ -91,6 +91,13 @@ def configure(p: argparse.ArgumentParser) -> None:
         "makes peers register this map again",
     )
     p.add_argument(
+        "--forget-after",
+        type=float,
+        default=300.0,
+        help="s after a robot left (its liveliness token went away) before its map and links "
+        "are forgotten, so memory does not grow with every robot ever seen",
+    )
+    p.add_argument(
         "--min-agreement",
         type=float,
         help="overlay agreement a link needs (default: the merge's own threshold)",
@@ -150,6 +157,8 @@ def options_from_args(args: argparse.Namespace):
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
     if not 0 <= args.min_change <= 1 or not 0 <= args.epoch_change <= 1:
         raise CliError("--min-change and --epoch-change must be in [0, 1]")
+    if not args.forget_after > 0:
+        raise CliError("--forget-after must be > 0")
     if args.min_agreement is not None and not 0 < args.min_agreement <= 1:
         raise CliError("--min-agreement must be in (0, 1]")
     key = read_fleet_key(args.key_file)
@@ -194,6 +203,7 @@ def options_from_args(args: argparse.Namespace):
         min_interval=args.min_interval,
         min_agreement=args.min_agreement,
         epoch_change=args.epoch_change,
+        forget_after=args.forget_after,
         inbox_bytes=args.inbox_mib << 20,
         outputs=outputs,
     )

@@ -1,0 +1,151 @@
+"""Check a predicted transform instead of searching for one: refine locally, then overlay.
+
+When a chain of accepted links (or a known initial pose) already predicts the B-pixel ->
+A-pixel transform of a pair, the full search of :func:`pgvd.merge.merge` -- candidate
+headings (10), the PGVD (13)-(24), Gamma (26)-(28) and the rho test (32) -- is not needed
+to *find* it; only to *confirm* it.  :func:`verify` does the confirmation, at a fraction of
+the cost:
+
+1. ``refine``: trimmed ICP of B's walls onto A's, started at the prediction
+   (:func:`pgvd.matching.refine`);
+2. ``basin``: the refinement must not have moved the prediction by more than
+   :data:`BASIN_M` at B's wall centroid or :data:`BASIN_DEG` in heading.  A prediction
+   that needed a larger correction was not a prediction of this transform, and ICP far
+   from its start may have slid along a corridor to a look-alike place;
+3. ``verify``: the overlay acceptance of the merge (the check the paper leaves to future
+   work, Sec. VI): agreement ratio >= ``min_agreement`` over at least ``min_overlap``
+   metres of agreeing walls (:func:`pgvd.matching.map_agreement`);
+4. ``covariance``: as the merge computes it (:func:`pgvd.matching.alignment_covariance`).
+
+A rejected result carries the refined matrix for diagnosis only; a prediction is never
+accepted as it stands, only the refined transform once it passed every check.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from pgvd.grid import Grid, matrix_to_pose
+from pgvd.matching import WallMap, alignment_covariance, map_agreement, refine
+from pgvd.merge import MergeParams, MergeResult
+
+#: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
+BASIN_M = 1.0
+#: Largest change of heading (degrees) by the refinement for the prediction to count.
+BASIN_DEG = 5.0
+
+
+def _check(a: Grid, b: Grid, predicted: np.ndarray) -> np.ndarray:
+    """The prediction as a float 3x3 rigid matrix; ``ValueError`` on anything else."""
+    m = np.asarray(predicted, dtype=np.float64)
+    if m.shape != (3, 3) or not np.isfinite(m).all():
+        raise ValueError(f"the prediction must be a finite 3x3 matrix, got shape {m.shape}")
+    if not (
+        np.allclose(m[2], (0.0, 0.0, 1.0))
+        and np.allclose(m[:2, :2] @ m[:2, :2].T, np.eye(2), atol=1e-6)
+    ):
+        raise ValueError("the prediction is not a rigid transform (eqs. (1)-(2))")
+    if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
+        raise ValueError(
+            f"maps have different resolutions ({a.resolution} vs {b.resolution} m/cell)"
+        )
+    return m
+
+
+def basin_move(
+    predicted: np.ndarray, refined: np.ndarray, walls_b: np.ndarray
+) -> tuple[float, float]:
+    """How far the refinement moved the prediction: (pixels at B's wall centroid, degrees).
+
+    Measured at the centroid so that a turn about a far-away pixel origin does not count
+    as a translation.
+    """
+    centre = np.append(walls_b.mean(axis=0), 1.0)
+    shift = float(np.hypot(*((refined - predicted) @ centre)[:2]))
+    turn = matrix_to_pose(refined)[0] - matrix_to_pose(predicted)[0]
+    return shift, float(np.degrees(abs(np.angle(np.exp(1j * turn)))))
+
+
+def verify(
+    a: Grid, b: Grid, predicted: np.ndarray, params: MergeParams | None = None
+) -> MergeResult:
+    """Confirm or reject a predicted B-pixel -> A-pixel transform (module docstring).
+
+    Parameters
+    ----------
+    a, b : Grid
+        The two maps, with equal resolutions.
+    predicted : numpy.ndarray
+        3x3 rigid matrix (eqs. (1)-(2)), B pixel -> A pixel, e.g. a chain of links composed.
+    params : MergeParams, optional
+        The merge's acceptance thresholds (``min_agreement``, ``min_overlap``, ``occupied``,
+        ``free``, ``coarse_resolution`` for the covariance's correlation length).
+
+    Returns
+    -------
+    MergeResult
+        Accepted with the refined matrix, its overlay agreement as ``score`` and its
+        covariance (3), or rejected with a ``reason`` (and no covariance).  The timings
+        have ``refine``, ``verify``, ``covariance`` and ``total``.
+
+    Raises
+    ------
+    ValueError
+        A prediction that is not a finite rigid 3x3 matrix, or different resolutions.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(3), Sec. VI.
+    """
+    params = params or MergeParams(diagnostics=False)
+    m0 = _check(a, b, predicted)
+    t0 = last = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    def lap(stage: str) -> None:
+        nonlocal last
+        now = time.perf_counter()
+        timings[stage] = timings.get(stage, 0.0) + 1e3 * (now - last)
+        last = now
+
+    def result(
+        accepted: bool, reason: str, m: np.ndarray, score: float, cov: np.ndarray
+    ) -> MergeResult:
+        psi, tx, ty = matrix_to_pose(m)
+        timings["total"] = 1e3 * (time.perf_counter() - t0)
+        return MergeResult(
+            accepted, m, float(np.degrees(psi)), (tx, ty), cov, score, timings, reason
+        )
+
+    nan = np.full((3, 3), np.nan)
+    fine_a = WallMap(a.probability(), params.occupied, params.free)
+    fine_b = WallMap(b.probability(), params.occupied, params.free)
+    if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:
+        return result(False, "a map has fewer than 10 wall cells", m0, 0.0, nan)
+    matrix = refine(fine_a.tree, fine_b.walls, m0)
+    lap("refine")
+    shift_px, turn_deg = basin_move(m0, matrix, fine_b.walls)
+    if shift_px * a.resolution > BASIN_M or turn_deg > BASIN_DEG:
+        lap("verify")
+        return result(
+            False,
+            f"refinement left the prediction's basin: moved {shift_px * a.resolution:.2f} m "
+            f"and {turn_deg:.1f} deg (> {BASIN_M} m or {BASIN_DEG} deg)",
+            matrix, 0.0, nan,
+        )  # fmt: skip
+    agreement = map_agreement(fine_a, fine_b, matrix)
+    overlap_m = 0.5 * agreement.agree * a.resolution
+    lap("verify")
+    if agreement.ratio < params.min_agreement:
+        why = f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {params.min_agreement}"
+        return result(False, why, matrix, agreement.ratio, nan)
+    if overlap_m < params.min_overlap:
+        why = f"overlap too small: {overlap_m:.1f} m of agreeing walls < {params.min_overlap} m"
+        return result(False, why, matrix, agreement.ratio, nan)
+    k = max(1, round(params.coarse_resolution / a.resolution))
+    cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
+    lap("covariance")
+    return result(True, "accepted", matrix, agreement.ratio, cov)
