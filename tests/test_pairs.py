@@ -1,4 +1,4 @@
-"""pgvd.pairs: two robots' maps from two segments of a real log, with their true matrix."""
+"""bench.pairs: two robots' maps from two segments of a real log, with their true matrix."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from bench.pairs import MIN_OVERLAP, make_pair, make_pairs, overlap_fraction, write_pair
 from pgvd.grid import rigid_matrix
 from pgvd.io import read_carmen, read_map
-from pgvd.pairs import MIN_OVERLAP, make_pair, make_pairs, overlap_fraction, write_pair
 
 
 @pytest.fixture(scope="module")

@@ -27,6 +27,7 @@ from pgvd.integrate import (
     InverseSensorModel,
     frame_for,
     integrate,
+    integrate_scan,
     perturb_odometry,
     se2,
     select_segment,
@@ -113,6 +114,35 @@ def overlap_fraction(a: Grid, b: Grid, truth: np.ndarray) -> float:
     return shared / min(n_a, n_b)
 
 
+def render(
+    part: list[LaserScan],
+    rng: np.random.Generator,
+    resolution: float,
+    odom_noise: tuple[float, float] | None,
+    noise_seed: int,
+    model: InverseSensorModel = DEFAULT_MODEL,
+) -> tuple[Grid, np.ndarray]:
+    """One robot's map of ``part`` in a random frame, and the frame's world -> map transform.
+
+    With ``odom_noise`` the scan poses drift first (:func:`pgvd.integrate.perturb_odometry`,
+    seeded by ``noise_seed``); a drifted map has no exact rigid truth, so the returned
+    placement is the best rigid one: the least-squares fit of the drifted scan positions
+    onto the true ones.
+    """
+    transform = random_frame(rng)
+    placement = transform
+    if odom_noise is not None:
+        drifted = perturb_odometry(part, odom_noise, noise_seed)
+        fit = rigid_fit(
+            np.array([s.pose[:2] for s in drifted]), np.array([s.pose[:2] for s in part])
+        )
+        # Map metres = transform @ drifted world = transform @ fit^-1 @ true world.
+        placement = transform @ np.linalg.inv(fit)
+        part = drifted
+    frame = frame_for(part, resolution, transform, model=model)
+    return integrate(part, frame, model), placement
+
+
 def make_pair(
     scans: list[LaserScan],
     seg_a: tuple[float, float] | slice,
@@ -131,9 +161,7 @@ def make_pair(
     seg_a, seg_b : segments, as for :func:`pgvd.integrate.select_segment`.
     seed : makes the frames and the odometry noise; same seed, same pair.
     resolution : metres per cell of both maps.
-    odom_noise : optional extra odometry noise (see :func:`pgvd.integrate.perturb_odometry`).
-        A drifted map has no exact rigid truth; its truth is then the best rigid
-        placement: the least-squares fit of the drifted scan positions onto the true ones.
+    odom_noise : optional extra odometry noise (see :func:`render`).
     model : inverse sensor model.
     name : label of the pair.
     """
@@ -143,18 +171,8 @@ def make_pair(
         part = select_segment(scans, segment)
         if not part:
             raise ValueError(f"segment {segment} of a {len(scans)}-scan log is empty")
-        transform = random_frame(rng)
-        placement = transform
-        if odom_noise is not None:
-            drifted = perturb_odometry(part, odom_noise, seed * 2 + k)
-            fit = rigid_fit(
-                np.array([s.pose[:2] for s in drifted]), np.array([s.pose[:2] for s in part])
-            )
-            # Map metres = transform @ drifted world = transform @ fit^-1 @ true world.
-            placement = transform @ np.linalg.inv(fit)
-            part = drifted
-        frame = frame_for(part, resolution, transform, model=model)
-        grids.append(integrate(part, frame, model))
+        grid, placement = render(part, rng, resolution, odom_noise, seed * 2 + k, model)
+        grids.append(grid)
         frames.append(placement)
     truth = true_matrix(grids[0], frames[0], grids[1], frames[1])
     info = {
@@ -181,26 +199,48 @@ def _draw_segment(rng: np.random.Generator, lengths: tuple[float, float]) -> tup
     return (round(start, 4), round(start + length, 4))
 
 
-class _Footprints:
-    """Coarse known-cell masks of segments in the log's world frame, to screen candidates."""
+class Footprints:
+    """Coarse known-cell masks of segments in the log's world frame, to screen candidates.
+
+    The cells every scan touches are found once; a segment's mask is the union
+    of its scans' cells (a cell is known once any ray has touched it).
+    """
 
     def __init__(self, scans: list[LaserScan], model: InverseSensorModel) -> None:
-        self.scans = scans
-        self.model = model
         self.frame = frame_for(scans, FOOTPRINT_RESOLUTION, model=model)
+        canvas = self.frame.empty()
+        self.cells: list[np.ndarray] = []
+        for scan in scans:
+            rows, cols = integrate_scan(canvas, scan, self.frame, model)
+            r, c = np.nonzero(canvas[rows, cols])
+            self.cells.append(
+                ((r + rows.start) * canvas.shape[1] + c + cols.start).astype(np.int32)
+            )
+            canvas[rows, cols] = 0.0
 
-    def _masks(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> list[np.ndarray]:
-        return [
-            integrate(select_segment(self.scans, s), self.frame, self.model).logodds != 0
-            for s in (seg_a, seg_b)
-        ]
+    def mask(self, segment: tuple[float, float] | slice) -> np.ndarray:
+        """Known cells of one segment (same selection as :func:`pgvd.integrate.select_segment`)."""
+        out = np.zeros(self.frame.shape, bool)
+        parts = select_segment(self.cells, segment)
+        if parts:
+            out.reshape(-1)[np.concatenate(parts)] = True
+        return out
 
-    def disjoint(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> bool:
+    def _masks(
+        self, seg_a: tuple[float, float] | slice, seg_b: tuple[float, float] | slice
+    ) -> list[np.ndarray]:
+        return [self.mask(seg_a), self.mask(seg_b)]
+
+    def disjoint(
+        self, seg_a: tuple[float, float] | slice, seg_b: tuple[float, float] | slice
+    ) -> bool:
         a, b = self._masks(seg_a, seg_b)
         # One coarse cell of slack: a full-resolution overlap can sit across a coarse border.
         return not np.any(ndimage.binary_dilation(a) & b)
 
-    def overlap(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> float:
+    def overlap(
+        self, seg_a: tuple[float, float] | slice, seg_b: tuple[float, float] | slice
+    ) -> float:
         """The overlap fraction of the module docstring, on the coarse masks."""
         a, b = self._masks(seg_a, seg_b)
         return float((a & b).sum() / max(1, min(a.sum(), b.sum())))
@@ -236,7 +276,7 @@ def make_pairs(
         raise ValueError(f"overlap band must satisfy 0 < lo < hi <= 1, got {overlap_band}")
     rng = np.random.default_rng(seed)
     screen = lo > MIN_OVERLAP or hi < 1.0
-    footprints = _Footprints(scans, model) if n_disjoint or screen else None
+    footprints = Footprints(scans, model) if n_disjoint or screen else None
     overlapping: list[MapPair] = []
     draws = 0
     while len(overlapping) < n_overlap and draws < MAX_DRAWS:
