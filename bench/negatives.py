@@ -64,8 +64,8 @@ def unrelated_pair(
 ) -> MapPair:
     """Two maps that show no common place, each in a random frame; truth None, overlap 0."""
     rng = np.random.default_rng(seed)
-    a, _ = render(part_a, rng, resolution, None, 0)
-    b, _ = render(part_b, rng, resolution, None, 0)
+    a, _ = render(part_a, rng, resolution)
+    b, _ = render(part_b, rng, resolution)
     return MapPair(a, b, None, 0.0, name, {**info, "seed": seed, "resolution": resolution})
 
 

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from bench.drift import Drift, overlap_fit
+from pgvd.grid import Grid, world_pose_to_pixel_matrix, world_to_pixel
 from pgvd.integrate import (
     DEFAULT_MODEL,
     InverseSensorModel,
@@ -88,17 +89,6 @@ def true_matrix(a: Grid, a_from_world: np.ndarray, b: Grid, b_from_world: np.nda
     )
 
 
-def rigid_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """3x3 SE(2) minimising ``sum |R src_i + t - dst_i|^2`` (Kabsch/Umeyama, no scale)."""
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    u, _, vt = np.linalg.svd((dst - mu_d).T @ (src - mu_s))
-    r = u @ np.diag([1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-    m = np.eye(3)
-    m[:2, :2] = r
-    m[:2, 2] = mu_d - r @ mu_s
-    return m
-
-
 def overlap_fraction(a: Grid, b: Grid, truth: np.ndarray) -> float:
     """Shared known cells over the smaller map's known cells (module docstring)."""
     known_a = a.logodds != 0
@@ -118,29 +108,39 @@ def render(
     part: list[LaserScan],
     rng: np.random.Generator,
     resolution: float,
-    odom_noise: tuple[float, float] | None,
-    noise_seed: int,
     model: InverseSensorModel = DEFAULT_MODEL,
 ) -> tuple[Grid, np.ndarray]:
-    """One robot's map of ``part`` in a random frame, and the frame's world -> map transform.
-
-    With ``odom_noise`` the scan poses drift first (:func:`pgvd.integrate.perturb_odometry`,
-    seeded by ``noise_seed``); a drifted map has no exact rigid truth, so the returned
-    placement is the best rigid one: the least-squares fit of the drifted scan positions
-    onto the true ones.
-    """
+    """One robot's map of ``part`` in a random frame, and the frame's world -> map transform."""
     transform = random_frame(rng)
-    placement = transform
-    if odom_noise is not None:
-        drifted = perturb_odometry(part, odom_noise, noise_seed)
-        fit = rigid_fit(
-            np.array([s.pose[:2] for s in drifted]), np.array([s.pose[:2] for s in part])
-        )
-        # Map metres = transform @ drifted world = transform @ fit^-1 @ true world.
-        placement = transform @ np.linalg.inv(fit)
-        part = drifted
     frame = frame_for(part, resolution, transform, model=model)
-    return integrate(part, frame, model), placement
+    return integrate(part, frame, model), transform
+
+
+def drift(
+    part: list[LaserScan], odom_noise: Drift | tuple[float, float], seed: int
+) -> list[LaserScan]:
+    """The scans as a drifting robot places them: a :class:`bench.drift.Drift` model, or
+    ``(sigma_t, sigma_r)`` of :func:`pgvd.integrate.perturb_odometry`."""
+    if isinstance(odom_noise, Drift):
+        return odom_noise.apply(part, seed)
+    return perturb_odometry(part, odom_noise, seed)
+
+
+def _seen_by(part: list[LaserScan], model: InverseSensorModel):
+    """A test of true-world points: does a cell of ``part``'s coarse footprint hold them?"""
+    frame = frame_for(part, FOOTPRINT_RESOLUTION, model=model)
+    known = integrate(part, frame, model).logodds != 0
+    grid = frame.grid(known.astype(np.float32))
+
+    def seen(pts: np.ndarray) -> np.ndarray:
+        xy = np.rint(world_to_pixel(grid, pts)).astype(np.int64)
+        ok = (xy[:, 0] >= 0) & (xy[:, 0] < known.shape[1]) & (xy[:, 1] >= 0)
+        ok &= xy[:, 1] < known.shape[0]
+        out = np.zeros(len(pts), bool)
+        out[ok] = known[xy[ok, 1], xy[ok, 0]]
+        return out
+
+    return seen
 
 
 def make_pair(
@@ -149,7 +149,7 @@ def make_pair(
     seg_b: tuple[float, float] | slice,
     seed: int,
     resolution: float = 0.05,
-    odom_noise: tuple[float, float] | None = None,
+    odom_noise: Drift | tuple[float, float] | None = None,
     model: InverseSensorModel = DEFAULT_MODEL,
     name: str = "pair",
 ) -> MapPair:
@@ -161,27 +161,44 @@ def make_pair(
     seg_a, seg_b : segments, as for :func:`pgvd.integrate.select_segment`.
     seed : makes the frames and the odometry noise; same seed, same pair.
     resolution : metres per cell of both maps.
-    odom_noise : optional extra odometry noise (see :func:`render`).
+    odom_noise : optional odometry drift on both robots (see :func:`drift`).  A drifted
+        pair has no exact rigid truth; its truth is then the rigid alignment on the
+        overlap (:func:`bench.drift.overlap_fit`), and ``info`` holds the residual
+        distortion (``drift_rms_m``) no rigid transform removes.
     model : inverse sensor model.
     name : label of the pair.
     """
     rng = np.random.default_rng(seed)
-    grids, frames = [], []
+    parts, grids, frames = [], [], []
     for k, segment in enumerate((seg_a, seg_b)):
         part = select_segment(scans, segment)
         if not part:
             raise ValueError(f"segment {segment} of a {len(scans)}-scan log is empty")
-        grid, placement = render(part, rng, resolution, odom_noise, seed * 2 + k, model)
-        grids.append(grid)
-        frames.append(placement)
-    truth = true_matrix(grids[0], frames[0], grids[1], frames[1])
+        # The frame is drawn first, so a drifted pair has the frames of its noise-free twin.
+        transform = random_frame(rng)
+        seen = part if odom_noise is None else drift(part, odom_noise, seed * 2 + k)
+        frame = frame_for(seen, resolution, transform, model=model)
+        grids.append(integrate(seen, frame, model))
+        frames.append(transform)
+        parts.append((part, seen))
     info = {
         "seg_a": _segment_json(seg_a),
         "seg_b": _segment_json(seg_b),
         "seed": seed,
         "resolution": resolution,
-        "odom_noise": list(odom_noise) if odom_noise else None,
+        "odom_noise": None
+        if odom_noise is None
+        else (odom_noise.json() if isinstance(odom_noise, Drift) else list(odom_noise)),
     }
+    between = np.eye(3)
+    if odom_noise is not None:
+        (true_a, drift_a), (true_b, drift_b) = parts
+        between, rms, n = overlap_fit(
+            true_a, drift_a, true_b, drift_b, _seen_by(true_a, model), model.max_range
+        )
+        info.update(drift_rms_m=rms, drift_fit_points=n)
+    # A's map metres = frame_A @ (B's drifted world -> A's drifted world) @ frame_B^-1.
+    truth = true_matrix(grids[0], frames[0] @ between, grids[1], frames[1])
     return MapPair(
         grids[0], grids[1], truth, overlap_fraction(grids[0], grids[1], truth), name, info
     )
@@ -253,7 +270,7 @@ def make_pairs(
     seed: int,
     name: str,
     resolution: float = 0.05,
-    odom_noise: tuple[float, float] | None = None,
+    odom_noise: Drift | tuple[float, float] | None = None,
     model: InverseSensorModel = DEFAULT_MODEL,
     overlap_band: tuple[float, float] = (MIN_OVERLAP, 1.0),
 ) -> list[MapPair]:

@@ -2,7 +2,7 @@
 
 Sets (issue 10):
 
-``standard``  overlap >= 30 %;
+``standard``  overlap >= 30 % (half of the pairs drawn within 30-75 %);
 ``low``       overlap 15-35 %;
 ``drifted``   overlap >= 30 %, odometry noise :data:`DRIFT` on both robots' scan poses;
 ``negative``  disjoint parts of one building, look-alike corridors, mirror images
@@ -15,23 +15,27 @@ Every pair is a pure function of its source, the set, the seed and the counts.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import pickle
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench.drift import Drift
+from bench.gmapping import gmapping_pairs
 from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
 from bench.pairs import MapPair, make_pairs
 from bench.sources import SIM_VERSION, SOURCES, Source, load_run
 from pgvd.io import LaserScan
 
-#: Odometry noise of the drifted set: (translation sigma per metre moved, heading sigma
-#: per radian turned plus per metre moved), see :func:`pgvd.integrate.perturb_odometry`.
-DRIFT = (0.05, 0.0175)
+#: Odometry drift of the drifted set (:mod:`bench.drift`).
+DRIFT = Drift()
 STANDARD_BAND = (0.3, 1.0)
+MIDDLE_BAND = (0.3, 0.75)
 LOW_BAND = (0.15, 0.35)
 #: Bump when pair generation changes, so caches are not reused.
-PAIRS_VERSION = 1
+PAIRS_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -45,10 +49,13 @@ class Counts:
     lookalike: int
     mirror: int
     cross: int
+    gmapping: int
 
 
-QUICK = Counts(standard=2, low=1, drifted=1, disjoint=1, lookalike=1, mirror=1, cross=4)
-FULL = Counts(standard=10, low=6, drifted=6, disjoint=5, lookalike=3, mirror=3, cross=30)
+QUICK = Counts(standard=2, low=1, drifted=1, disjoint=1, lookalike=1, mirror=1, cross=4, gmapping=3)
+FULL = Counts(
+    standard=10, low=6, drifted=6, disjoint=5, lookalike=3, mirror=3, cross=30, gmapping=6
+)
 
 
 @dataclass
@@ -64,6 +71,11 @@ class Entry:
 
 def _log(msg: str) -> None:
     print(msg, flush=True)
+
+
+def _digest(params: dict) -> str:
+    """A short stable name for a parameter set, for cache keys."""
+    return hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
 
 
 def _cached(cache: Path | None, key: str, make):
@@ -97,16 +109,20 @@ def source_pairs(
     def key(what: str, n: int) -> str:
         return f"{name}-{what}-{n}-{seed}"
 
-    for set_name, n, band, noise in (
-        ("standard", counts.standard, STANDARD_BAND, None),
-        ("low", counts.low, LOW_BAND, None),
-        ("drifted", counts.drifted, STANDARD_BAND, DRIFT),
+    # Segments drawn freely mostly nest (overlap ~1): half the standard pairs are drawn
+    # from the middle band so that partial overlaps are well represented.
+    half = counts.standard // 2
+    for set_name, tag, n, band, noise in (
+        ("standard", "partial", half, MIDDLE_BAND, None),
+        ("standard", "standard", counts.standard - half, STANDARD_BAND, None),
+        ("low", "low", counts.low, LOW_BAND, None),
+        ("drifted", "drifted", counts.drifted, STANDARD_BAND, DRIFT),
     ):
         if n:
             pairs = _cached(
                 cache,
-                key(set_name, n),
-                lambda n=n, band=band, noise=noise, tag=set_name: make_pairs(
+                key(tag if noise is None else f"{tag}-{_digest(noise.json())}", n),
+                lambda n=n, band=band, noise=noise, tag=tag: make_pairs(
                     scans, n, 0, seed, f"{name}-{tag}", odom_noise=noise, overlap_band=band
                 ),
             )
@@ -149,8 +165,10 @@ def build(
     seed: int,
     cache: Path | None,
     sources: tuple[Source, ...] = SOURCES,
+    gmapping: bool = True,
 ) -> list[Entry]:
-    """All pairs of the bench: every source's sets, then the cross-building negatives."""
+    """All pairs of the bench: every source's sets, the gmapping runs, then the cross-building
+    negatives (every source of ``sources`` when ``gmapping`` is True)."""
     entries: list[Entry] = []
     runs: dict[str, list[LaserScan]] = {}
     for source in sources:
@@ -160,6 +178,16 @@ def build(
         # One run per building for the cross-building negatives: the first source of it.
         runs.setdefault(source.building, scans)
         entries += source_pairs(source, scans, counts, seed, cache)
+    if gmapping and counts.gmapping:
+        for p in _cached(
+            cache,
+            f"gmapping-{counts.gmapping}-{seed}",
+            lambda: gmapping_pairs(counts.gmapping, seed),
+        ):
+            entries.append(Entry(p, "fr079-gmapping", "fr079", "standard", "gmapping"))
+            _log(
+                f"[pairs]   {p.name}: standard/gmapping {p.a.shape} {p.b.shape} ov {p.overlap:.2f}"
+            )
     if counts.cross and len(runs) > 1:
         names = "-".join(sorted(runs))
         cross = _cached(
