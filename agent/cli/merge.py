@@ -1,7 +1,9 @@
-"""``pgvd merge A B``: find the B->A transform of two map files, and fuse them (design.md).
+"""``pgvd merge A B``: find the transform from B's pixels to A's of two map files, and fuse them.
 
 Exit 0 when the maps merge (``-o`` and ``--plot`` are written), 3 when they do
 not overlap (``--plot`` still shows why), 2 on bad input with one line on stderr.
+Only numpy and the map reader load before the files are read; scipy and scikit-image load
+once both maps are known good.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from agent.cli import EXIT_NO_OVERLAP, EXIT_OK, CliError
+from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError
 from pgvd.grid import Grid, matrix_to_pose
 from pgvd.io import MAX_CELLS, MapFormatError, read_map, write_map, write_png
 
@@ -26,14 +28,11 @@ if TYPE_CHECKING:
 _MAP_SUFFIXES = (".yaml", ".yml", ".npy")
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "merge",
-        help="merge two occupancy-grid maps (ROS map_server .yaml or .npy)",
-        description=(
-            "Find the transform from map B's pixels to map A's pixels with the PGVD method "
-            "and fuse B into A. Exit 0: merged; 3: no overlap; 2: bad input."
-        ),
+def configure(p: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``pgvd merge`` to its parser."""
+    p.description = (
+        "Find the transform from map B's pixels to map A's pixels with the PGVD method "
+        "and fuse B into A. Exit 0: merged; 3: no overlap; 2: bad input."
     )
     p.add_argument(
         "a",
@@ -43,6 +42,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "b", metavar="B", type=Path, help="map B, resampled to A's resolution if it differs"
+    )
+    p.add_argument(
+        "more",
+        metavar="C",
+        type=Path,
+        nargs="*",
+        help="more maps: all pairs are registered and placed jointly, as a fleet would "
+        "(--json then lists maps and links; -o writes the largest merged group)",
     )
     p.add_argument(
         "-o", "--output", type=Path, metavar="FUSED", help="write the fused map (.yaml or .npy)"
@@ -87,8 +94,12 @@ def _finite_or_none(value: object) -> object:
 
 
 def report(result: MergeResult, b_scale: np.ndarray | None) -> dict:
-    """The ``--json`` object of design.md; ``matrix`` maps the pixels of B *as read from
-    its file*, so it includes the scale when B was resampled."""
+    """The ``--json`` object: ``accepted``, ``matrix`` (B pixels -> A pixels), ``rotation_deg``,
+    ``translation_px``, ``covariance``, ``score``, ``timings_ms`` and ``reason``.
+
+    ``matrix`` maps the pixels of B *as read from its file*, so it includes the scale (also
+    given as ``b_scale``) when B was resampled; non-finite numbers are null.
+    """
     doc = result.to_json()
     if b_scale is not None:
         m = np.asarray(result.matrix, dtype=np.float64) @ b_scale
@@ -125,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
     progress = _progress(args)
     say = progress or (lambda line: None)
+    if args.more:
+        return _run_many(args, say)
     say(f"reading {args.a} and {args.b}")
     a = _read(args.a, args.max_cells)
     b = _read(args.b, args.max_cells)
@@ -164,3 +177,53 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"cannot fuse the maps: {exc}") from None
         _write("fused map", args.output, lambda: write_map(args.output, fused))
     return EXIT_OK
+
+
+def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
+    """``pgvd merge A B C ...``: :func:`agent.multimerge.merge_many`, the agents' path."""
+    files = [args.a, args.b, *args.more]
+    say(f"reading {len(files)} maps")
+    grids = [_read(f, args.max_cells) for f in files]
+    for f, g in zip(files, grids, strict=True):
+        cells = g.logodds.size * (g.resolution / grids[0].resolution) ** 2
+        if cells > args.max_cells:
+            raise CliError(f"{f}: resampled to {grids[0].resolution} m/cell, over --max-cells")
+    from agent.multimerge import merge_many
+    from pgvd.render import grid_image
+
+    try:
+        res = merge_many(grids, progress=say)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    doc = res.report([str(f) for f in files])
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+    else:
+        print(_many_summary(doc))
+    largest = res.largest()
+    if args.plot is not None:
+        say(f"drawing {args.plot}")
+        image = grid_image(largest.grid.probability())
+        _write("plot", args.plot, lambda: write_png(args.plot, image))
+    if not res.merged:
+        return EXIT_NO_OVERLAP
+    if args.output is not None:
+        say(f"writing the group of {len(largest.members)} maps to {args.output}")
+        _write("fused map", args.output, lambda: write_map(args.output, largest.grid))
+    return EXIT_OK
+
+
+def _many_summary(doc: dict) -> str:
+    lines = []
+    for i, m in enumerate(doc["maps"]):
+        psi, tx, ty = matrix_to_pose(np.asarray(m["matrix"]))
+        lines.append(
+            f"map {i} {m['file']}: group {m['component']}, rotation {math.degrees(psi):.2f} deg, "
+            f"translation ({tx:.1f}, {ty:.1f}) px"
+        )
+    for ln in doc["links"]:
+        verdict = "no overlap"
+        if ln["accepted"]:
+            verdict = "used" if ln["used"] else "dropped: inconsistent around a cycle"
+        lines.append(f"maps {ln['a']}-{ln['b']}: score {ln['score']:.3f}, {verdict}")
+    return "\n".join(lines)
