@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import importlib
 from collections.abc import Iterator
 
 import numpy as np
@@ -66,8 +67,8 @@ class SearchedHeadings:
 
     @contextlib.contextmanager
     def watching(self) -> Iterator[None]:
-        import pgvd.merge as core
-
+        # pgvd.merge is the function (pgvd's public API); the module is in sys.modules.
+        core = importlib.import_module("pgvd.merge")
         original = getattr(core, "_search_heading", None)
         if original is None:
             self.degrees = None

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -114,35 +113,59 @@ def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return np.einsum("nij,nj->ni", m[:, :2, :2], pts) + m[:, :2, 2]
 
 
+#: Two hits closer than this (m) are on the same piece of wall; up to NEIGHBOURS of them count.
+SAME_WALL = 0.1
+NEIGHBOURS = 16
+
+
+def _placed(
+    true: list[LaserScan], drifted: list[LaserScan], pts: np.ndarray, max_range: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where a drifted robot's map puts each true-world wall point, and whether it saw it.
+
+    A wall point is drawn by every scan of the robot that hit it; its place in the
+    map is the mean of where those scans (the robot's hits within SAME_WALL of it)
+    put it.
+    """
+    hits, scan = _endpoints(true, max_range)
+    dist, idx = cKDTree(hits).query(pts, k=NEIGHBOURS, distance_upper_bound=SAME_WALL)
+    near = np.isfinite(dist)
+    seen = near.any(axis=1)
+    corr = _corrections(true, drifted)
+    out = np.zeros((len(pts), 2))
+    for j in range(NEIGHBOURS):
+        rows = np.flatnonzero(near[:, j])
+        out[rows] += _apply(corr[scan[idx[rows, j]]], pts[rows])
+    count = np.maximum(near.sum(axis=1), 1)
+    return out / count[:, None], seen
+
+
 def overlap_fit(
     true_a: list[LaserScan],
     drifted_a: list[LaserScan],
     true_b: list[LaserScan],
     drifted_b: list[LaserScan],
-    seen_by_a: Callable[[np.ndarray], np.ndarray],
     max_range: float,
     max_points: int = 4000,
 ) -> tuple[np.ndarray, float, int]:
-    """Rigid map from B's drifted world to A's drifted world, fitted where both robots saw.
+    """Rigid map from B's drifted world to A's drifted world, fitted on the walls both saw.
 
     A drifted pair has no exact rigid truth; the truth a merge should find is the
-    alignment *on the overlap*.  Every wall point B hit (true world) that A also saw
-    (``seen_by_a``: true-world points -> bool) is put where each drifted robot
-    believes it is -- by B's scan that hit it, and by A's scan nearest to it -- and
-    the least-squares rigid fit of B's positions onto A's is returned, with the RMS
-    residual (metres: the distortion no rigid transform removes) and the number of
-    points.  Falls back to the identity with ``n = 0`` when nothing is shared.
+    alignment *on the overlap*.  Every wall point both robots hit (true world) is put
+    where each drifted robot's map has it (:func:`_placed`), and the least-squares
+    rigid fit of B's positions onto A's is returned, with the RMS residual (metres:
+    the distortion no rigid transform removes) and the number of points.  Falls back
+    to the identity with ``n = 0`` when the robots share no wall.
     """
-    pts, scan_b = _endpoints(true_b, max_range)
-    keep = seen_by_a(pts)
-    pts, scan_b = pts[keep], scan_b[keep]
+    pts, _ = _endpoints(true_b, max_range)
+    pts = pts[:: -(-len(pts) // (4 * max_points))]
+    in_a, seen = _placed(true_a, drifted_a, pts, max_range)
+    pts, in_a = pts[seen], in_a[seen]
     if len(pts) < 3:
         return np.eye(3), float("nan"), 0
     step = -(-len(pts) // max_points)
-    pts, scan_b = pts[::step], scan_b[::step]
-    _, scan_a = cKDTree(np.array([s.pose[:2] for s in true_a])).query(pts)
-    in_b = _apply(_corrections(true_b, drifted_b)[scan_b], pts)
-    in_a = _apply(_corrections(true_a, drifted_a)[scan_a], pts)
+    pts, in_a = pts[::step], in_a[::step]
+    in_b, _ = _placed(true_b, drifted_b, pts, max_range)
     fit = rigid_fit(in_b, in_a)
     resid = in_a - (in_b @ fit[:2, :2].T + fit[:2, 2])
     return fit, float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))), len(pts)

@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage
 
 from bench.drift import Drift, overlap_fit
-from pgvd.grid import Grid, world_pose_to_pixel_matrix, world_to_pixel
+from pgvd.grid import Grid, world_pose_to_pixel_matrix
 from pgvd.integrate import (
     DEFAULT_MODEL,
     InverseSensorModel,
@@ -126,23 +126,6 @@ def drift(
     return perturb_odometry(part, odom_noise, seed)
 
 
-def _seen_by(part: list[LaserScan], model: InverseSensorModel):
-    """A test of true-world points: does a cell of ``part``'s coarse footprint hold them?"""
-    frame = frame_for(part, FOOTPRINT_RESOLUTION, model=model)
-    known = integrate(part, frame, model).logodds != 0
-    grid = frame.grid(known.astype(np.float32))
-
-    def seen(pts: np.ndarray) -> np.ndarray:
-        xy = np.rint(world_to_pixel(grid, pts)).astype(np.int64)
-        ok = (xy[:, 0] >= 0) & (xy[:, 0] < known.shape[1]) & (xy[:, 1] >= 0)
-        ok &= xy[:, 1] < known.shape[0]
-        out = np.zeros(len(pts), bool)
-        out[ok] = known[xy[ok, 1], xy[ok, 0]]
-        return out
-
-    return seen
-
-
 def make_pair(
     scans: list[LaserScan],
     seg_a: tuple[float, float] | slice,
@@ -193,9 +176,7 @@ def make_pair(
     between = np.eye(3)
     if odom_noise is not None:
         (true_a, drift_a), (true_b, drift_b) = parts
-        between, rms, n = overlap_fit(
-            true_a, drift_a, true_b, drift_b, _seen_by(true_a, model), model.max_range
-        )
+        between, rms, n = overlap_fit(true_a, drift_a, true_b, drift_b, model.max_range)
         info.update(drift_rms_m=rms, drift_fit_points=n)
     # A's map metres = frame_A @ (B's drifted world -> A's drifted world) @ frame_B^-1.
     truth = true_matrix(grids[0], frames[0] @ between, grids[1], frames[1])
@@ -273,6 +254,7 @@ def make_pairs(
     odom_noise: Drift | tuple[float, float] | None = None,
     model: InverseSensorModel = DEFAULT_MODEL,
     overlap_band: tuple[float, float] = (MIN_OVERLAP, 1.0),
+    max_draws: int = MAX_DRAWS,
 ) -> list[MapPair]:
     """Overlapping pairs (overlap within ``overlap_band``), then disjoint pairs (overlap 0).
 
@@ -286,7 +268,7 @@ def make_pairs(
     Raises
     ------
     RuntimeError
-        If the log does not yield enough pairs of a kind within MAX_DRAWS draws.
+        If the log does not yield enough pairs of a kind within ``max_draws`` draws.
     """
     lo, hi = overlap_band
     if not 0.0 < lo < hi <= 1.0:
@@ -296,7 +278,7 @@ def make_pairs(
     footprints = Footprints(scans, model) if n_disjoint or screen else None
     overlapping: list[MapPair] = []
     draws = 0
-    while len(overlapping) < n_overlap and draws < MAX_DRAWS:
+    while len(overlapping) < n_overlap and draws < max_draws:
         seg_a, seg_b = _draw_segment(rng, OVERLAP_LENGTHS), _draw_segment(rng, OVERLAP_LENGTHS)
         if screen:
             # Coarse cells inflate the overlap; only rule out what is clearly outside the band.
@@ -315,7 +297,7 @@ def make_pairs(
         raise RuntimeError(f"{name}: only {len(overlapping)} of {n_overlap} overlapping pairs")
     disjoint: list[MapPair] = []
     draws = 0
-    while len(disjoint) < n_disjoint and draws < MAX_DRAWS:
+    while len(disjoint) < n_disjoint and draws < max_draws:
         seg_a, seg_b = _draw_segment(rng, DISJOINT_LENGTHS), _draw_segment(rng, DISJOINT_LENGTHS)
         draws += 1
         if not footprints.disjoint(seg_a, seg_b):

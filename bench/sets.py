@@ -25,7 +25,7 @@ from pathlib import Path
 from bench.drift import Drift
 from bench.gmapping import gmapping_pairs
 from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
-from bench.pairs import MapPair, make_pairs
+from bench.pairs import MAX_DRAWS, MapPair, make_pairs
 from bench.sources import SIM_VERSION, SOURCES, Source, load_run
 from pgvd.io import LaserScan
 
@@ -121,7 +121,7 @@ def source_pairs(
         if n:
             pairs = _cached(
                 cache,
-                key(tag if noise is None else f"{tag}-{_digest(noise.json())}", n),
+                key(tag if noise is None else f"{tag}-{_digest({**noise.json(), 'truth': 2})}", n),
                 lambda n=n, band=band, noise=noise, tag=tag: make_pairs(
                     scans, n, 0, seed, f"{name}-{tag}", odom_noise=noise, overlap_band=band
                 ),
@@ -134,7 +134,7 @@ def source_pairs(
             _cached(
                 cache,
                 key("disjoint", counts.disjoint),
-                lambda: make_pairs(scans, 0, counts.disjoint, seed, name),
+                lambda: make_pairs(scans, 0, counts.disjoint, seed, name, max_draws=4 * MAX_DRAWS),
             ),
         )
     if counts.lookalike:
