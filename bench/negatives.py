@@ -9,9 +9,11 @@
   building are built alike, so these are the hardest negatives a merge meets.
 * ``mirror``: a segment against its own mirror image -- the scans reflected
   about the world x axis (poses ``(x, -y, -theta)``, beams in reverse order),
-  a building that does not exist.  Only a segment that is not itself mirror
-  symmetric makes a negative; long segments (20 to 50 % of a run) are used,
-  which in a real building never are.
+  a building that does not exist.  Segments are long (20 to 50 % of a run).
+  A segment that happens to be nearly mirror symmetric is congruent to its
+  mirror image, and no test on the maps alone can reject that pair (uos_avz's
+  X-shaped hall of four corridors is one); the report counts mirror false
+  accepts apart, so they can be looked at (``python3 -m bench.show``).
 
 Every map is in its own random frame; the pairs carry ``truth = None`` (no
 transform is right), except look-alikes, which keep the true relation of the

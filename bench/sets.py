@@ -112,18 +112,25 @@ def source_pairs(
     # Segments drawn freely mostly nest (overlap ~1): half the standard pairs are drawn
     # from the middle band so that partial overlaps are well represented.
     half = counts.standard // 2
-    for set_name, tag, n, band, noise in (
-        ("standard", "partial", half, MIDDLE_BAND, None),
-        ("standard", "standard", counts.standard - half, STANDARD_BAND, None),
-        ("low", "low", counts.low, LOW_BAND, None),
-        ("drifted", "drifted", counts.drifted, STANDARD_BAND, DRIFT),
+    # Each set draws its segments from a seed of its own: with one seed, bands that
+    # overlap would take the same first pairs, and the bench would hold duplicates.
+    for k, (set_name, tag, n, band, noise) in enumerate(
+        (
+            ("standard", "partial", half, MIDDLE_BAND, None),
+            ("standard", "standard", counts.standard - half, STANDARD_BAND, None),
+            ("low", "low", counts.low, LOW_BAND, None),
+            ("drifted", "drifted", counts.drifted, STANDARD_BAND, DRIFT),
+        ),
+        start=1,
     ):
         if n:
+            own_seed = seed * 100 + k
+            what = tag if noise is None else f"{tag}-{_digest({**noise.json(), 'truth': 2})}"
             pairs = _cached(
                 cache,
-                key(tag if noise is None else f"{tag}-{_digest({**noise.json(), 'truth': 2})}", n),
-                lambda n=n, band=band, noise=noise, tag=tag: make_pairs(
-                    scans, n, 0, seed, f"{name}-{tag}", odom_noise=noise, overlap_band=band
+                f"{name}-{what}-{n}-{own_seed}",
+                lambda n=n, band=band, noise=noise, tag=tag, own_seed=own_seed: make_pairs(
+                    scans, n, 0, own_seed, f"{name}-{tag}", odom_noise=noise, overlap_band=band
                 ),
             )
             add(set_name, "overlap", pairs)
@@ -198,4 +205,35 @@ def build(
         for p in cross:
             entries.append(Entry(p, "cross-building", "cross", "negative", "cross"))
             _log(f"[pairs]   {p.name}: negative/cross {p.a.shape} {p.b.shape}")
+    check_distinct(entries)
     return entries
+
+
+def check_distinct(entries: list[Entry]) -> None:
+    """Raise if two pairs of one source were cut from the same segments (a duplicate).
+
+    Raises
+    ------
+    ValueError
+        Naming the two pairs.
+    """
+    seen: dict[str, str] = {}
+    for e in entries:
+        info = e.pair.info
+        what = json.dumps(
+            [
+                e.source,
+                e.kind,
+                info.get("seg_a"),
+                info.get("seg_b"),
+                info.get("seg"),
+                info.get("a"),
+                info.get("b"),
+                info.get("odom_noise"),
+                info.get("seed"),
+            ],
+            default=str,
+        )
+        if what in seen:
+            raise ValueError(f"pairs {seen[what]} and {e.pair.name} are the same pair")
+        seen[what] = e.pair.name
