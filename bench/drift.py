@@ -39,8 +39,8 @@ import itertools
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pgvd.carmen import LaserScan
 from pgvd.integrate import se2
-from pgvd.io import LaserScan
 
 TRANSLATION = 0.03
 HEADING = float(np.radians(0.2))

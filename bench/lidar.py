@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from pgvd.carmen import LaserScan
 from pgvd.grid import Grid
-from pgvd.io import LaserScan
 
 #: Occupancy probability above which a map cell is a wall (map_server's occupied_thresh).
 WALL = 0.65

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from bench.pairs import make_pair, write_pair
-from pgvd.io import read_carmen
+from pgvd.carmen import read_carmen
 
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT / "agent" / "data" / "intel-corrected.log.gz"

@@ -12,7 +12,8 @@ buildings).  Each map is in its own random frame, with the true B -> A matrix.
 Methods, all in this one process:
 
 ``pgvd``        this project's merge (:func:`pgvd.merge.merge`);
-``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD);
+``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD):
+                ``MergeParams(probabilistic=False)``;
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -58,8 +59,8 @@ from bench.sets import (
     build,
 )
 from bench.sources import SOURCES
-from pgvd.grid import Grid
-from pgvd.io import read_carmen
+from pgvd.carmen import read_carmen
+from pgvd.grid import Grid, heading
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -91,17 +92,6 @@ def _pgvd(**overrides) -> Method:
     return run
 
 
-def _deterministic_switch() -> dict | None:
-    """MergeParams overrides selecting plain GVD (Gamma_det), if the core exposes one."""
-    from pgvd.merge import MergeParams
-
-    names = {f.name for f in dataclasses.fields(MergeParams)}
-    for name, value in (("probabilistic", False), ("deterministic", True)):
-        if name in names:
-            return {name: value}
-    return None
-
-
 def _baseline(module: str, **kwargs) -> Method:
     import importlib
 
@@ -123,21 +113,19 @@ def methods(
     """The methods of the table, in column order (those of ``names`` that exist)."""
     makers: dict[str, Callable[[], Method]] = {
         "pgvd": _pgvd,
+        "pgvd-det": lambda: _pgvd(probabilistic=False),
         "m-explore": lambda: _baseline("mexplore"),
         "hough": lambda: _baseline("hough"),
         "exhaustive": lambda: _baseline(
             "exhaustive", step_deg=exhaustive_step, coarse=exhaustive_coarse
         ),
     }
-    det = _deterministic_switch()
-    if det is not None:
-        makers["pgvd-det"] = lambda: _pgvd(**det)
     return {n: makers[n]() for n in METHOD_NAMES if n in names and n in makers}
 
 
 def heading_error(truth: np.ndarray, matrix: np.ndarray) -> float:
     """Absolute heading difference (deg) of two B->A matrices."""
-    dpsi = np.arctan2(matrix[0, 1], matrix[0, 0]) - np.arctan2(truth[0, 1], truth[0, 0])
+    dpsi = heading(matrix) - heading(truth)
     return float(abs(np.degrees((dpsi + np.pi) % (2 * np.pi) - np.pi)))
 
 
@@ -202,9 +190,7 @@ def pair_record(entry: Entry) -> dict:
         "shape_a": list(p.a.shape),
         "shape_b": list(p.b.shape),
         "truth": None if truth is None else truth.tolist(),
-        "truth_heading_deg": None
-        if truth is None
-        else float(np.degrees(np.arctan2(truth[0, 1], truth[0, 0]))),
+        "truth_heading_deg": None if truth is None else float(np.degrees(heading(truth))),
         "info": to_json(p.info),
         "cells": int(np.sqrt(p.a.logodds.size * p.b.logodds.size)),
     }

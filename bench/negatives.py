@@ -27,8 +27,8 @@ import dataclasses
 import numpy as np
 
 from bench.pairs import MAX_DRAWS, Footprints, MapPair, make_pair, render
+from pgvd.carmen import LaserScan
 from pgvd.integrate import DEFAULT_MODEL
-from pgvd.io import LaserScan
 
 #: Travel (m) of a look-alike corridor run, and its minimum straightness.
 CORRIDOR_TRAVEL = (8.0, 20.0)

@@ -27,7 +27,7 @@ from bench.gmapping import gmapping_pairs
 from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
 from bench.pairs import MAX_DRAWS, MapPair, make_pairs
 from bench.sources import SIM_VERSION, SOURCES, Source, load_run
-from pgvd.io import LaserScan
+from pgvd.carmen import LaserScan
 
 #: Odometry drift of the drifted set (:mod:`bench.drift`).
 DRIFT = Drift()

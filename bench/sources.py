@@ -18,8 +18,9 @@ import numpy as np
 
 from bench.lidar import LMS200, RayCaster, scan_at
 from bench.trajectory import tour
+from pgvd.carmen import LaserScan, read_carmen
 from pgvd.grid import Grid
-from pgvd.io import LaserScan, read_carmen, read_map
+from pgvd.io import read_map
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"

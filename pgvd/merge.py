@@ -37,7 +37,9 @@ Stages (``timings_ms`` keys):
 ``refine``
     trimmed ICP of the wall cells at full resolution.
 ``covariance``
-    Gauss-Newton (point-to-line) covariance of ``(x, y, psi)`` at the optimum.
+    covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
+    curvature plus a bias and a floor calibrated on real pairs
+    (:func:`pgvd.matching.calibrated_covariance`).
 """
 
 from __future__ import annotations
@@ -58,7 +60,8 @@ from pgvd.matching import (
     OverlayScores,
     PairSupport,
     WallMap,
-    alignment_covariance,
+    alignment_fit,
+    calibrated_covariance,
     map_agreement,
     pair_support,
     refine,
@@ -66,6 +69,7 @@ from pgvd.matching import (
     rho_threshold,
 )
 from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
+from pgvd.sampling import subsample
 from pgvd.transform import warp
 from pgvd.uncertainty import rotation_blur
 
@@ -427,7 +431,7 @@ def _decide(
     a subsample of B's walls and scored on subsamples (quick); the winner is
     then refined on all wall cells.  Returns it with its B->A pixel matrix.
     """
-    sub_b = fine_b.walls[:: -(-len(fine_b.walls) // params.refine_points)]
+    sub_b = subsample(fine_b.walls, params.refine_points)
     scored = []
     for h in finalists:
         m = to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k))
@@ -654,7 +658,7 @@ def merge(
             matrix,
             agreement.ratio,
         )
-    cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
+    cov = calibrated_covariance(alignment_fit(fine_a.tree, fine_b.walls, matrix), a.resolution)
     clock.lap("covariance")
     diag = (
         _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))
