@@ -10,7 +10,6 @@ Only development data (the project's shared data notes) is used here.
 
 from __future__ import annotations
 
-import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,14 +79,26 @@ def simulate(source: Source, seed: int, shared: Path = SHARED) -> list[LaserScan
 def load_run(
     source: Source, seed: int, cache: Path | None, shared: Path = SHARED
 ) -> list[LaserScan]:
-    """A source's run: the log as read, or a simulated run (pickled in ``cache`` if given)."""
+    """A source's run: the log as read, or a simulated run (stored in ``cache`` if given).
+
+    A cached run is plain arrays (ranges, poses, field of view), not pickled scans, so
+    it survives a move of the scan class.
+    """
     if not source.simulated:
         return read_carmen(shared / source.path)
-    key = None if cache is None else cache / f"run-{source.name}-{seed}-v{SIM_VERSION}.pkl"
+    key = None if cache is None else cache / f"run-{source.name}-{seed}-v{SIM_VERSION}.npz"
     if key is not None and key.exists():
-        return pickle.loads(key.read_bytes())
+        with np.load(key) as z:
+            fov = float(z["fov"])
+            return [
+                LaserScan(float(i), r, pose, pose.copy(), fov)
+                for i, (r, pose) in enumerate(zip(z["ranges"], z["poses"], strict=True))
+            ]
     scans = simulate(source, seed, shared)
     if key is not None:
         key.parent.mkdir(parents=True, exist_ok=True)
-        key.write_bytes(pickle.dumps(scans))
+        ranges = np.array([sc.ranges for sc in scans])
+        poses = np.array([sc.pose for sc in scans])
+        with key.open("wb") as f:
+            np.savez(f, ranges=ranges, poses=poses, fov=scans[0].fov)
     return scans
