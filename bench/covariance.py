@@ -4,7 +4,7 @@
     python3 -m bench.covariance fit                                 # fit + report, quick
 
 ``collect`` cuts overlapping pairs from the intel and freiburg-079 logs
-(:func:`pgvd.pairs.make_pairs`, each map in its own random frame, distinct
+(:func:`bench.pairs.make_pairs`, each map in its own random frame, distinct
 segments and frames per pair), merges them, and stores per accepted pair the
 pose error ``(tx, ty, psi)`` of the result against the truth and the terms of
 :func:`pgvd.matching.alignment_fit` at the result: ``bench/results/covariance_pairs.json``.
@@ -64,10 +64,10 @@ def _wall_error(b_walls: np.ndarray, truth: np.ndarray, estimate: np.ndarray) ->
 
 def collect(n_pairs: int, seed: int, out: Path) -> int:
     """Merge ``n_pairs`` overlapping pairs per log; store errors and alignment terms."""
+    from bench.pairs import make_pairs
     from pgvd.carmen import read_carmen
     from pgvd.matching import WallMap, alignment_fit
     from pgvd.merge import MergeParams, merge
-    from pgvd.pairs import make_pairs
 
     params = MergeParams(diagnostics=False)
     records = []

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from bench.pairs import make_pair, write_pair
 from pgvd.carmen import read_carmen
-from pgvd.pairs import make_pair, write_pair
 
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT / "agent" / "data" / "intel-corrected.log.gz"

@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.pairs import random_frame, true_matrix
 from pgvd.carmen import LaserScan, read_carmen
 from pgvd.fusion import fuse_maps
 from pgvd.grid import Grid, relative_matrix
 from pgvd.integrate import MapFrame, frame_for, integrate, select_segment
 from pgvd.merge import MergeParams, merge
-from pgvd.pairs import random_frame, true_matrix
 from pgvd.uncertainty import compose_covariance
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,9 +14,9 @@ pytest.importorskip("cv2")
 pytest.importorskip("matplotlib")
 
 from bench.merge import errors, main, methods, upsample
+from bench.pairs import make_pair
 from pgvd.carmen import read_carmen
 from pgvd.grid import rigid_matrix
-from pgvd.pairs import make_pair
 
 
 @pytest.fixture(scope="module")
@@ -27,26 +27,33 @@ def small_pair(shared):
 
 @pytest.mark.slow
 def test_tiny_bench_run(shared, tmp_path):
-    argv = ["--logs", "intel", "--overlap", "2", "--disjoint", "1", "--resolution", "0.1"]
+    argv = ["--quick", "--sources", "intel-log", "--methods", "pgvd", "hough", "exhaustive"]
     argv += ["--exhaustive-step", "3", "--no-scaling", "--out", str(tmp_path)]
+    argv += ["--cache", str(tmp_path / "cache")]
     assert main(argv) == 0
     doc = json.loads((tmp_path / "merge.json").read_text())
-    names = list(methods())
-    assert "pgvd-det" in names  # MergeParams(probabilistic=False): the paper's Gamma_det
-    assert [r["method"] for r in doc["rows"]] == names
-    assert len(doc["records"]) == 3 * len(names)
+    names = ["pgvd", "hough", "exhaustive"]
+    assert "pgvd-det" in methods()  # MergeParams(probabilistic=False): the paper's Gamma_det
+    assert list(doc["summary"]) == names
+    pairs = {r["pair"] for r in doc["records"]}
+    assert len(doc["records"]) == len(pairs) * len(names)
+    sets = {r["set"] for r in doc["records"]}
+    assert sets == {"standard", "low", "drifted", "negative"}
     for r in doc["records"]:
-        assert r["seconds"] > 0 and np.isfinite(r["cell_err"]) and 0 <= r["heading_deg"] <= 180
-        assert not (r["success"] and r["overlap"] == 0)
-    for row in doc["rows"]:
-        assert row["n_overlap"] == 2 and row["n_disjoint"] == 1
-        assert 0 <= row["success"] <= 1 and 0 <= row["false_accept"] <= 1
-        assert row["success"] + row["wrong_accept"] <= 1
+        assert r["seconds"] > 0 and r["source"] == "intel-log"
+        if r["truth"] is not None:
+            assert np.isfinite(r["cell_err"]) and 0 <= r["heading_deg"] <= 180
+        assert not (r["success"] and r["set"] == "negative")
+    for r in doc["records"]:
+        if r["method"] == "pgvd":
+            # Every MergeResult field but the images, and the headings that were searched.
+            assert {"accepted", "matrix", "covariance", "score", "timings_ms"} <= set(r["result"])
+            assert r["searched_deg"] and all(-180 <= d <= 180 for d in r["searched_deg"])
     # The exhaustive reference finds the truth of an overlapping real pair.
     exhaustive = [r for r in doc["records"] if r["method"] == "exhaustive" and r["overlap"] > 0]
     assert any(r["success"] for r in exhaustive)
     table = (tmp_path / "merge.md").read_text()
-    assert all(f"| {n} |" in table for n in names)
+    assert all(f"| {n} |" in table for n in names) and "| intel-log |" in table
     assert (tmp_path / "merge.png").stat().st_size > 10_000
 
 

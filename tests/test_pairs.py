@@ -1,4 +1,4 @@
-"""pgvd.pairs: two robots' maps from two segments of a real log, with their true matrix."""
+"""bench.pairs: two robots' maps from two segments of a real log, with their true matrix."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from bench.pairs import MIN_OVERLAP, make_pair, make_pairs, overlap_fraction, write_pair
 from pgvd.carmen import read_carmen
 from pgvd.grid import rigid_matrix
 from pgvd.io import read_map
-from pgvd.pairs import MIN_OVERLAP, make_pair, make_pairs, overlap_fraction, write_pair
 
 
 @pytest.fixture(scope="module")
@@ -109,3 +109,75 @@ def test_drifted_pair_truth_is_the_best_rigid_placement(intel, split):
     assert 0.5 < fitted < _walls_on_walls(split.a, split.b, split.truth)
     # ...and shifting it by three cells makes that clearly worse.
     assert _walls_on_walls(noisy.a, noisy.b, rigid_matrix(0.0, 3.0, 0.0) @ noisy.truth) < fitted
+
+
+@pytest.fixture(scope="module")
+def avz_run(shared):
+    from bench.sources import SOURCES, simulate
+
+    return simulate(next(s for s in SOURCES if s.name == "avz-sim"), seed=1, shared=shared)
+
+
+def test_simulated_pair_truth_reproduces_the_overlap(avz_run):
+    """The overlap seen through the true matrix equals the overlap of the two segments'
+    maps rendered in one shared world frame, where no matrix is involved."""
+    from pgvd.integrate import frame_for, integrate, select_segment
+
+    pair = make_pair(avz_run, (0.0, 0.4), (0.25, 0.7), seed=11, name="avz")
+    shared_frame = frame_for(avz_run, 0.05)
+    a, b = (
+        integrate(select_segment(avz_run, s), shared_frame).logodds != 0
+        for s in ((0.0, 0.4), (0.25, 0.7))
+    )
+    direct = (a & b).sum() / min(a.sum(), b.sum())
+    assert 0.2 < pair.overlap < 0.95
+    assert pair.overlap == pytest.approx(direct, abs=0.03)
+    assert _walls_on_walls(pair.a, pair.b, pair.truth) > 0.9
+
+
+def test_mirror_scans_reflect_every_hit(avz_run):
+    from bench.negatives import mirror_scans
+
+    part = avz_run[100:110]
+    mirrored = mirror_scans(part)
+    for s, m in zip(part, mirrored, strict=True):
+        hit = s.ranges < 80
+        ang, ang_m = s.beam_angles()[hit], m.beam_angles()[m.ranges < 80]
+        r = s.ranges[hit]
+        ends = s.pose[:2] + np.column_stack([r * np.cos(ang), r * np.sin(ang)])
+        r_m = m.ranges[m.ranges < 80]
+        ends_m = m.pose[:2] + np.column_stack([r_m * np.cos(ang_m), r_m * np.sin(ang_m)])
+        # Beam order is reversed, so the hits come back in reverse order, reflected in y.
+        np.testing.assert_allclose(ends_m[::-1], ends * [1.0, -1.0], atol=1e-5)
+    assert mirror_scans(mirrored)[3].pose == pytest.approx(part[3].pose)
+
+
+def test_drifted_pair_truth_is_the_fit_on_the_overlap(intel):
+    from bench.drift import Drift
+
+    segments = ((0.0, 0.2), (0.1, 0.3))
+    clean = make_pair(intel, *segments, seed=3)
+    # Without noise the fit on the overlap is exact: the truth of the clean pair.
+    still = make_pair(intel, *segments, seed=3, odom_noise=Drift(0.0, 0.0, 0.0))
+    np.testing.assert_allclose(still.truth, clean.truth, atol=1e-6)
+    assert still.info["drift_rms_m"] < 1e-6 and still.info["drift_fit_points"] > 1000
+    noisy = make_pair(intel, *segments, seed=3, odom_noise=Drift())
+    assert 0.01 < noisy.info["drift_rms_m"] < 1.0
+    # The drift moves the overlap by a little, not by a different pose.
+    turn = np.degrees(np.arctan2(noisy.truth[0, 1], noisy.truth[0, 0]))
+    clean_turn = np.degrees(np.arctan2(clean.truth[0, 1], clean.truth[0, 0]))
+    assert abs((turn - clean_turn + 180) % 360 - 180) < 5.0
+    assert noisy.overlap == pytest.approx(clean.overlap, abs=0.15)
+
+
+def test_gmapping_runs_meet_at_their_common_origin(shared):
+    from bench.gmapping import gmapping_pairs
+
+    pairs = gmapping_pairs(6, seed=2, shared=shared)
+    assert len({(p.info["a"], p.info["b"]) for p in pairs}) == 6
+    for p in pairs:
+        assert p.overlap > 0.9  # three maps of one building
+        fitted = _walls_on_walls(p.a, p.b, p.truth)
+        assert fitted > 0.6, p.name
+        turned = p.truth @ rigid_matrix(np.radians(2.0), 0.0, 0.0)
+        assert _walls_on_walls(p.a, p.b, turned) < fitted

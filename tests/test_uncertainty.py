@@ -274,9 +274,9 @@ def test_calibrated_covariance_floor_acts_about_the_matched_walls() -> None:
 
 def test_merge_covariance_is_consistent_on_real_pairs(shared) -> None:
     from bench.covariance import nees, pose_error
+    from bench.pairs import make_pairs
     from pgvd.carmen import read_carmen
     from pgvd.merge import MergeParams, merge
-    from pgvd.pairs import make_pairs
 
     scans = read_carmen(shared / "logs/intel-corrected.log.gz")
     # seed 3: none of these pairs is among those the constants were fitted on (seed 10)

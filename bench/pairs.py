@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from bench.drift import Drift, overlap_fit
 from pgvd.carmen import LaserScan
 from pgvd.grid import Grid, heading, world_pose_to_pixel_matrix
 from pgvd.integrate import (
@@ -28,6 +29,7 @@ from pgvd.integrate import (
     InverseSensorModel,
     frame_for,
     integrate,
+    integrate_scan,
     perturb_odometry,
     se2,
     select_segment,
@@ -88,17 +90,6 @@ def true_matrix(a: Grid, a_from_world: np.ndarray, b: Grid, b_from_world: np.nda
     )
 
 
-def rigid_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """3x3 SE(2) minimising ``sum |R src_i + t - dst_i|^2`` (Kabsch/Umeyama, no scale)."""
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    u, _, vt = np.linalg.svd((dst - mu_d).T @ (src - mu_s))
-    r = u @ np.diag([1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-    m = np.eye(3)
-    m[:2, :2] = r
-    m[:2, 2] = mu_d - r @ mu_s
-    return m
-
-
 def overlap_fraction(a: Grid, b: Grid, truth: np.ndarray) -> float:
     """Shared known cells over the smaller map's known cells (module docstring)."""
     known_a = a.logodds != 0
@@ -114,13 +105,35 @@ def overlap_fraction(a: Grid, b: Grid, truth: np.ndarray) -> float:
     return shared / min(n_a, n_b)
 
 
+def render(
+    part: list[LaserScan],
+    rng: np.random.Generator,
+    resolution: float,
+    model: InverseSensorModel = DEFAULT_MODEL,
+) -> tuple[Grid, np.ndarray]:
+    """One robot's map of ``part`` in a random frame, and the frame's world -> map transform."""
+    transform = random_frame(rng)
+    frame = frame_for(part, resolution, transform, model=model)
+    return integrate(part, frame, model), transform
+
+
+def drift(
+    part: list[LaserScan], odom_noise: Drift | tuple[float, float], seed: int
+) -> list[LaserScan]:
+    """The scans as a drifting robot places them: a :class:`bench.drift.Drift` model, or
+    ``(sigma_t, sigma_r)`` of :func:`pgvd.integrate.perturb_odometry`."""
+    if isinstance(odom_noise, Drift):
+        return odom_noise.apply(part, seed)
+    return perturb_odometry(part, odom_noise, seed)
+
+
 def make_pair(
     scans: list[LaserScan],
     seg_a: tuple[float, float] | slice,
     seg_b: tuple[float, float] | slice,
     seed: int,
     resolution: float = 0.05,
-    odom_noise: tuple[float, float] | None = None,
+    odom_noise: Drift | tuple[float, float] | None = None,
     model: InverseSensorModel = DEFAULT_MODEL,
     name: str = "pair",
 ) -> MapPair:
@@ -132,39 +145,42 @@ def make_pair(
     seg_a, seg_b : segments, as for :func:`pgvd.integrate.select_segment`.
     seed : makes the frames and the odometry noise; same seed, same pair.
     resolution : metres per cell of both maps.
-    odom_noise : optional extra odometry noise (see :func:`pgvd.integrate.perturb_odometry`).
-        A drifted map has no exact rigid truth; its truth is then the best rigid
-        placement: the least-squares fit of the drifted scan positions onto the true ones.
+    odom_noise : optional odometry drift on both robots (see :func:`drift`).  A drifted
+        pair has no exact rigid truth; its truth is then the rigid alignment on the
+        overlap (:func:`bench.drift.overlap_fit`), and ``info`` holds the residual
+        distortion (``drift_rms_m``) no rigid transform removes.
     model : inverse sensor model.
     name : label of the pair.
     """
     rng = np.random.default_rng(seed)
-    grids, frames = [], []
+    parts, grids, frames = [], [], []
     for k, segment in enumerate((seg_a, seg_b)):
         part = select_segment(scans, segment)
         if not part:
             raise ValueError(f"segment {segment} of a {len(scans)}-scan log is empty")
+        # The frame is drawn first, so a drifted pair has the frames of its noise-free twin.
         transform = random_frame(rng)
-        placement = transform
-        if odom_noise is not None:
-            drifted = perturb_odometry(part, odom_noise, seed * 2 + k)
-            fit = rigid_fit(
-                np.array([s.pose[:2] for s in drifted]), np.array([s.pose[:2] for s in part])
-            )
-            # Map metres = transform @ drifted world = transform @ fit^-1 @ true world.
-            placement = transform @ np.linalg.inv(fit)
-            part = drifted
-        frame = frame_for(part, resolution, transform, model=model)
-        grids.append(integrate(part, frame, model))
-        frames.append(placement)
-    truth = true_matrix(grids[0], frames[0], grids[1], frames[1])
+        seen = part if odom_noise is None else drift(part, odom_noise, seed * 2 + k)
+        frame = frame_for(seen, resolution, transform, model=model)
+        grids.append(integrate(seen, frame, model))
+        frames.append(transform)
+        parts.append((part, seen))
     info = {
         "seg_a": _segment_json(seg_a),
         "seg_b": _segment_json(seg_b),
         "seed": seed,
         "resolution": resolution,
-        "odom_noise": list(odom_noise) if odom_noise else None,
+        "odom_noise": None
+        if odom_noise is None
+        else (odom_noise.json() if isinstance(odom_noise, Drift) else list(odom_noise)),
     }
+    between = np.eye(3)
+    if odom_noise is not None:
+        (true_a, drift_a), (true_b, drift_b) = parts
+        between, rms, n = overlap_fit(true_a, drift_a, true_b, drift_b, model.max_range)
+        info.update(drift_rms_m=rms, drift_fit_points=n)
+    # A's map metres = frame_A @ (B's drifted world -> A's drifted world) @ frame_B^-1.
+    truth = true_matrix(grids[0], frames[0] @ between, grids[1], frames[1])
     return MapPair(
         grids[0], grids[1], truth, overlap_fraction(grids[0], grids[1], truth), name, info
     )
@@ -182,26 +198,48 @@ def _draw_segment(rng: np.random.Generator, lengths: tuple[float, float]) -> tup
     return (round(start, 4), round(start + length, 4))
 
 
-class _Footprints:
-    """Coarse known-cell masks of segments in the log's world frame, to screen candidates."""
+class Footprints:
+    """Coarse known-cell masks of segments in the log's world frame, to screen candidates.
+
+    The cells every scan touches are found once; a segment's mask is the union
+    of its scans' cells (a cell is known once any ray has touched it).
+    """
 
     def __init__(self, scans: list[LaserScan], model: InverseSensorModel) -> None:
-        self.scans = scans
-        self.model = model
         self.frame = frame_for(scans, FOOTPRINT_RESOLUTION, model=model)
+        canvas = self.frame.empty()
+        self.cells: list[np.ndarray] = []
+        for scan in scans:
+            rows, cols = integrate_scan(canvas, scan, self.frame, model)
+            r, c = np.nonzero(canvas[rows, cols])
+            self.cells.append(
+                ((r + rows.start) * canvas.shape[1] + c + cols.start).astype(np.int32)
+            )
+            canvas[rows, cols] = 0.0
 
-    def _masks(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> list[np.ndarray]:
-        return [
-            integrate(select_segment(self.scans, s), self.frame, self.model).logodds != 0
-            for s in (seg_a, seg_b)
-        ]
+    def mask(self, segment: tuple[float, float] | slice) -> np.ndarray:
+        """Known cells of one segment (same selection as :func:`pgvd.integrate.select_segment`)."""
+        out = np.zeros(self.frame.shape, bool)
+        parts = select_segment(self.cells, segment)
+        if parts:
+            out.reshape(-1)[np.concatenate(parts)] = True
+        return out
 
-    def disjoint(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> bool:
+    def _masks(
+        self, seg_a: tuple[float, float] | slice, seg_b: tuple[float, float] | slice
+    ) -> list[np.ndarray]:
+        return [self.mask(seg_a), self.mask(seg_b)]
+
+    def disjoint(
+        self, seg_a: tuple[float, float] | slice, seg_b: tuple[float, float] | slice
+    ) -> bool:
         a, b = self._masks(seg_a, seg_b)
         # One coarse cell of slack: a full-resolution overlap can sit across a coarse border.
         return not np.any(ndimage.binary_dilation(a) & b)
 
-    def overlap(self, seg_a: tuple[float, float], seg_b: tuple[float, float]) -> float:
+    def overlap(
+        self, seg_a: tuple[float, float] | slice, seg_b: tuple[float, float] | slice
+    ) -> float:
         """The overlap fraction of the module docstring, on the coarse masks."""
         a, b = self._masks(seg_a, seg_b)
         return float((a & b).sum() / max(1, min(a.sum(), b.sum())))
@@ -214,9 +252,10 @@ def make_pairs(
     seed: int,
     name: str,
     resolution: float = 0.05,
-    odom_noise: tuple[float, float] | None = None,
+    odom_noise: Drift | tuple[float, float] | None = None,
     model: InverseSensorModel = DEFAULT_MODEL,
     overlap_band: tuple[float, float] = (MIN_OVERLAP, 1.0),
+    max_draws: int = MAX_DRAWS,
 ) -> list[MapPair]:
     """Overlapping pairs (overlap within ``overlap_band``), then disjoint pairs (overlap 0).
 
@@ -230,17 +269,17 @@ def make_pairs(
     Raises
     ------
     RuntimeError
-        If the log does not yield enough pairs of a kind within MAX_DRAWS draws.
+        If the log does not yield enough pairs of a kind within ``max_draws`` draws.
     """
     lo, hi = overlap_band
     if not 0.0 < lo < hi <= 1.0:
         raise ValueError(f"overlap band must satisfy 0 < lo < hi <= 1, got {overlap_band}")
     rng = np.random.default_rng(seed)
     screen = lo > MIN_OVERLAP or hi < 1.0
-    footprints = _Footprints(scans, model) if n_disjoint or screen else None
+    footprints = Footprints(scans, model) if n_disjoint or screen else None
     overlapping: list[MapPair] = []
     draws = 0
-    while len(overlapping) < n_overlap and draws < MAX_DRAWS:
+    while len(overlapping) < n_overlap and draws < max_draws:
         seg_a, seg_b = _draw_segment(rng, OVERLAP_LENGTHS), _draw_segment(rng, OVERLAP_LENGTHS)
         if screen:
             # Coarse cells inflate the overlap; only rule out what is clearly outside the band.
@@ -259,7 +298,7 @@ def make_pairs(
         raise RuntimeError(f"{name}: only {len(overlapping)} of {n_overlap} overlapping pairs")
     disjoint: list[MapPair] = []
     draws = 0
-    while len(disjoint) < n_disjoint and draws < MAX_DRAWS:
+    while len(disjoint) < n_disjoint and draws < max_draws:
         seg_a, seg_b = _draw_segment(rng, DISJOINT_LENGTHS), _draw_segment(rng, DISJOINT_LENGTHS)
         draws += 1
         if not footprints.disjoint(seg_a, seg_b):

@@ -1,0 +1,81 @@
+"""Heading-candidate recall of a bench run, from its ``merge.json`` alone (no rerun).
+
+For every overlapping pair (negatives have nothing to find), is the true heading within
+``--tolerance`` degrees (2 by default, the success bound) of any heading that
+went through pgvd's matching stages?  The searched headings are the
+``searched_deg`` of each pgvd record (:mod:`bench.capture`).  Printed per set
+and per source, with the misses listed.
+
+    python3 -m bench.recall [bench/results/merge.json] [--method pgvd] [--tolerance 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from bench.merge import MAX_HEADING_DEG, RESULTS
+
+
+def angle_gap(a_deg: float, b_deg: float) -> float:
+    """Smallest absolute difference of two headings, degrees."""
+    return abs((a_deg - b_deg + 180.0) % 360.0 - 180.0)
+
+
+def nearest_gap(record: dict) -> float | None:
+    """Degrees from the true heading to the nearest searched heading (None if unknown)."""
+    searched = record.get("searched_deg")
+    truth = record.get("truth_heading_deg")
+    if truth is None or not searched:
+        return None
+    return min(angle_gap(truth, s) for s in searched)
+
+
+def recall(records: list[dict], tolerance: float) -> dict:
+    """Hits, pairs and the misses of one group of records."""
+    gaps = [(r, nearest_gap(r)) for r in records]
+    gaps = [(r, g) for r, g in gaps if g is not None]
+    misses = [(r["pair"], round(g, 2)) for r, g in gaps if g > tolerance]
+    return {"hits": len(gaps) - len(misses), "pairs": len(gaps), "misses": misses}
+
+
+def table(records: list[dict], tolerance: float) -> list[str]:
+    """Markdown rows: recall per set and per source."""
+    lines = ["| group | recall | misses (pair: degrees to the nearest searched heading) |"]
+    lines.append("|---|---|---|")
+    groups = [("set", s) for s in sorted({r["set"] for r in records})]
+    groups += [("source", s) for s in sorted({r["source"] for r in records})]
+    for key, value in [*groups, ("all", None)]:
+        mine = records if value is None else [r for r in records if r[key] == value]
+        got = recall(mine, tolerance)
+        if not got["pairs"]:
+            continue
+        share = f"{got['hits']}/{got['pairs']} ({100 * got['hits'] / got['pairs']:.1f} %)"
+        miss = ", ".join(f"{p}: {g}" for p, g in got["misses"]) or "-"
+        lines.append(f"| {value or '**all**'} | {share} | {miss} |")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("json", nargs="?", type=Path, default=RESULTS / "merge.json")
+    parser.add_argument("--method", default="pgvd")
+    parser.add_argument("--tolerance", type=float, default=MAX_HEADING_DEG, help="degrees")
+    args = parser.parse_args(argv)
+    doc = json.loads(args.json.read_text())
+    records = [r for r in doc["records"] if r["method"] == args.method and r["overlap"] > 0]
+    if not any(r.get("searched_deg") for r in records):
+        print(f"{args.json}: no searched headings recorded for {args.method}")
+        return 1
+    gaps = [g for g in map(nearest_gap, records) if g is not None]
+    print(f"# Heading-candidate recall ({args.method}, within {args.tolerance} deg)\n")
+    print("\n".join(table(records, args.tolerance)))
+    print(f"\nmedian gap {np.median(gaps):.2f} deg, max {np.max(gaps):.2f} deg")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,104 @@
+"""Where the bench's robots drive: the development logs, and simulated runs over map images.
+
+A *run* is a time-ordered list of scans with their true poses.  Log runs are
+the corrected intel and freiburg-079 logs; simulated runs are a
+:mod:`bench.trajectory` tour through a development map image, scanned by
+:mod:`bench.lidar`'s LMS200 model.  Both feed the same pair generator
+(:mod:`bench.pairs`), so a simulated pair is made exactly as a log pair is.
+Only development data (the project's shared data notes) is used here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.lidar import LMS200, RayCaster, scan_at
+from bench.trajectory import tour
+from pgvd.carmen import LaserScan, read_carmen
+from pgvd.grid import Grid
+from pgvd.io import read_map
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+#: Bump when the simulator, the trajectory or a source changes, so caches are not reused.
+SIM_VERSION = 2
+
+
+@dataclass(frozen=True)
+class Source:
+    """One development source of runs.
+
+    Attributes
+    ----------
+    name : row label of the report, e.g. ``"willow-sim"``.
+    building : the place; negatives never pair two sources of one building.
+    path : log (``.log.gz``) or map (``.yaml``) under the shared data directory.
+    unknown_blocks : for a simulated run, treat the map's unknown cells as walls.
+    """
+
+    name: str
+    building: str
+    path: str
+    unknown_blocks: bool = False
+
+    @property
+    def simulated(self) -> bool:
+        return self.path.endswith(".yaml")
+
+
+#: willow's image marks almost no wall (544 occupied cells, against 16,637 free cells that
+#: border unknown ones): its walls are the edge of its free space, so unknown blocks beams.
+SOURCES = (
+    Source("intel-log", "intel", "logs/intel-corrected.log.gz"),
+    Source("fr079-log", "fr079", "logs/freiburg-079-corrected.log.gz"),
+    Source("intel-sim", "intel", "maps/intel/intel.yaml"),
+    Source("fr079-sim", "fr079", "maps/fr079_albertB/map312.yaml"),
+    Source("willow-sim", "willow", "maps/willow/willow-2010-02-18-0.10.yaml", True),
+    Source("ritsumeikan-sim", "ritsumeikan_cc4f", "maps/ritsumeikan_cc4f/cc4.1.yaml"),
+    Source("stata-sim", "mit_stata_basement", "maps/mit_stata_basement/stata_basement.yaml"),
+    Source("avz-sim", "uos_avz", "maps/uos_avz/avz.yaml"),
+)
+
+
+def caster_for(source: Source, shared: Path = SHARED) -> RayCaster:
+    """The ray caster over a source's map image, in the image's own frame (origin 0, yaw 0)."""
+    grid = read_map(shared / source.path)
+    return RayCaster(Grid(grid.logodds, grid.resolution), unknown_blocks=source.unknown_blocks)
+
+
+def simulate(source: Source, seed: int, shared: Path = SHARED) -> list[LaserScan]:
+    """A simulated run through a source's map: tour poses, then one LMS200 scan per pose."""
+    caster = caster_for(source, shared)
+    rng = np.random.default_rng(seed)
+    return scan_at(caster, tour(caster, rng), rng, LMS200)
+
+
+def load_run(
+    source: Source, seed: int, cache: Path | None, shared: Path = SHARED
+) -> list[LaserScan]:
+    """A source's run: the log as read, or a simulated run (stored in ``cache`` if given).
+
+    A cached run is plain arrays (ranges, poses, field of view), not pickled scans, so
+    it survives a move of the scan class.
+    """
+    if not source.simulated:
+        return read_carmen(shared / source.path)
+    key = None if cache is None else cache / f"run-{source.name}-{seed}-v{SIM_VERSION}.npz"
+    if key is not None and key.exists():
+        with np.load(key) as z:
+            fov = float(z["fov"])
+            return [
+                LaserScan(float(i), r, pose, pose.copy(), fov)
+                for i, (r, pose) in enumerate(zip(z["ranges"], z["poses"], strict=True))
+            ]
+    scans = simulate(source, seed, shared)
+    if key is not None:
+        key.parent.mkdir(parents=True, exist_ok=True)
+        ranges = np.array([sc.ranges for sc in scans])
+        poses = np.array([sc.pose for sc in scans])
+        with key.open("wb") as f:
+            np.savez(f, ranges=ranges, poses=poses, fov=scans[0].fov)
+    return scans
