@@ -432,6 +432,51 @@ def refine(
     return m
 
 
+def residual_distortion(
+    walls_a: cKDTree,
+    walls_b: np.ndarray,
+    matrix: np.ndarray,
+    block: float = 100.0,
+    radius: float = 10.0,
+    min_points: int = 60,
+) -> float:
+    """Largest local misfit (pixels) of B's walls on A's after the rigid ``matrix``.
+
+    A drifted map has no single rigid fit: the overlap is cut into
+    ``block``-pixel squares (A's frame) and each square's own translation
+    ``d`` is fitted point-to-line (``min sum (n_i . (d - r_i))^2`` over the
+    residuals ``r_i`` of B's walls within ``radius`` of A's, ``n_i`` A's wall
+    normals).  Squares whose walls run one way only (the fit along the wall is
+    free) or with fewer than ``min_points`` walls are skipped.  Returns the
+    largest ``|d|``; 0 when no square qualifies.  On the development log
+    pairs, rigid ones give a few pixels (map noise, one-cell walls), pairs with
+    odometry drift up to twice as much.
+    """
+    moved = _apply(matrix, walls_b)
+    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    if ok.sum() < min_points:
+        return 0.0
+    x, y = moved[ok], walls_a.data[idx[ok]]
+    n = _normals(walls_a, y)
+    r = np.sum(n * (y - x), axis=1)
+    keys = np.floor(x / block).astype(np.int64)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    worst = 0.0
+    for g in range(int(group.max()) + 1):
+        sel = group.ravel() == g
+        if sel.sum() < min_points:
+            continue
+        ng = n[sel]
+        info = ng.T @ ng
+        lo, hi = np.linalg.eigvalsh(info)
+        if lo < 0.1 * hi:
+            continue
+        d = np.linalg.solve(info, ng.T @ r[sel])
+        worst = max(worst, float(np.hypot(*d)))
+    return worst
+
+
 def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
     """Unit wall normals at ``points``: the minor axis of the ``k`` nearest cells of the tree."""
     _, idx = tree.query(points, k=k)

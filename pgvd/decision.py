@@ -1,0 +1,99 @@
+"""Acceptance of a merge: the winning hypothesis against the wrong ones of the same pair.
+
+The paper's existence test (32) asks whether *some* edge pair matches; with
+the translation free, a long corridor or a repetitive building matches
+somewhere almost always, so (32) alone cannot say whether two maps overlap.
+A fixed threshold on the overlay agreement cannot either: it lets a large
+look-alike corridor pass (most walls agree at a wrong shift) and turns away a
+small overlap that is crisp but short.
+
+The decision here compares the winner with its rivals on the same pair.
+Every finalist hypothesis is refined and scored by the overlay evidence
+``E = agree - w * disagree`` (walls on walls, walls on clear free space, both
+ways, on one subsample of wall cells).  The *rival* is the best finalist whose
+pose differs from the winner's (a look-alike corridor, the other side of a
+symmetric building, a quarter turn).  The statistic is the winner's evidence
+beyond the rival's, per wall cell of the overlap::
+
+    margin = (E_win - max(E_rival, 0)) / (agree_win + disagree_win)
+
+With no rival it is ``(1 + w) ratio - w``, the overlay's own consistency; a
+rival that scores as well as the winner drives it to 0 whatever the size of
+the overlap, and a small overlap with no rival passes however short it is.
+The threshold is set on the development negatives (see the bench).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pgvd.matching import Agreement
+
+
+@dataclass(frozen=True)
+class Scored:
+    """One refined hypothesis: its B->A pixel matrix and its overlay counts on the subsample."""
+
+    matrix: np.ndarray
+    agreement: Agreement
+
+    def evidence(self, weight: float) -> float:
+        """``agree - weight * disagree``."""
+        return self.agreement.agree - weight * self.agreement.disagree
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The winner among the scored hypotheses and its margin over the best rival.
+
+    Attributes
+    ----------
+    winner : the hypothesis of largest evidence.
+    rival : best evidence of a hypothesis with another pose (``-inf`` when there is none).
+    margin : the statistic of the module docstring (<= 1; 0 or below when the winner
+        has no positive evidence, or without overlap).
+    """
+
+    winner: Scored
+    rival: float
+    margin: float
+
+
+def same_pose(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray, deg: float, px: float) -> bool:
+    """True when two B->A matrices differ by at most ``deg`` degrees and move ``centre``
+    (a point of B, ``(x, y)``) by at most ``px`` pixels."""
+    dpsi = np.arctan2(m1[0, 1], m1[0, 0]) - np.arctan2(m2[0, 1], m2[0, 0])
+    if abs(np.degrees(np.angle(np.exp(1j * dpsi)))) > deg:
+        return False
+    c = np.array([centre[0], centre[1], 1.0])
+    return bool(np.hypot(*((m1 - m2) @ c)[:2]) <= px)
+
+
+def decide(
+    scored: list[Scored], weight: float, centre: np.ndarray, deg: float = 2.0, px: float = 20.0
+) -> Decision:
+    """Pick the best-evidence hypothesis and measure it against its best rival.
+
+    Parameters
+    ----------
+    scored : refined hypotheses with their subsample counts (at least one).
+    weight : the disagreement weight ``w`` of the evidence.
+    centre : a point of B (pixels) at which two poses are compared, e.g. its wall centroid.
+    deg, px : hypotheses within this heading and displacement of the winner are the
+        winner's own (they converged to it in the refinement), not rivals.
+    """
+    if not scored:
+        raise ValueError("decide needs at least one scored hypothesis")
+    ranked = sorted(scored, key=lambda s: (-s.evidence(weight), -s.agreement.ratio))
+    win = ranked[0]
+    rivals = [
+        s.evidence(weight)
+        for s in ranked[1:]
+        if not same_pose(s.matrix, win.matrix, centre, deg, px)
+    ]
+    rival = max(rivals, default=-np.inf)
+    points = win.agreement.agree + win.agreement.disagree
+    margin = (win.evidence(weight) - max(rival, 0.0)) / points if points else 0.0
+    return Decision(win, float(rival), float(margin))
