@@ -3,7 +3,7 @@
 Modules, by what they hold:
 
 - :mod:`agent.daemon` -- one robot's agent: Zenoh session, declarations, publish/receive,
-  membership, queryables, persistence, status (``pgvd agent``, :mod:`agent.cmd_agent`);
+  membership, queryables, persistence, status (``pgvd agent``, :mod:`agent.cli.agent`);
 - :mod:`agent.worker` -- pairwise registration and global-map rebuilds off the Zenoh threads;
 - :mod:`agent.globalmap` -- the global maps as a pure function of local maps and links;
 - :mod:`agent.links` -- link cache, pairs still to register, whose turn it is;
@@ -12,7 +12,7 @@ Modules, by what they hold:
 - :mod:`agent.sources` -- ``carmen:`` log replay and ``map:`` file following;
 - :mod:`agent.state` -- atomic persistence in ``--state-dir``;
 - :mod:`agent.keys`, :mod:`agent.zenoh_config`, :mod:`agent.counters`;
-- :mod:`agent.launcher`, :mod:`agent.evaluate` -- local fleets and their ground truth, for
-  ``pgvd demo`` (:mod:`agent.cmd_demo`), the fleet tests and ``bench/fleet.py``;
-- :mod:`agent.cmd_status` -- ``pgvd status``.
+- :mod:`agent.launcher`, :mod:`agent.evaluate`, :mod:`agent.scenario` -- local fleets, their
+  ground truth and the log they replay, for ``pgvd demo``, the fleet tests and the benches;
+- :mod:`agent.cli` -- the ``pgvd`` command line, one module per sub-command.
 """

@@ -2,7 +2,7 @@
 
 A ``carmen:`` source reports ``world_to_pixel``, the 3x3 map from the log's world metres
 to its map's pixels.  The true B-pixel -> A-pixel matrix is then
-``W_a @ inv(W_b)``, the same convention as a link's matrix (design.md).
+``W_a @ inv(W_b)``, the same convention as a link's matrix and ``pgvd merge --json``.
 """
 
 from __future__ import annotations

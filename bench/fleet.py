@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.cmd_demo import LOG, random_frames, segments
 from agent.launcher import LocalFleet, agreement, sources_done
+from agent.scenario import LOG, random_frames, segments
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TICK = os.sysconf("SC_CLK_TCK")

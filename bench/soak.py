@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.cmd_demo import LOG, random_frames, segments
 from agent.launcher import LocalFleet, agreement
+from agent.scenario import LOG, random_frames, segments
 from pgvd.grid import Grid
 
 RESULTS = Path(__file__).resolve().parent / "results"

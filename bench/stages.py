@@ -34,6 +34,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import importlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -42,11 +43,13 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import fft as sfft  # noqa: E402
 
-import pgvd.merge as merge_module  # noqa: E402
 from pgvd.grid import Grid, rigid_matrix  # noqa: E402
 from pgvd.io import read_map  # noqa: E402
 from pgvd.merge import MergeParams, merge  # noqa: E402
 from pgvd.transform import warp  # noqa: E402
+
+# the submodule itself: the package attribute pgvd.merge is the function
+merge_module = importlib.import_module("pgvd.merge")
 
 STAGES = ("rotation", "coarsen", "pgvd", "graph", "gamma", "verify", "refine", "covariance")
 

@@ -12,7 +12,23 @@ from pgvd.uncertainty import propagate
 
 
 def entropy(p: np.ndarray) -> np.ndarray:
-    """Eq. (35): ``H = -p log p - (1 - p) log(1 - p)`` in nats, with ``0 log 0 = 0``."""
+    """Eq. (35): ``H = -p log p - (1 - p) log(1 - p)`` in nats, with ``0 log 0 = 0``.
+
+    Parameters
+    ----------
+    p : numpy.ndarray
+        Occupancy probabilities in [0, 1].
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 entropy per cell.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (35).
+    """
     p = np.asarray(p, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         h = -(np.where(p > 0, p * np.log(p), 0.0) + np.where(p < 1, (1 - p) * np.log1p(-p), 0.0))
@@ -31,11 +47,23 @@ def fuse(base_logodds: np.ndarray, other_logodds: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    base_logodds, other_logodds : same-shape log-odds arrays, both in base's frame.
+    base_logodds, other_logodds : numpy.ndarray
+        Same-shape log-odds arrays, both in base's frame.
 
     Returns
     -------
-    float32 log-odds, the final map of eq. (37).
+    numpy.ndarray
+        float32 log-odds, the final map of eq. (37).
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (33)-(37).
     """
     base = np.asarray(base_logodds, dtype=np.float32)
     other = np.asarray(other_logodds, dtype=np.float32)
@@ -51,6 +79,23 @@ def fuse_many(base: np.ndarray, others: Iterable[np.ndarray]) -> np.ndarray:
     The entropy filter (37) judges each update against the map so far, so
     the result depends on the order; callers pass a fixed order (e.g. by
     robot id) so that every agent computes the same map.
+
+    Parameters
+    ----------
+    base : numpy.ndarray
+        Log-odds of the base map.
+    others : iterable of numpy.ndarray
+        Log-odds of the other maps, each already in base's frame and shape.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 log-odds.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (33)-(37).
     """
     out = np.asarray(base, dtype=np.float32)
     for other in others:
@@ -75,16 +120,33 @@ def fuse_maps(
 
     Parameters
     ----------
-    a, b : the maps, equal resolutions.
-    matrix : 3x3, B pixel -> A pixel.
-    covariance : 3x3 over ``(tx px, ty px, psi rad)`` of ``matrix`` read as eq. (1)
-        (``rigid_matrix(psi, tx, ty)``), as :class:`pgvd.merge.MergeResult` reports it.
-    center : B pixel about which that heading error acts: eq. (1) rotates
-        about B's pixel origin, the default.
+    a, b : Grid
+        The maps, with equal resolutions.
+    matrix : numpy.ndarray
+        3x3, B pixel -> A pixel.
+    covariance : numpy.ndarray
+        3x3 over ``(tx px, ty px, psi rad)`` of ``matrix`` read as eq. (1)
+        (``rigid_matrix(psi, tx, ty)``), eq. (3), as :class:`pgvd.merge.MergeResult`
+        reports it.
+    center : tuple of float, optional
+        B pixel about which that heading error acts: eq. (1) rotates about
+        B's pixel origin, the default.
 
     Returns
     -------
-    Grid in A's frame, shifted by whole cells to hold both maps.
+    Grid
+        In A's frame, shifted by whole cells to hold both maps.
+
+    Raises
+    ------
+    ValueError
+        If the resolutions differ, or ``covariance`` is not a finite, symmetric,
+        positive semi-definite 3x3 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (3)-(8), (33)-(37).
     """
     if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
         raise ValueError(f"resolutions differ ({a.resolution} vs {b.resolution}); resample B")

@@ -64,7 +64,18 @@ class EdgeGraph:
 
 
 def branch_count(skeleton: np.ndarray) -> np.ndarray:
-    """Number of skeleton branches leaving each cell (ring crossing number)."""
+    """Number of skeleton branches leaving each cell (ring crossing number).
+
+    Parameters
+    ----------
+    skeleton : numpy.ndarray
+        (H, W) bool skeleton.
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) int8; a vertex of Sec. IV-D has more than 2.
+    """
     s = np.pad(np.asarray(skeleton, dtype=bool), 1)
     h, w = s.shape[0] - 2, s.shape[1] - 2
     ring = [s[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w] for dr, dc in _RING]
@@ -79,13 +90,27 @@ def build_graph(s: np.ndarray, sp: np.ndarray, min_edge_length: int = 8) -> Edge
 
     Parameters
     ----------
-    s : (H, W) bool GVD.
-    sp : (H, W) PGVD probabilities.
-    min_edge_length : edges with fewer cells are dropped (false-positive prone).
+    s : numpy.ndarray
+        (H, W) bool GVD, eq. (13).
+    sp : numpy.ndarray
+        (H, W) PGVD probabilities, eq. (24).
+    min_edge_length : int, optional
+        Edges with fewer cells are dropped (false-positive prone, Sec. IV-E).
 
     Returns
     -------
-    EdgeGraph with the kept edges sorted by decreasing length.
+    EdgeGraph
+        The kept edges sorted by decreasing length.
+
+    Raises
+    ------
+    ValueError
+        If ``s`` and ``sp`` are not 2-D arrays of one shape.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, Sec. IV-D, eq. (25).
     """
     s = np.asarray(s, dtype=bool)
     sp = np.asarray(sp, dtype=np.float64)

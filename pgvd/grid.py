@@ -26,9 +26,22 @@ class Grid:
 
     Attributes
     ----------
-    logodds : (H, W) float32 array, row 0 at the top of the image.
-    resolution : metres per cell, > 0.
-    origin : ``(x, y, yaw)`` of the lower-left cell corner in metres/radians (ROS).
+    logodds : numpy.ndarray
+        (H, W) float32 log-odds, row 0 at the top of the image.
+    resolution : float
+        Metres per cell, > 0.
+    origin : tuple of float
+        ``(x, y, yaw)`` of the lower-left cell corner in metres/radians (ROS).
+
+    Raises
+    ------
+    ValueError
+        If ``logodds`` is not 2-D or ``resolution`` is not a positive number.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (9).
     """
 
     logodds: np.ndarray
@@ -61,7 +74,23 @@ class Grid:
 
 
 def probability_to_logodds(p: np.ndarray) -> np.ndarray:
-    """Eq. (9): ``l = log(p / (1 - p))``, clipped to +-LOGODDS_LIMIT, as float32."""
+    """Eq. (9): ``l = log(p / (1 - p))``, clipped to +-LOGODDS_LIMIT, as float32.
+
+    Parameters
+    ----------
+    p : numpy.ndarray
+        Occupancy probabilities in [0, 1]; 0.5 (unknown) gives exactly 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 log-odds of the shape of ``p``.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (9).
+    """
     p = np.asarray(p, dtype=np.float64)
     eps = 1.0 / (1.0 + np.exp(LOGODDS_LIMIT))
     p = np.clip(p, eps, 1.0 - eps)
@@ -69,12 +98,41 @@ def probability_to_logodds(p: np.ndarray) -> np.ndarray:
 
 
 def logodds_to_probability(lo: np.ndarray) -> np.ndarray:
-    """Inverse of eq. (9) (the paper's eq. (34)): ``p = 1 - 1 / (1 + exp(l))``."""
+    """Inverse of eq. (9) (the paper's eq. (34)): ``p = 1 - 1 / (1 + exp(l))``.
+
+    Parameters
+    ----------
+    lo : numpy.ndarray
+        Log-odds.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 occupancy probabilities of the shape of ``lo``.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (9), (34).
+    """
     return (1.0 / (1.0 + np.exp(-np.asarray(lo, dtype=np.float64)))).astype(np.float32)
 
 
 def pixel_to_world(grid: Grid, xy: np.ndarray) -> np.ndarray:
-    """Map pixel coordinates ``(N, 2)`` of ``grid`` (x=col, y=row) to metric ``(N, 2)``."""
+    """Map pixel coordinates of ``grid`` (x = column, y = row) to metric coordinates.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map whose resolution, height and ROS ``origin`` define the frames.
+    xy : numpy.ndarray
+        (N, 2) or (2,) pixel coordinates.
+
+    Returns
+    -------
+    numpy.ndarray
+        (N, 2) metric coordinates (ROS map frame, y up).
+    """
     xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
     h = grid.shape[0]
     ox, oy, yaw = grid.origin
@@ -86,7 +144,20 @@ def pixel_to_world(grid: Grid, xy: np.ndarray) -> np.ndarray:
 
 
 def world_to_pixel(grid: Grid, pts: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`pixel_to_world`: metric ``(N, 2)`` to pixel ``(N, 2)``."""
+    """Inverse of :func:`pixel_to_world`: metric coordinates to pixel coordinates.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map whose resolution, height and ROS ``origin`` define the frames.
+    pts : numpy.ndarray
+        (N, 2) or (2,) metric coordinates.
+
+    Returns
+    -------
+    numpy.ndarray
+        (N, 2) pixel coordinates (x = column, y = row).
+    """
     pts = np.atleast_2d(np.asarray(pts, dtype=np.float64))
     h = grid.shape[0]
     ox, oy, yaw = grid.origin
@@ -115,6 +186,16 @@ def relative_matrix(a: Grid, b: Grid) -> np.ndarray:
 
     This is the ground truth for map pairs rendered in one world frame
     (``*_split_gt``), whose offset is the difference of their YAML origins.
+
+    Parameters
+    ----------
+    a, b : Grid
+        The two maps; their ``origin`` place them in the shared metric frame.
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 homogeneous matrix, B pixel -> A pixel.
     """
     return world_pose_to_pixel_matrix(a) @ np.linalg.inv(world_pose_to_pixel_matrix(b))
 
@@ -124,11 +205,39 @@ def rigid_matrix(psi: float, tx: float, ty: float) -> np.ndarray:
 
     ``R_psi = [[cos, sin], [-sin, cos]]`` as in eq. (2); with rows pointing
     down, a positive ``psi`` turns the image counter-clockwise on screen.
+
+    Parameters
+    ----------
+    psi : float
+        Heading, radians.
+    tx, ty : float
+        Translation ``T`` of eq. (1), pixels.
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 homogeneous matrix ``[[R_psi, T], [0, 0, 1]]``.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(2).
     """
     c, s = np.cos(psi), np.sin(psi)
     return np.array([[c, s, tx], [-s, c, ty], [0.0, 0.0, 1.0]])
 
 
 def matrix_to_pose(m: np.ndarray) -> tuple[float, float, float]:
-    """Inverse of :func:`rigid_matrix`: ``(psi, tx, ty)`` of a rigid 3x3 matrix."""
+    """Inverse of :func:`rigid_matrix`: ``(psi, tx, ty)`` of a rigid 3x3 matrix.
+
+    Parameters
+    ----------
+    m : numpy.ndarray
+        3x3 rigid homogeneous matrix in the convention of eqs. (1)-(2).
+
+    Returns
+    -------
+    tuple of float
+        ``(psi, tx, ty)``: heading in radians and translation in pixels.
+    """
     return float(np.arctan2(m[0, 1], m[0, 0])), float(m[0, 2]), float(m[1, 2])

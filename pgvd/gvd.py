@@ -38,11 +38,23 @@ def gvd(free: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    free : (H, W) bool, True where the map is free.
+    free : numpy.ndarray
+        (H, W) bool, True where the map is free.
 
     Returns
     -------
-    (H, W) bool, True on the GVD.
+    numpy.ndarray
+        (H, W) bool, True on the GVD.
+
+    Raises
+    ------
+    ValueError
+        If ``free`` is not 2-D.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (13), Sec. IV-C.
     """
     free = np.asarray(free, dtype=bool)
     if free.ndim != 2:
@@ -57,15 +69,30 @@ def contact_points(
 
     Parameters
     ----------
-    free : (H, W) bool free-space mask; every other cell is an obstacle.
-    cells : ``(rows, cols)`` of the cells (normally the GVD cells), length ``s``.
-    tolerance : a candidate contact lies within ``d_i + tolerance`` of the cell,
+    free : numpy.ndarray
+        (H, W) bool free-space mask; every other cell is an obstacle.
+    cells : tuple of numpy.ndarray
+        ``(rows, cols)`` of the cells (normally the GVD cells), length ``s``.
+    tolerance : float, optional
+        A candidate contact lies within ``d_i + tolerance`` of the cell,
         ``d_i`` being the cell's exact distance to the nearest obstacle.
 
     Returns
     -------
-    rows, cols : (s, 9) int arrays of contact cells, padded where ``valid`` is False.
-    valid : (s, 9) bool, the real contact points of each cell (at least one).
+    rows, cols : numpy.ndarray
+        (s, 9) int arrays of contact cells, padded where ``valid`` is False.
+    valid : numpy.ndarray
+        (s, 9) bool, the real contact points of each cell (at least one).
+
+    Raises
+    ------
+    ValueError
+        If the map has no free cell or no obstacle cell.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, Definition 1, Sec. IV-C.
     """
     free = np.asarray(free, dtype=bool)
     rows, cols = (np.asarray(v, dtype=np.intp) for v in cells)
@@ -93,13 +120,25 @@ def count_distribution(p: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    p : (s, n) occupancy probabilities of the contact points of ``s`` cells.
+    p : numpy.ndarray
+        (s, n) occupancy probabilities of the contact points of ``s`` cells.
         Cells with fewer contacts are padded with 0 (a contact that is surely
         free leaves the distribution unchanged).
 
     Returns
     -------
-    (s, n + 1) array, ``f[i, k] = P(N_i = k)``; every row sums to 1 (Theorem 1).
+    numpy.ndarray
+        (s, n + 1), ``f[i, k] = P(N_i = k)``, eq. (14); every row sums to 1 (Theorem 1).
+
+    Raises
+    ------
+    ValueError
+        If ``p`` is not 2-D or holds values outside [0, 1].
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (14)-(18).
     """
     p = np.asarray(p, dtype=np.float64)
     if p.ndim != 2:
@@ -123,6 +162,20 @@ def free_space(prob: np.ndarray, free_threshold: float = 0.3, min_area: int = 8)
     Isolated free specks (fewer than ``min_area`` cells) are dropped and
     obstacle islands of fewer than ``min_area`` cells are filled, so that noise
     does not add GVD branches and loops.
+
+    Parameters
+    ----------
+    prob : numpy.ndarray
+        (H, W) occupancy probabilities.
+    free_threshold : float, optional
+        Cells below this probability are free.
+    min_area : int, optional
+        Free specks and obstacle islands up to this many cells are removed.
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) bool free-space mask.
     """
     free = np.asarray(prob) < free_threshold
     free = remove_small_objects(free, max_size=min_area)
@@ -136,14 +189,30 @@ def pgvd(
 
     Parameters
     ----------
-    prob : (H, W) occupancy probabilities (0.5 = unknown).
-    free_threshold : cells below this probability are free.
-    min_area : see :func:`free_space`.
+    prob : numpy.ndarray
+        (H, W) occupancy probabilities (0.5 = unknown).
+    free_threshold : float, optional
+        Cells below this probability are free.
+    min_area : int, optional
+        See :func:`free_space`.
 
     Returns
     -------
-    S : (H, W) bool GVD, eq. (13).
-    Sp : (H, W) float, ``p(G_i) = 1 - f(n_i, 0) - f(n_i, 1)`` on the GVD (23)-(24), 0 elsewhere.
+    S : numpy.ndarray
+        (H, W) bool GVD, eq. (13).
+    Sp : numpy.ndarray
+        (H, W) float, ``p(G_i) = 1 - f(n_i, 0) - f(n_i, 1)`` on the GVD (23)-(24),
+        0 elsewhere.
+
+    Raises
+    ------
+    ValueError
+        If ``prob`` is not 2-D.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (13)-(24).
     """
     prob = np.asarray(prob, dtype=np.float64)
     if prob.ndim != 2:

@@ -134,11 +134,26 @@ def frame_for(
 
     Parameters
     ----------
-    scans : the scans the map will be built from.
-    resolution : metres per cell.
-    transform : 3x3 SE(2) from log-world metres to the map's metric frame (identity if None).
-    margin : unknown border in metres around the outermost ray end.
-    model : its ``max_range`` caps the no-return rays.
+    scans : list of LaserScan
+        The scans the map will be built from.
+    resolution : float, optional
+        Metres per cell.
+    transform : numpy.ndarray, optional
+        3x3 SE(2) from log-world metres to the map's metric frame (identity if None).
+    margin : float, optional
+        Unknown border in metres around the outermost ray end.
+    model : InverseSensorModel, optional
+        Its ``max_range`` caps the no-return rays.
+
+    Returns
+    -------
+    MapFrame
+        The canvas shape, resolution and placement.
+
+    Raises
+    ------
+    ValueError
+        If ``scans`` is empty.
     """
     if not scans:
         raise ValueError("frame_for needs at least one scan")
@@ -255,16 +270,32 @@ def integrate(
 
     Parameters
     ----------
-    scans : the scans, in time order.
-    frame : canvas and world-to-map transform (see :func:`frame_for`).
-    model : inverse sensor model.
-    odom_noise : optional extra odometry noise, see :func:`perturb_odometry`.
-    seed : seed of that noise.
+    scans : list of LaserScan
+        The scans, in time order.
+    frame : MapFrame
+        Canvas and world-to-map transform (see :func:`frame_for`).
+    model : InverseSensorModel, optional
+        Inverse sensor model.
+    odom_noise : tuple of float, optional
+        Extra odometry noise, see :func:`perturb_odometry`.
+    seed : int, optional
+        Seed of that noise.
 
     Returns
     -------
-    A :class:`~pgvd.grid.Grid` whose ``origin`` makes :func:`pgvd.grid.pixel_to_world`
-    return coordinates in the frame's metric frame.
+    Grid
+        Its ``origin`` makes :func:`pgvd.grid.pixel_to_world` return coordinates
+        in the frame's metric frame.
+
+    Raises
+    ------
+    ValueError
+        If the odometry noise is negative.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (9).
     """
     if odom_noise is not None:
         scans = perturb_odometry(scans, odom_noise, seed)

@@ -378,11 +378,19 @@ def read_map(
 
     Parameters
     ----------
-    path : ``.yaml``/``.yml`` (ROS map_server, PGM or PNG image) or ``.npy``
+    path : str or os.PathLike
+        ``.yaml``/``.yml`` (ROS map_server, PGM or PNG image) or ``.npy``
         (2-D probabilities in [0, 1], 0.5 = unknown).
-    max_cells : refuse maps with more cells than this (checked on the header,
+    max_cells : int, optional
+        Refuse maps with more cells than this (checked on the header,
         before pixels are decoded).
-    npy_resolution : resolution given to ``.npy`` maps, which carry none.
+    npy_resolution : float, optional
+        Resolution given to ``.npy`` maps, which carry none.
+
+    Returns
+    -------
+    Grid
+        Log-odds per cell, the map's resolution and ROS origin.
 
     Raises
     ------
@@ -489,6 +497,20 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     ``p < 0.196`` -> 254, unknown -> 205, ``mode: trinary``), so that
     :func:`read_map` gives back the same classes; ``.npy`` keeps the
     probabilities themselves (float32).  Both writes are atomic.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.yaml``/``.yml`` (the ``.pgm`` goes beside it) or ``.npy``.
+    grid : Grid
+        The map.
+
+    Raises
+    ------
+    ValueError
+        If the suffix is none of those.
+    OSError
+        If a file cannot be written.
     """
     path = Path(path)
     prob = grid.probability()
@@ -521,6 +543,20 @@ def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
     """Write an 8-bit gray ``(H, W)`` or RGB ``(H, W, 3)`` array as PNG, atomically.
 
     A minimal encoder (filter 0 on every row, zlib): no imaging library needed.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The PNG file.
+    image : numpy.ndarray
+        uint8 pixels, (H, W) gray or (H, W, 3) RGB.
+
+    Raises
+    ------
+    ValueError
+        If the array is not uint8, of another shape, or empty.
+    OSError
+        If the file cannot be written.
     """
     img = np.asarray(image)
     if img.dtype != np.uint8:

@@ -167,19 +167,45 @@ def similarity(edges_a: list[Edge], edges_b: list[Edge], tolerance: int = 1) -> 
 
     Parameters
     ----------
-    edges_a, edges_b : probabilistic edges (25) of the two maps in a common orientation.
-    tolerance : A's edges are grey-dilated by this many cells before correlating.
+    edges_a, edges_b : list of Edge
+        Probabilistic edges (25) of the two maps in a common orientation.
+    tolerance : int, optional
+        A's edges are grey-dilated by this many cells before correlating.
 
     Returns
     -------
-    Similarity with Gamma and, per pair, the translation ``(tx, ty)`` at the
-    correlation peak: B's edge cell ``(x, y)`` lands on A's edge at ``(x + tx, y + ty)``.
+    Similarity
+        Gamma and, per pair, the translation ``(tx, ty)`` at the correlation
+        peak: B's edge cell ``(x, y)`` lands on A's edge at ``(x + tx, y + ty)``.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (25)-(29).
     """
     return EdgeCorrelator(edges_a, tolerance).similarity(edges_b)
 
 
 def rho_threshold(edges_a: list[Edge], edges_b: list[Edge], rho: float) -> np.ndarray:
-    """Right-hand side of (32): ``rho * alpha_1 * alpha_2 * min(l_1, l_2)`` for every pair."""
+    """Right-hand side of (32): ``rho * alpha_1 * alpha_2 * min(l_1, l_2)`` for every pair.
+
+    Parameters
+    ----------
+    edges_a, edges_b : list of Edge
+        The edges; ``confidence`` is ``alpha`` (31), ``length`` is ``l``.
+    rho : float
+        Matching percentage.
+
+    Returns
+    -------
+    numpy.ndarray
+        (N1, N2) thresholds.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (31)-(32).
+    """
     alpha_a = np.array([e.confidence for e in edges_a])
     alpha_b = np.array([e.confidence for e in edges_b])
     len_a = np.array([e.length for e in edges_a], dtype=float)
@@ -190,7 +216,29 @@ def rho_threshold(edges_a: list[Edge], edges_b: list[Edge], rho: float) -> np.nd
 def rho_test(gamma: np.ndarray, edges_a: list[Edge], edges_b: list[Edge], rho: float) -> np.ndarray:
     """Existence test (32): pairs with ``max(E) > rho alpha_1 alpha_2 min(l1, l2)``.
 
-    Returns a (N1, N2) bool mask; no True entry means the maps do not match.
+    Parameters
+    ----------
+    gamma : numpy.ndarray
+        (N1, N2) similarity matrix Gamma, eq. (27).
+    edges_a, edges_b : list of Edge
+        The edges Gamma was computed from.
+    rho : float
+        Matching percentage, in (0, 1].
+
+    Returns
+    -------
+    numpy.ndarray
+        (N1, N2) bool; no True entry means the maps do not match.
+
+    Raises
+    ------
+    ValueError
+        If ``rho`` is outside (0, 1].
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (31)-(32), Sec. IV-E.1.
     """
     if not 0.0 < rho <= 1.0:
         raise ValueError(f"rho must lie in (0, 1], got {rho}")
@@ -379,7 +427,25 @@ def map_agreement(
 ) -> Agreement:
     """Overlay B on A with the B->A pixel ``matrix`` and count agreement both ways.
 
-    ``max_points > 0`` evaluates an even subsample of each map's walls (a quick estimate).
+    This is the check the paper leaves to future work (Sec. VI): a transform
+    counts only if the whole maps agree once overlaid.
+
+    Parameters
+    ----------
+    a, b : WallMap
+        Wall cells and free space of the two maps.
+    matrix : numpy.ndarray
+        3x3, B pixel -> A pixel.
+    tolerance : float, optional
+        A wall within this many cells of a wall of the other map agrees.
+    max_points : int, optional
+        When > 0, an even subsample of each map's walls of about this size
+        is evaluated (a quick estimate).
+
+    Returns
+    -------
+    Agreement
+        Agreeing walls and walls on clear free space, summed over both directions.
     """
     wb, wa = b.walls, a.walls
     if max_points > 0:
@@ -414,6 +480,26 @@ def refine(
     Correspondences farther than the current radius are dropped; the radius
     shrinks over ``radii`` so the coarse estimate is pulled in, then tightened.
     All but the last radius use an even subsample of ``max_points`` cells.
+
+    Parameters
+    ----------
+    walls_a : scipy.spatial.cKDTree
+        A's wall cells ``(x, y)``.
+    walls_b : numpy.ndarray
+        (N, 2) B's wall cells ``(x, y)``.
+    matrix : numpy.ndarray
+        3x3 starting transform, B pixel -> A pixel.
+    radii : tuple of float, optional
+        Correspondence radii in cells, one stage each.
+    iterations : int, optional
+        Iterations per radius at most.
+    max_points : int, optional
+        Subsample size of the early stages.
+
+    Returns
+    -------
+    numpy.ndarray
+        The refined 3x3 rigid matrix (eqs. (1)-(2)), B pixel -> A pixel.
     """
     m = matrix.copy()
     sub = walls_b[:: -(-len(walls_b) // max_points)]
@@ -510,6 +596,32 @@ def alignment_covariance(
     Neighbouring wall cells are not independent observations; the variance
     is multiplied by ``correlation_length``, the number of consecutive wall
     cells counted as one observation.
+
+    Parameters
+    ----------
+    walls_a : scipy.spatial.cKDTree
+        A's wall cells ``(x, y)``.
+    walls_b : numpy.ndarray
+        (N, 2) B's wall cells ``(x, y)``.
+    matrix : numpy.ndarray
+        3x3 transform at the optimum, B pixel -> A pixel.
+    radius : float, optional
+        Cells of B farther than this from A's walls are not counted.
+    max_points : int, optional
+        Subsample size of B's walls.
+    correlation_length : float, optional
+        Consecutive wall cells counted as one observation.
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 covariance over ``(tx px, ty px, psi rad)``, eq. (3); infinite
+        variances when fewer than 3 cells of B land near A's walls.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (3), (7).
     """
     pts = walls_b[:: -(-len(walls_b) // max_points)]
     moved = _apply(matrix, pts)

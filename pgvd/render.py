@@ -146,6 +146,25 @@ def merge_figure(a: Grid, b: Grid, result: _Result, crop: bool = True) -> np.nda
     ``pgvd_b``/``edges_b`` in B's).  A rejected result is drawn with its
     best candidate transform when it has one, so a person sees why it failed.
     With ``crop`` the canvas is cut to the walls of both maps (plus a margin).
+
+    Parameters
+    ----------
+    a, b : Grid
+        The two maps.
+    result : MergeResult
+        What :func:`pgvd.merge.merge` returned for them.
+    crop : bool, optional
+        Cut the canvas to the walls.
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W, 3) uint8 RGB picture with a caption line.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, Figs. 2 and 4.
     """
     pa, pb = a.probability(), b.probability()
     m = np.asarray(result.matrix, dtype=np.float64)

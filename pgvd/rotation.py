@@ -55,15 +55,29 @@ def angle_spectrum(p: np.ndarray, n_angles: int = 360, max_points: int = 3000) -
 
     Parameters
     ----------
-    p : (H, W) occupancy probabilities.
-    n_angles : number of angles ``theta_i = i * pi / n_angles`` in ``[0, pi)``.
-    max_points : occupied cells beyond this are subsampled (evenly, deterministically).
+    p : numpy.ndarray
+        (H, W) occupancy probabilities.
+    n_angles : int, optional
+        Number of angles ``theta_i = i * pi / n_angles`` in ``[0, pi)``.
+    max_points : int, optional
+        Occupied cells beyond this are subsampled (evenly, deterministically).
 
     Returns
     -------
-    (n_angles,) float array: ``s(theta) = sum_rho R_theta(rho)^2 / (sum w)^2`` where
-    ``R_theta`` is the projection (1-cell bins) of the occupied cells weighted by
-    their probability onto the normal ``(cos theta, sin theta)`` (x = column, y = row).
+    numpy.ndarray
+        (n_angles,) float: ``s(theta) = sum_rho R_theta(rho)^2 / (sum w)^2`` where
+        ``R_theta`` is the projection (1-cell bins) of the occupied cells weighted by
+        their probability onto the normal ``(cos theta, sin theta)`` (x = column, y = row).
+
+    Raises
+    ------
+    ValueError
+        If ``p`` is not 2-D or has no occupied cell.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (10).
     """
     p = np.asarray(p, dtype=np.float64)
     if p.ndim != 2:
@@ -94,6 +108,21 @@ def spectrum_correlation(s_a: np.ndarray, s_b: np.ndarray) -> np.ndarray:
     A rotation of B by ``psi`` (eq. (2)) turns a wall normal at ``theta`` into
     ``theta - psi``, so ``s_a(theta) = s_b(theta + psi)`` and ``C`` peaks at
     ``delta = psi`` (mod 180 degrees).  Values are Pearson correlations in [-1, 1].
+
+    Parameters
+    ----------
+    s_a, s_b : numpy.ndarray
+        Angle spectra of A and B (:func:`angle_spectrum`), of one length.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``C(delta)`` for every shift of one spectrum bin.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (2), (10).
     """
     a = (s_a - s_a.mean()) / (s_a.std() + 1e-300)
     b = (s_b - s_b.mean()) / (s_b.std() + 1e-300)
@@ -146,14 +175,29 @@ def estimate_headings(
 
     Parameters
     ----------
-    a, b : occupancy probabilities of the two maps (any sizes).
-    max_candidates : number of headings returned (pairs ``delta``, ``delta + pi``).
-    n_angles : spectrum resolution over 180 degrees; peaks are interpolated below it.
-    min_separation_deg : correlation peaks closer than this are one peak.
+    a, b : numpy.ndarray
+        Occupancy probabilities of the two maps (any sizes).
+    max_candidates : int, optional
+        Number of headings returned (pairs ``delta``, ``delta + pi``).
+    n_angles : int, optional
+        Spectrum resolution over 180 degrees; peaks are interpolated below it.
+    min_separation_deg : float, optional
+        Correlation peaks closer than this are one peak.
 
     Returns
     -------
-    Candidates, best correlation first, ``psi`` in ``(-pi, pi]``.
+    list of HeadingCandidate
+        Best correlation first, ``psi`` in ``(-pi, pi]``.
+
+    Raises
+    ------
+    ValueError
+        If ``max_candidates < 1``, or a map is not 2-D or has no occupied cell.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (10), Sec. IV-A.
     """
     if max_candidates < 1:
         raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")

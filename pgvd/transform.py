@@ -31,15 +31,31 @@ def warp(
 
     Parameters
     ----------
-    image : (H, W) array in frame B.
-    matrix : 3x3 affine matrix, B pixel -> A pixel.
-    out_shape : (rows, cols) of the output, frame A.
-    order : spline order (0 nearest, 1 bilinear).
-    cval : value of cells that fall outside ``image`` (0 = unknown log-odds).
+    image : numpy.ndarray
+        (H, W) array in frame B.
+    matrix : numpy.ndarray
+        3x3 affine matrix, B pixel -> A pixel.
+    out_shape : tuple of int
+        (rows, cols) of the output, frame A.
+    order : int, optional
+        Spline order (0 nearest, 1 bilinear).
+    cval : float, optional
+        Value of cells that fall outside ``image`` (0 = unknown log-odds).
 
     Returns
     -------
-    (rows, cols) float array in frame A.
+    numpy.ndarray
+        (rows, cols) float array in frame A.
+
+    Raises
+    ------
+    ValueError
+        If ``matrix`` is not a finite 3x3 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1), (12), (30).
     """
     m = np.asarray(matrix, dtype=np.float64)
     if m.shape != (3, 3) or not np.isfinite(m).all():
@@ -91,12 +107,20 @@ def resample(grid: Grid, resolution: float) -> Grid:
 
     Parameters
     ----------
-    grid : the map.
-    resolution : target metres per cell, > 0.
+    grid : Grid
+        The map.
+    resolution : float
+        Target metres per cell, > 0.
 
     Returns
     -------
-    Grid with ``round(H * r / resolution)`` rows, same origin.
+    Grid
+        ``round(H * r / resolution)`` rows, same origin.
+
+    Raises
+    ------
+    ValueError
+        If ``resolution`` is not a positive number.
     """
     if not math.isfinite(resolution) or resolution <= 0:
         raise ValueError(f"resolution must be > 0, got {resolution}")
@@ -122,15 +146,18 @@ def union_canvas(
 
     Parameters
     ----------
-    shape_a, shape_b : (rows, cols) of A and B.
-    matrix : 3x3, B pixel -> A pixel.
+    shape_a, shape_b : tuple of int
+        (rows, cols) of A and B.
+    matrix : numpy.ndarray
+        3x3, B pixel -> A pixel.
 
     Returns
     -------
-    out_shape : (rows, cols) of the canvas.
-    offset_matrix : 3x3 integer translation, A pixel -> canvas pixel, so that
-        A lands on the canvas without interpolation; B -> canvas is
-        ``offset_matrix @ matrix``.
+    out_shape : tuple of int
+        (rows, cols) of the canvas.
+    offset_matrix : numpy.ndarray
+        3x3 integer translation, A pixel -> canvas pixel, so that A lands on
+        the canvas without interpolation; B -> canvas is ``offset_matrix @ matrix``.
     """
     hb, wb = shape_b
     ha, wa = shape_a

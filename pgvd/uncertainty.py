@@ -50,13 +50,27 @@ def transform_covariance(xy: np.ndarray, psi: float, cov3: np.ndarray) -> np.nda
 
     Parameters
     ----------
-    xy : (N, 2) points ``P1`` relative to the rotation centre, pixels.
-    psi : heading of the transform, radians.
-    cov3 : 3x3 covariance over ``(x, y, psi)``, eq. (3).
+    xy : numpy.ndarray
+        (N, 2) points ``P1`` relative to the rotation centre, pixels.
+    psi : float
+        Heading of the transform, radians.
+    cov3 : numpy.ndarray
+        3x3 covariance over ``(x, y, psi)``, eq. (3).
 
     Returns
     -------
-    (N, 2, 2) covariances of the transformed points, eq. (5).
+    numpy.ndarray
+        (N, 2, 2) covariances of the transformed points, eq. (5).
+
+    Raises
+    ------
+    ValueError
+        If ``cov3`` is not a finite, symmetric, positive semi-definite 3x3 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(7).
     """
     xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
     c = check_covariance(cov3)
@@ -86,6 +100,28 @@ def compose_covariance(
     ``T = R1 T2 + T1``, so a heading error of ``m1`` also moves ``T`` by
     ``dR1/dpsi1 T2 = R1 J T2`` (the ``r1, r2`` of eq. (7) at ``T2``).  First
     order, as eq. (4): ``Sigma = A1 Sigma1 A1^T + A2 Sigma2 A2^T``.
+
+    Parameters
+    ----------
+    m1, m2 : numpy.ndarray
+        Finite 3x3 rigid matrices.
+    cov1, cov2 : numpy.ndarray
+        Their 3x3 covariances over ``(tx, ty, psi)``, eq. (3).
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 symmetric covariance of ``m1 @ m2``.
+
+    Raises
+    ------
+    ValueError
+        If a matrix is not finite 3x3 or a covariance not symmetric positive semi-definite.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(7).
     """
     r1, _, _ = _pose_jacobians(m1)
     _, t2, _ = _pose_jacobians(m2)
@@ -102,6 +138,28 @@ def inverse_covariance(m: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
     ``inv(M) = [R^T | -R^T T]`` with heading ``-psi``: ``dT'/dT = -R^T``,
     ``dT'/dpsi = R^T J T``, ``dpsi'/dpsi = -1``.
+
+    Parameters
+    ----------
+    m : numpy.ndarray
+        Finite 3x3 rigid matrix.
+    cov : numpy.ndarray
+        Its 3x3 covariance over ``(tx, ty, psi)``, eq. (3).
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 symmetric covariance of ``inv(m)``.
+
+    Raises
+    ------
+    ValueError
+        If ``m`` is not finite 3x3 or ``cov`` not symmetric positive semi-definite.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(4).
     """
     r, t, _ = _pose_jacobians(m)
     a = np.zeros((3, 3))
@@ -180,13 +238,27 @@ def rotation_blur(
 
     Parameters
     ----------
-    image : (H, W) array.
-    sigma_psi : heading standard deviation, radians, >= 0.
-    center : ``(x, y)`` rotation centre in pixels; default the image centre.
+    image : numpy.ndarray
+        (H, W) map.
+    sigma_psi : float
+        Heading standard deviation, radians, >= 0.
+    center : tuple of float, optional
+        ``(x, y)`` rotation centre in pixels; default the image centre.
 
     Returns
     -------
-    (H, W) float32 array.
+    numpy.ndarray
+        (H, W) float32.
+
+    Raises
+    ------
+    ValueError
+        If ``image`` is not 2-D or ``sigma_psi`` is negative or not finite.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (4)-(8), Sec. IV-B.
     """
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2:
@@ -246,12 +318,26 @@ def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    image : (H, W) array.
-    cov_xy : 2x2 covariance in the pixel frame ``(x, y)``.
+    image : numpy.ndarray
+        (H, W) map.
+    cov_xy : numpy.ndarray
+        2x2 covariance in the pixel frame ``(x, y)``.
 
     Returns
     -------
-    (H, W) float32 array.
+    numpy.ndarray
+        (H, W) float32.
+
+    Raises
+    ------
+    ValueError
+        If ``image`` is not 2-D or ``cov_xy`` is not a finite, symmetric,
+        positive semi-definite 2x2 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (8), Sec. IV-F.
     """
     img = np.asarray(image, dtype=np.float32)
     cov = np.asarray(cov_xy, dtype=np.float64)
@@ -302,19 +388,36 @@ def propagate(
 
     Parameters
     ----------
-    image : (H, W) map B (probabilities, or log-odds).
-    matrix : 3x3, B pixel -> output pixel.
-    cov3 : 3x3 covariance over ``(x px, y px, psi rad)``, eq. (3), with the
+    image : numpy.ndarray
+        (H, W) map B (probabilities, or log-odds).
+    matrix : numpy.ndarray
+        3x3, B pixel -> output pixel.
+    cov3 : numpy.ndarray
+        3x3 covariance over ``(x px, y px, psi rad)``, eq. (3), with the
         heading error acting about ``center``.
-    out_shape : (rows, cols) of the output frame.
-    center : rotation centre in B's pixels; default B's pixel origin, where
+    out_shape : tuple of int
+        (rows, cols) of the output frame.
+    center : tuple of float, optional
+        Rotation centre in B's pixels; default B's pixel origin, where
         eq. (1) with ``P1`` = B's pixel puts it (the convention of
         ``matrix_to_pose`` and of :class:`pgvd.merge.MergeResult`).
-    cval : value outside B (0 for log-odds, 0.5 for probabilities).
+    cval : float, optional
+        Value outside B (0 for log-odds, 0.5 for probabilities).
 
     Returns
     -------
-    (rows, cols) float32 array: B in the output frame, blurred by eq. (8).
+    numpy.ndarray
+        (rows, cols) float32: B in the output frame, blurred by eq. (8).
+
+    Raises
+    ------
+    ValueError
+        If ``cov3`` is not a finite, symmetric, positive semi-definite 3x3 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(8).
     """
     c = check_covariance(cov3)
     m = np.asarray(matrix, dtype=np.float64)

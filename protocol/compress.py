@@ -20,7 +20,7 @@ the fewest bytes of:
 * ``LZMA``: raw LZMA2 (standard-library :mod:`lzma`, no header), literal
   context bits off (``lc=lp=pb=0``: the bytes are packed cells, not text).
   Its repeated-distance matches capture a map's row above, which deflate's
-  Huffman-coded distances do not: on the building maps of ``../shared`` it
+  Huffman-coded distances do not: on real building maps (``bench/protocol.py``) it
   codes a full update in 25-30% fewer bytes than deflate (willow 12.0 ->
   8.5 KB).  It costs ~10 ms of CPU per 100 KB of layout, so it is only tried
   on streams up to :data:`LZMA_MAX_INPUT` bytes (trinary maps of up to ~1M
@@ -114,7 +114,7 @@ def layout_cells(cells: np.ndarray) -> tuple[int, bytes]:
 
     Chosen by length before compression: deflating every candidate of every
     tile to compare them cost ~7 ms per 1000x1000 map and, once all tiles
-    share one stream, picked no smaller streams on the maps of ``../shared``.
+    share one stream, picked no smaller streams on real building maps.
     """
     cells = np.ascontiguousarray(cells, dtype=np.int8)
     best = (RAW, cells.tobytes())

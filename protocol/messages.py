@@ -331,7 +331,7 @@ class Link:
     Attributes
     ----------
     decided_by : the robot whose agent ran the match.
-    robot_a, robot_b : the pair; ``matrix`` maps B pixels to A pixels (design.md).
+    robot_a, robot_b : the pair; ``matrix`` maps B pixels to A pixels (x = column, y = row).
     version_a, version_b : the map versions the decision was made on.
     accepted : outcome of the existence test (32) and the global check.
     matrix : 3x3 homogeneous rigid transform, eqs. (1)-(2).

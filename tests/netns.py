@@ -1,7 +1,7 @@
 """Lossy test networks on one machine: network namespaces, veth pairs and nftables.
 
 ``tc netem`` is not in this kernel, so loss is injected with an nftables ``netdev`` egress rule
-(``numgen random mod 100 < P drop``) on a veth device, the recipe of ``../shared/zenoh-notes.md``.
+(``numgen random mod 100 < P drop``) on a veth device.
 
 Topology of one :class:`Lab`: a hidden hub namespace holds a bridge; every host namespace is joined
 to it by one veth pair and gets the address ``127.10.0.<i+1>/24`` (``route_localnet=1``, ``lo`` up).

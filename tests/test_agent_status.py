@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from agent.cli import main
-from agent.cmd_status import format_table
+from agent.cli.status import format_table
 from agent.status_reply import MAX_STATUS_BYTES, check_status, read_status
 from protocol.auth import seal
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -26,13 +27,14 @@ CONTRACT_KEYS = {
 }
 
 
-def pgvd_merge(*args: str | Path) -> subprocess.CompletedProcess[str]:
+def pgvd_merge(*args: str | Path, **kwargs) -> subprocess.CompletedProcess[str]:
+    kwargs.setdefault("capture_output", True)
     return subprocess.run(
         [sys.executable, "-m", "agent.cli", "merge", *map(str, args)],
         cwd=ROOT,
-        capture_output=True,
         text=True,
         timeout=120,
+        **kwargs,
     )
 
 
@@ -155,3 +157,22 @@ def test_resampled_b_matrix_maps_the_file_pixels(tmp_path: Path, shared: Path) -
     corners = np.array([[0, 0, 1], [300, 0, 1], [0, 300, 1], [300, 300, 1]], float).T
     err = np.array(doc["matrix"]) @ corners - truth @ corners
     assert np.abs(err[:2]).max() < 3.0  # cells of A, across B's extent
+
+
+def test_json_into_a_closed_pipe_is_quiet() -> None:
+    """Defect: ``pgvd merge A B --json | head`` ended in a ``BrokenPipeError`` traceback when
+    the reader was gone before the JSON was written."""
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        proc = pgvd_merge(
+            ROOT / "examples/intel_a.yaml",
+            ROOT / "examples/intel_b.yaml",
+            "--json",
+            capture_output=False,
+            stdout=write,
+            stderr=subprocess.PIPE,
+        )
+    finally:
+        os.close(write)
+    assert proc.stderr == "" and proc.returncode == 1

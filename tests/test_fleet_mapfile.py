@@ -20,7 +20,7 @@ def test_agents_follow_rewritten_map_files_and_link_them(shared: Path, tmp_path:
     d = shared / "maps" / "intel_split_gt"
     a = resample(read_map(d / "intel_partA.yaml"), 0.1)
     b = resample(read_map(d / "intel_partB.yaml"), 0.1)
-    truth = relative_matrix(a, b)  # the halves share one world frame (DATA.md)
+    truth = relative_matrix(a, b)  # the *_split_gt halves are rendered in one world frame
     files = {"m1": tmp_path / "slam1" / "map.yaml", "m2": tmp_path / "slam2" / "map.yaml"}
     # The first map of m2 is its top half only: the SLAM has not explored the rest yet.
     partial = b.logodds.copy()

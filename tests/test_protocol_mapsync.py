@@ -130,7 +130,7 @@ def test_interleaved_versions_converge_after_fetching_missing_tiles(
     deliver(reasm, wires[:lost] + wires[lost + 1 :])
     latest, newest = versions[-1], len(versions)
     if reasm.version != newest:
-        # The newest manifest is re-announced (design.md), then missing tiles are fetched.
+        # The agent re-announces its newest manifest, then missing tiles are fetched.
         _, manifest = encode_map("f", "r1", newest, as_grid(latest), tile_size=ts)
         deliver(reasm, [manifest])
         if reasm.version != newest:

@@ -69,7 +69,7 @@ def publish(config: dict[str, object], count: int, size: int, interval: float) -
         token = session.liveliness().declare_token(ALIVE + "/pub")
         pub = session.declare_publisher(KEY, congestion_control=zenoh.CongestionControl.BLOCK)
         deadline = time.monotonic() + 30
-        # open() returns before links are up: early puts would be lost silently (zenoh-notes.md).
+        # open() returns before links are up: early puts would be lost silently.
         while not pub.matching_status.matching and time.monotonic() < deadline:
             time.sleep(0.01)
         matched = pub.matching_status.matching

@@ -10,17 +10,15 @@ from pathlib import Path
 
 import zenoh
 
-from agent.cli import EXIT_OK, CliError, read_fleet_key
+from agent.cli.common import EXIT_OK, CliError, read_fleet_key
 from agent.keys import FleetKeys
 from agent.links import EPOCH_SHIFT, epoch_of
 from agent.status_reply import read_status
 from agent.zenoh_config import ZenohOptions, build_config
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "status", help="robots, versions, links and traffic of a running fleet"
-    )
+def configure(p: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``pgvd status`` to its parser."""
     p.add_argument("--fleet", default="default", help="fleet name")
     p.add_argument(
         "--connect",
@@ -51,8 +49,8 @@ def collect(
     out: dict[str, dict] = {}
     refused: list[str] = []
     with zenoh.open(build_config(opts)) as session:
-        # open() returns before links are up (zenoh-notes): wait for a peer, then
-        # give gossip a moment to link the rest.
+        # zenoh.open() returns before any link is up: wait for a peer, then give gossip a
+        # moment to link the rest.
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and not _neighbours(session):
             time.sleep(0.02)

@@ -1,7 +1,9 @@
-"""``pgvd merge A B``: find the B->A transform of two map files, and fuse them (design.md).
+"""``pgvd merge A B``: find the transform from B's pixels to A's of two map files, and fuse them.
 
 Exit 0 when the maps merge (``-o`` and ``--plot`` are written), 3 when they do
 not overlap (``--plot`` still shows why), 2 on bad input with one line on stderr.
+Only numpy and the map reader load before the files are read; scipy and scikit-image load
+once both maps are known good.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from agent.cli import EXIT_NO_OVERLAP, EXIT_OK, CliError
+from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError
 from pgvd.grid import Grid, matrix_to_pose
 from pgvd.io import MAX_CELLS, MapFormatError, read_map, write_map, write_png
 
@@ -26,14 +28,11 @@ if TYPE_CHECKING:
 _MAP_SUFFIXES = (".yaml", ".yml", ".npy")
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "merge",
-        help="merge two occupancy-grid maps (ROS map_server .yaml or .npy)",
-        description=(
-            "Find the transform from map B's pixels to map A's pixels with the PGVD method "
-            "and fuse B into A. Exit 0: merged; 3: no overlap; 2: bad input."
-        ),
+def configure(p: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``pgvd merge`` to its parser."""
+    p.description = (
+        "Find the transform from map B's pixels to map A's pixels with the PGVD method "
+        "and fuse B into A. Exit 0: merged; 3: no overlap; 2: bad input."
     )
     p.add_argument(
         "a",
@@ -87,8 +86,12 @@ def _finite_or_none(value: object) -> object:
 
 
 def report(result: MergeResult, b_scale: np.ndarray | None) -> dict:
-    """The ``--json`` object of design.md; ``matrix`` maps the pixels of B *as read from
-    its file*, so it includes the scale when B was resampled."""
+    """The ``--json`` object: ``accepted``, ``matrix`` (B pixels -> A pixels), ``rotation_deg``,
+    ``translation_px``, ``covariance``, ``score``, ``timings_ms`` and ``reason``.
+
+    ``matrix`` maps the pixels of B *as read from its file*, so it includes the scale (also
+    given as ``b_scale``) when B was resampled; non-finite numbers are null.
+    """
     doc = result.to_json()
     if b_scale is not None:
         m = np.asarray(result.matrix, dtype=np.float64) @ b_scale

@@ -2,13 +2,16 @@
 
 Each agent replays an overlapping segment of the bundled Intel Research Lab log
 (``agent/data``, CC-BY 1.0, recorded by Dirk Haehnel; Radish, Howard and Roy 2003) in a
-random frame of its own, peer to peer over Zenoh on localhost.  The demo prints live
-progress, then writes ``--out``:
+random frame of its own (:mod:`agent.scenario`), peer to peer over Zenoh on localhost.
+The demo prints live progress, then writes ``--out``:
 
 - ``<robot>/global.png`` (and ``.yaml``/``.pgm``): each agent's global map;
 - ``side_by_side.png``: local maps (top row) and each agent's global map (bottom row);
 - ``report.json``: per agent the robots known, the accepted links with their error
   against the true frames, the global map's hash, the bytes sent, the time to converge.
+
+``--out`` must be new, empty, or a directory of an earlier demo holding only the files that
+demo wrote; those are replaced, any other file makes the demo refuse to start.
 
 Exit 0 only if all agents hold the same global map, every truly overlapping pair was
 linked and no link is false (beyond ``--max-deg`` / ``--max-cells``); 1 otherwise.
@@ -18,28 +21,30 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from agent.cli import EXIT_OK, CliError
+from agent.cli import outdir
+from agent.cli.common import EXIT_FAILED, EXIT_OK, CliError
 from agent.evaluate import link_error, true_matrix, true_overlap
 from agent.launcher import LocalFleet, agreement, sources_done
+from agent.scenario import LOG, random_frames, segments
 from agent.state import StateDir
 
-LOG = Path(__file__).resolve().parent / "data" / "intel-corrected.log.gz"
-EXIT_FAILED = 1
 
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "demo", help="run N agents on localhost mapping the Intel lab together", description=__doc__
-    )
+def configure(p: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``pgvd demo`` to its parser."""
+    p.description = __doc__
     p.add_argument("--robots", type=int, default=3, help="number of agents (2-12)")
-    p.add_argument("--out", type=Path, default=Path("demo-out"), help="output directory")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("demo-out"),
+        help="output directory: new, empty, or an earlier demo's (default demo-out)",
+    )
     p.add_argument("--speed", type=float, default=100.0, help="log replay speed x real time")
     p.add_argument("--seed", type=int, default=1, help="seed of the agents' random frames")
     p.add_argument("--timeout", type=float, default=180.0, help="give up after this many s")
@@ -52,22 +57,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def segments(n: int) -> list[tuple[float, float]]:
-    """``n`` segments of [0, 1], each twice as long as its overlap with the next."""
-    width = 2.0 / (n + 1)
-    step = (1.0 - width) / (n - 1)
-    return [(round(i * step, 4), round(min(1.0, i * step + width), 4)) for i in range(n)]
-
-
-def random_frames(n: int, seed: int) -> list[tuple[float, float, float]]:
-    """``(x m, y m, theta deg)`` per robot: rotations anywhere, shifts up to 20 m."""
-    rng = np.random.default_rng(seed)
-    return [
-        (float(rng.uniform(-20, 20)), float(rng.uniform(-20, 20)), float(rng.uniform(0, 360)))
-        for _ in range(n)
-    ]
-
-
 def run(args: argparse.Namespace) -> int:
     if not 2 <= args.robots <= 12:
         raise CliError("--robots must be between 2 and 12")
@@ -76,9 +65,17 @@ def run(args: argparse.Namespace) -> int:
     if args.speed <= 0 or args.timeout <= 0:
         raise CliError("--speed and --timeout must be > 0")
     out: Path = args.out
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    outdir.claim(out)
+    try:
+        report = _run_fleet(args, out)
+    finally:
+        outdir.record(out)  # also after a crash or ^C: the next run may replace these files
+    _print_summary(report, out)
+    return EXIT_OK if report["ok"] else EXIT_FAILED
+
+
+def _run_fleet(args: argparse.Namespace, out: Path) -> dict:
+    """Run the fleet until agreement or timeout; write report.json and side_by_side.png."""
     robots = [f"r{i + 1}" for i in range(args.robots)]
     frames = random_frames(args.robots, args.seed)
     print(f"pgvd demo: {args.robots} agents, peer to peer on localhost, log {args.log.name}")
@@ -97,8 +94,7 @@ def run(args: argparse.Namespace) -> int:
     report["dead_agents"] = dead
     (out / "report.json").write_text(json.dumps(report, indent=1, sort_keys=True))
     _side_by_side(fleet, out / "side_by_side.png")
-    _print_summary(report, out)
-    return EXIT_OK if report["ok"] else EXIT_FAILED
+    return report
 
 
 def _watch(fleet: LocalFleet, timeout: float) -> float | None:

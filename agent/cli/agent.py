@@ -11,7 +11,7 @@ from pathlib import Path
 
 import zenoh
 
-from agent.cli import EXIT_OK, CliError, read_fleet_key
+from agent.cli.common import EXIT_OK, CliError, read_fleet_key
 from agent.failpoints import check_armed
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
@@ -19,12 +19,9 @@ from agent.sources import parse_frame, parse_source
 from agent.zenoh_config import MODES, ZenohOptions, build_config, tile_session_options
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "agent",
-        help="run one robot's map-fusion daemon (peer to peer over Zenoh)",
-        description=__doc__,
-    )
+def configure(p: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``pgvd agent`` to its parser."""
+    p.description = __doc__
     p.add_argument("--robot", required=True, help="this robot's id ([A-Za-z0-9_-])")
     p.add_argument(
         "--source", required=True, help="carmen:LOG[@FROM-TO] (fractions) or map:FILE.yaml"

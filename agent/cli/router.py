@@ -26,7 +26,7 @@ from types import FrameType
 
 import zenoh
 
-from agent.cli import EXIT_OK, CliError
+from agent.cli.common import EXIT_OK, CliError
 
 # Zenoh's errors end with the Rust source location; a user needs the first sentence only.
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
@@ -82,7 +82,7 @@ def run_router(config: zenoh.Config, stop: threading.Event) -> None:
         endpoints = json.loads(config.get_json("listen/endpoints") or "[]")
         print(f"ready {session.info.zid()} listening on {json.dumps(endpoints)}", flush=True)
         stop.wait()
-        # A callback listener alive at close() can hang the process (zenoh-notes.md).
+        # A callback listener still declared when the session closes can hang the process.
         listener.undeclare()
 
 
@@ -108,13 +108,9 @@ def _handle(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``pgvd router`` to the CLI."""
-    parser = subparsers.add_parser(
-        "router",
-        help="run a Zenoh router (links sites; agents connect to it as clients or peers)",
-        description=__doc__.splitlines()[0],
-    )
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``pgvd router`` to its parser."""
+    parser.description = __doc__.splitlines()[0]
     parser.add_argument(
         "--listen",
         action="append",

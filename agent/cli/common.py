@@ -1,0 +1,48 @@
+"""What every ``pgvd`` sub-command shares: the exit codes, :class:`CliError`, the fleet key.
+
+Exit codes: 0 success; 1 the command ran but did not achieve what it was asked (``pgvd demo``
+without agreement, or standard output closed before everything was written); 2 bad input,
+reported as one line on stderr; 3 the two maps of ``pgvd merge`` do not overlap.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+EXIT_NO_OVERLAP = 3
+
+
+class CliError(Exception):
+    """A user error: printed as one line on stderr, exit code 2."""
+
+
+def read_fleet_key(path: Path | None) -> bytes | None:
+    """The fleet key in a file, for the HMAC every message of the fleet carries.
+
+    Parameters
+    ----------
+    path : Path or None
+        The key file; surrounding whitespace is not part of the key.
+
+    Returns
+    -------
+    bytes or None
+        The key, or None without a path (an unauthenticated fleet).
+
+    Raises
+    ------
+    CliError
+        When the file cannot be read or holds only whitespace.
+    """
+    if path is None:
+        return None
+    try:
+        key = path.read_bytes().strip()
+    except OSError as exc:
+        raise CliError(f"cannot read key file: {exc.strerror}: {path}") from None
+    if not key:
+        raise CliError(f"key file is empty: {path}")
+    return key

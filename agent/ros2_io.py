@@ -1,0 +1,209 @@
+"""ROS 2 topics over Zenoh: a robot's OccupancyGrid in, the merged map and its TF out.
+
+A ROS 2 robot on rmw_zenoh already publishes every topic as a Zenoh key, so joining it to the
+fleet needs no ROS code: :class:`RosMapSubscription` subscribes to its map topic the way a
+ROS 2 subscriber on rmw_zenoh does, and :class:`RosMapPublisher` publishes the global map and
+TF the way a ROS 2 publisher does (keys, attachment and liveliness tokens from
+:mod:`protocol.ros2`). Robots still on DDS reach Zenoh through zenoh-bridge-ros2dds, whose keys
+are bare topic names with no attachment and no tokens (``form="bridge"``).
+
+Transient local: a map topic is latched in ROS 2 (slam_toolbox, map_server). rmw_zenoh keeps a
+latched topic's last sample in a Zenoh advanced publisher's cache, which an advanced
+subscriber with history queries on start; both sides here do the same. A token of the
+subscription (``MS``) is declared because slam_toolbox publishes ``/map`` only while it counts
+a subscriber, and on rmw_zenoh that count comes from these tokens.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import zenoh
+import zenoh.ext
+
+from pgvd.grid import Grid
+from protocol.errors import ProtocolError
+from protocol.ros2.attachment import Attachment, decode_attachment, encode_attachment
+from protocol.ros2.keys import RosNode, data_key
+from protocol.ros2.occupancy import (
+    Placement,
+    RosMap,
+    decode_occupancy_grid,
+    encode_occupancy_grid,
+    encode_tf,
+)
+from protocol.ros2.types import OCCUPANCY_GRID, TF_MESSAGE
+
+#: rmw_zenoh's QoS field for /tf: reliable, volatile, keep-last 100 (tf2's publisher profile).
+QOS_TF = "::,100:,:,:,,"
+
+#: ``on_drop(reason, detail)``: a sample was refused; reason is a ProtocolError reason.
+DropFn = Callable[[str, str], None]
+
+
+@dataclass(frozen=True)
+class RosOptions:
+    """How the agent appears on a ROS 2 network.
+
+    Attributes
+    ----------
+    domain : ROS_DOMAIN_ID.
+    distro : ``humble``, ``jazzy`` or ``kilted`` (the type-hash field of keys and tokens).
+    form : ``rmw_zenoh`` (keys, attachment, tokens) or ``bridge`` (zenoh-bridge-ros2dds).
+    node : node name the agent's tokens carry.
+    namespace : the node's namespace, ``/`` or e.g. ``/robot1``.
+    """
+
+    domain: int = 0
+    distro: str = "jazzy"
+    form: str = "rmw_zenoh"
+    node: str = "pgvd_agent"
+    namespace: str = "/"
+
+    def ros_node(self, session: zenoh.Session) -> RosNode:
+        return RosNode(str(session.zid()), self.node, self.namespace, 0, self.domain)
+
+
+class RosMapSubscription:
+    """The latest ``nav_msgs/msg/OccupancyGrid`` of one topic, and every refusal counted.
+
+    Parameters
+    ----------
+    session : an open Zenoh session with timestamping enabled (advanced subscribers need it).
+    topic : absolute topic name, e.g. ``/robot1/map``.
+    opts : key form, domain, distro and node name.
+    on_drop : called for every refused sample, from Zenoh's callback thread.
+    entity_id : the subscription's id within the node (tokens must not collide).
+    """
+
+    def __init__(self, session: zenoh.Session, topic: str, opts: RosOptions,
+                 on_drop: DropFn, entity_id: int = 1) -> None:
+        self.topic = topic
+        self.opts = opts
+        self._on_drop = on_drop
+        self._lock = threading.Lock()
+        self._latest: RosMap | None = None
+        self._fresh = False
+        self._expected = data_key(topic, OCCUPANCY_GRID, domain=opts.domain,
+                                  distro=opts.distro, form=opts.form)
+        # Any type and hash: a publisher of the wrong type or hash is counted, not ignored.
+        watched = self._expected if opts.form == "bridge" else (
+            self._expected.rsplit("/", 2)[0] + "/*/*"
+        )
+        self._sub = zenoh.ext.declare_advanced_subscriber(
+            session, watched, self._on_sample,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+        )
+        self._token = None
+        if opts.form == "rmw_zenoh":
+            token = opts.ros_node(session).entity_token(
+                "MS", entity_id, topic, OCCUPANCY_GRID, distro=opts.distro
+            )
+            self._token = session.liveliness().declare_token(token)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            ros = self._decode(str(sample.key_expr), sample.payload.to_bytes(),
+                               sample.attachment)
+        except ProtocolError as exc:
+            self._on_drop(exc.reason, str(exc))
+            return
+        with self._lock:
+            self._latest, self._fresh = ros, True
+
+    def _decode(self, key: str, payload: bytes, attachment: zenoh.ZBytes | None) -> RosMap:
+        if key != self._expected:
+            raise ProtocolError(
+                f"{self.topic}: sample on {key}, expected type and hash of {self._expected}",
+                "schema",
+            )
+        if self.opts.form == "rmw_zenoh":
+            # rmw_zenoh's own subscribers drop a sample without one ("Unable to obtain
+            # attachment"): a publisher that sends none is not a ROS 2 publisher.
+            if attachment is None:
+                raise ProtocolError(f"{self.topic}: sample without an rmw_zenoh attachment",
+                                    "framing")
+            decode_attachment(attachment.to_bytes())
+        return decode_occupancy_grid(payload)
+
+    def take(self) -> RosMap | None:
+        """The map received since the last call, or None."""
+        with self._lock:
+            fresh, self._fresh = self._fresh, False
+            return self._latest if fresh else None
+
+    def close(self) -> None:
+        """Undeclare (an advanced subscriber left declared hangs the session's close)."""
+        if self._token is not None:
+            self._token.undeclare()
+        self._sub.undeclare()
+
+
+class RosMapPublisher:
+    """Publishes a map as ``nav_msgs/msg/OccupancyGrid`` (latched) and placements on ``/tf``.
+
+    Parameters
+    ----------
+    session : an open Zenoh session with timestamping enabled.
+    topic : e.g. ``/map_merged``.
+    frame : the map's and TF's parent frame, e.g. ``world``.
+    opts : key form, domain, distro and node name.
+    """
+
+    def __init__(self, session: zenoh.Session, topic: str, frame: str, opts: RosOptions,
+                 gid: bytes) -> None:
+        self.frame = frame
+        self.opts = opts
+        self._gid = gid
+        # rmw_zenoh numbers each publisher's messages on its own, from 1.
+        self._map_seq = itertools.count(1)
+        self._tf_seq = itertools.count(1)
+        key = data_key(topic, OCCUPANCY_GRID, domain=opts.domain, distro=opts.distro,
+                       form=opts.form)
+        tf_key = data_key("/tf", TF_MESSAGE, domain=opts.domain, distro=opts.distro,
+                          form=opts.form)
+        # Transient local, depth 1: a late subscriber's history query gets the last map.
+        self._map = zenoh.ext.declare_advanced_publisher(
+            session, key, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
+        )
+        self._tf = session.declare_publisher(tf_key)
+        self._tokens = []
+        if opts.form == "rmw_zenoh":
+            node = opts.ros_node(session)
+            self._tokens = [
+                session.liveliness().declare_token(t)
+                for t in (
+                    node.token(),
+                    node.entity_token("MP", 10, topic, OCCUPANCY_GRID, distro=opts.distro),
+                    node.entity_token("MP", 11, "/tf", TF_MESSAGE, distro=opts.distro,
+                                      qos=QOS_TF),
+                )
+            ]
+
+    def _attachment(self, sequence: itertools.count, stamp_ns: int) -> bytes | None:
+        if self.opts.form != "rmw_zenoh":
+            return None
+        return encode_attachment(Attachment(next(sequence), stamp_ns, self._gid))
+
+    def publish(self, grid: Grid, placements: list[Placement], stamp_ns: int | None = None
+                ) -> int:
+        """Publish ``grid`` and the TF of ``placements``; returns the map's bytes."""
+        stamp_ns = time.time_ns() if stamp_ns is None else stamp_ns
+        cdr = encode_occupancy_grid(grid, self.frame, stamp_ns)
+        self._map.put(cdr, attachment=self._attachment(self._map_seq, stamp_ns))
+        if placements:
+            self._tf.put(
+                encode_tf(placements, stamp_ns), attachment=self._attachment(self._tf_seq, stamp_ns)
+            )
+        return len(cdr)
+
+    def close(self) -> None:
+        for token in self._tokens:
+            token.undeclare()
+        self._tf.undeclare()
+        self._map.undeclare()
+

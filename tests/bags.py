@@ -1,0 +1,73 @@
+"""Write a rosbag2 from a CARMEN log, as a robot's recording would hold it (tests only).
+
+``/scan`` (sensor_msgs/LaserScan, frame ``laser``), ``/tf`` (odom -> base_link at each scan),
+``/tf_static`` (base_link -> laser, 0.12 m ahead of the base). Written with rosbags' Writer
+and messages built from its type store, so the reader under test shares no code with it.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+TS = get_typestore(Stores.ROS2_JAZZY)
+T = TS.types
+LASER_AHEAD = 0.12
+
+
+def _header(t: float, frame: str):
+    sec = int(t)
+    return T["std_msgs/msg/Header"](
+        stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=round((t - sec) * 1e9)),
+        frame_id=frame,
+    )
+
+
+def _tf(t: float, parent: str, child: str, x: float, y: float, yaw: float):
+    return T["geometry_msgs/msg/TransformStamped"](
+        header=_header(t, parent), child_frame_id=child,
+        transform=T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
+            rotation=T["geometry_msgs/msg/Quaternion"](
+                x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)
+            ),
+        ),
+    )
+
+
+def write_scan_bag(path: Path, scans, storage: str = "mcap") -> None:
+    """``scans``: CARMEN scans (180 deg, ``pose`` = the laser's pose in the log's frame)."""
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(path, version=9, storage_plugin=plugin) as writer:
+        conns = {
+            topic: writer.add_connection(topic, msgtype, typestore=TS)
+            for topic, msgtype in [("/scan", "sensor_msgs/msg/LaserScan"),
+                                   ("/tf", "tf2_msgs/msg/TFMessage"),
+                                   ("/tf_static", "tf2_msgs/msg/TFMessage")]
+        }
+
+        def write(topic: str, t: float, msg) -> None:
+            writer.write(conns[topic], int(t * 1e9), TS.serialize_cdr(msg, conns[topic].msgtype))
+
+        t0 = scans[0].timestamp
+        write("/tf_static", t0, T["tf2_msgs/msg/TFMessage"](
+            transforms=[_tf(t0, "base_link", "laser", LASER_AHEAD, 0.0, 0.0)]))
+        for scan in scans:
+            x, y, th = scan.pose
+            base = (x - LASER_AHEAD * math.cos(th), y - LASER_AHEAD * math.sin(th), th)
+            write("/tf", scan.timestamp,
+                  T["tf2_msgs/msg/TFMessage"](transforms=[_tf(scan.timestamp, "odom",
+                                                               "base_link", *base)]))
+            n = scan.ranges.size
+            write("/scan", scan.timestamp, T["sensor_msgs/msg/LaserScan"](
+                header=_header(scan.timestamp, "laser"),
+                angle_min=-scan.fov / 2, angle_max=scan.fov / 2,
+                angle_increment=scan.fov / (n - 1), time_increment=0.0, scan_time=0.0,
+                range_min=0.0, range_max=81.0,
+                ranges=np.asarray(scan.ranges, dtype=np.float32),
+                intensities=np.zeros(0, dtype=np.float32),
+            ))

@@ -1,0 +1,152 @@
+"""agent.ros2_io against a ROS 2 peer written from rmw_zenoh's documentation (tests/ros2_peer.py),
+over real Zenoh sessions on 127.0.0.1: latched maps reach a late subscriber, bad samples are
+counted by reason, and the merged map and TF published by the agent decode with rosbags."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import time
+from collections.abc import Callable, Iterator
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+import ros2_peer
+
+from agent.ros2_io import RosMapPublisher, RosMapSubscription, RosOptions
+from pgvd.io import read_map
+from protocol.ros2.occupancy import Placement
+
+
+def _port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _wait(what: Callable[[], object], timeout: float = 10.0) -> object:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = what()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError("timed out")
+
+
+@pytest.fixture
+def sessions() -> Iterator[tuple]:
+    endpoint = f"tcp/127.0.0.1:{_port()}"
+    robot = ros2_peer.session(listen=endpoint)
+    agent = ros2_peer.session(connect=endpoint)
+    _wait(lambda: list(agent.info.peers_zid()))
+    yield robot, agent
+    agent.close()
+    robot.close()
+
+
+def _cells() -> tuple[np.ndarray, int, int]:
+    """A small real map: a crop of the intel lab, in ROS row order."""
+    grid = read_map("examples/intel_a.yaml")
+    prob = grid.probability()[200:260, 300:380]
+    cells = np.full(prob.shape, -1, dtype=np.int8)
+    cells[prob > 0.65], cells[prob < 0.196] = 100, 0
+    return np.flipud(cells).ravel(), prob.shape[1], prob.shape[0]
+
+
+def test_latched_map_reaches_a_late_subscriber_and_updates_follow(sessions) -> None:
+    robot, agent = sessions
+    cells, w, h = _cells()
+    pub = ros2_peer.LatchedPublisher(robot, "/robot1/map")
+    pub.put(ros2_peer.grid_cdr(cells, w, h, 0.05, (1.0, -2.0)))
+    time.sleep(0.3)  # published before anyone subscribed: only the cache holds it
+    drops: list[tuple[str, str]] = []
+    sub = RosMapSubscription(agent, "/robot1/map", RosOptions(), lambda r, d: drops.append((r, d)))
+    try:
+        first = _wait(sub.take)
+        assert first.grid.shape == (h, w) and first.grid.origin[:2] == (1.0, -2.0)
+        assert np.array_equal(np.flipud(first.grid.logodds).ravel() == 0, cells == -1)
+        cells2 = cells.copy()
+        cells2[:w] = 100
+        pub.put(ros2_peer.grid_cdr(cells2, w, h, 0.05, (1.0, -2.0)))
+        second = _wait(sub.take)
+        assert np.all(second.grid.logodds[-1] > 0)
+        # The subscription's token is what slam_toolbox counts as a subscriber.
+        tokens = [str(r.ok.key_expr) for r in robot.liveliness().get("@ros2_lv/**")]
+        assert any("/MS/" in t and t.split("/")[9] == "%robot1%map" for t in tokens), tokens
+        assert drops == []
+    finally:
+        sub.close()
+        pub.close()
+
+
+@pytest.mark.parametrize(
+    ("kind", "reason"),
+    [("hash", "schema"), ("attachment", "framing"), ("truncated", "framing"),
+     ("size", "value"), ("cells", "value")],
+)
+def test_bad_samples_are_dropped_and_counted(sessions, kind: str, reason: str) -> None:
+    robot, agent = sessions
+    cells, w, h = _cells()
+    drops: list[tuple[str, str]] = []
+    sub = RosMapSubscription(agent, "/robot1/map", RosOptions(), lambda r, d: drops.append((r, d)))
+    pub = ros2_peer.LatchedPublisher(
+        robot, "/robot1/map", type_hash="RIHS01_" + "0" * 64 if kind == "hash" else None
+    )
+    try:
+        time.sleep(0.3)
+        cdr = ros2_peer.grid_cdr(cells, w, h, 0.05, (0.0, 0.0))
+        if kind == "truncated":
+            cdr = cdr[: len(cdr) // 2]
+        elif kind == "size":
+            cdr = ros2_peer.grid_cdr(cells, w + 1, h, 0.05, (0.0, 0.0))
+        elif kind == "cells":
+            bad = cells.copy()
+            bad[0] = 101
+            cdr = ros2_peer.grid_cdr(bad, w, h, 0.05, (0.0, 0.0))
+        pub.put(cdr, with_attachment=kind != "attachment")
+        _wait(lambda: drops)
+        assert [r for r, _ in drops] == [reason], drops
+        assert sub.take() is None
+    finally:
+        sub.close()
+        pub.close()
+
+
+def test_merged_map_and_tf_reach_a_ros_subscriber_late_too(sessions) -> None:
+    robot, agent = sessions
+    grid = read_map("examples/intel_a.yaml")
+    out = RosMapPublisher(agent, "/map_merged", "world", RosOptions(), gid=b"g" * 16)
+    got: list[tuple[str, bytes, bytes | None]] = []
+
+    def on_sample(sample) -> None:
+        att = sample.attachment.to_bytes() if sample.attachment is not None else None
+        got.append((str(sample.key_expr), sample.payload.to_bytes(), att))
+
+    tf_sub = robot.declare_subscriber(ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage"), on_sample)
+    try:
+        time.sleep(0.3)
+        size = out.publish(grid, [Placement("world", "r2/map", 3.0, -1.5, 0.5)], 7 * 10**9)
+        _wait(lambda: got)
+        # A subscriber that arrives after the publication still gets the map, as ROS 2's
+        # transient-local subscribers do: an advanced subscriber's history query.
+        late = ros2_peer.latched_subscriber(robot, ros2_peer.key("/map_merged"), on_sample)
+        _wait(lambda: len(got) >= 2)
+        late.undeclare()
+    finally:
+        tf_sub.undeclare()
+        out.close()
+    by_key = {k: (p, a) for k, p, a in got}
+    payload, att = by_key[ros2_peer.key("/map_merged")]
+    assert len(payload) == size
+    msg = ros2_peer.TS.deserialize_cdr(payload, ros2_peer.GRID)
+    assert (msg.info.width, msg.info.height) == (grid.shape[1], grid.shape[0])
+    assert msg.header.frame_id == "world"
+    seq, stamp, gid_len = struct.unpack_from("<qqB", att)
+    assert (seq, stamp, gid_len, len(att)) == (1, 7 * 10**9, 16, 33)
+    payload, att = by_key[ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage")]
+    tf = ros2_peer.TS.deserialize_cdr(payload, "tf2_msgs/msg/TFMessage")
+    assert tf.transforms[0].child_frame_id == "r2/map" and len(att) == 33
+
