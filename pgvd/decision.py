@@ -34,13 +34,31 @@ from pgvd.matching import Agreement
 
 @dataclass(frozen=True)
 class Scored:
-    """One refined hypothesis: its B->A pixel matrix and its overlay counts on the subsample."""
+    """One refined hypothesis.
+
+    Attributes
+    ----------
+    matrix : numpy.ndarray
+        3x3 B pixel -> A pixel.
+    agreement : Agreement
+        Its overlay counts (:func:`pgvd.matching.map_agreement`) on a subsample.
+    """
 
     matrix: np.ndarray
     agreement: Agreement
 
     def evidence(self, weight: float) -> float:
-        """``agree - weight * disagree``."""
+        """The overlay evidence ``agree - weight * disagree``.
+
+        Parameters
+        ----------
+        weight : float
+            Weight of a wall on clear free space against a wall on a wall.
+
+        Returns
+        -------
+        float
+        """
         return self.agreement.agree - weight * self.agreement.disagree
 
 
@@ -50,9 +68,12 @@ class Decision:
 
     Attributes
     ----------
-    winner : the hypothesis of largest evidence.
-    rival : best evidence of a hypothesis with another pose (``-inf`` when there is none).
-    margin : the statistic of the module docstring (<= 1; 0 or below when the winner
+    winner : Scored
+        The hypothesis of largest evidence.
+    rival : float
+        Best evidence of a hypothesis with another pose (``-inf`` when there is none).
+    margin : float
+        The statistic of the module docstring (<= 1; 0 or below when the winner
         has no positive evidence, or without overlap).
     """
 
@@ -62,8 +83,22 @@ class Decision:
 
 
 def same_pose(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray, deg: float, px: float) -> bool:
-    """True when two B->A matrices differ by at most ``deg`` degrees and move ``centre``
-    (a point of B, ``(x, y)``) by at most ``px`` pixels."""
+    """Whether two B->A matrices are one pose.
+
+    Parameters
+    ----------
+    m1, m2 : numpy.ndarray
+        3x3 B pixel -> A pixel.
+    centre : numpy.ndarray
+        A point of B, ``(x, y)``, where the two are compared.
+    deg, px : float
+        Largest heading difference (degrees) and displacement of ``centre`` (pixels).
+
+    Returns
+    -------
+    bool
+        True when both differences are within bounds.
+    """
     dpsi = np.arctan2(m1[0, 1], m1[0, 0]) - np.arctan2(m2[0, 1], m2[0, 0])
     if abs(np.degrees(np.angle(np.exp(1j * dpsi)))) > deg:
         return False
@@ -78,11 +113,24 @@ def decide(
 
     Parameters
     ----------
-    scored : refined hypotheses with their subsample counts (at least one).
-    weight : the disagreement weight ``w`` of the evidence.
-    centre : a point of B (pixels) at which two poses are compared, e.g. its wall centroid.
-    deg, px : hypotheses within this heading and displacement of the winner are the
+    scored : list of Scored
+        Refined hypotheses with their subsample counts (at least one).
+    weight : float
+        The disagreement weight ``w`` of the evidence.
+    centre : numpy.ndarray
+        A point of B (pixels) at which two poses are compared, e.g. its wall centroid.
+    deg, px : float, optional
+        Hypotheses within this heading and displacement of the winner are the
         winner's own (they converged to it in the refinement), not rivals.
+
+    Returns
+    -------
+    Decision
+
+    Raises
+    ------
+    ValueError
+        If ``scored`` is empty.
     """
     if not scored:
         raise ValueError("decide needs at least one scored hypothesis")

@@ -84,13 +84,19 @@ class MergeParams:
     search_headings : candidates that go through the PGVD stages: those whose whole-map
         overlay (best ``agree - disagreement_weight * disagree`` over all translations)
         is largest.
+    overlay_peaks : the best local maxima of the whole-map overlay, per searched heading,
+        proposed as translations beside the edge pairs' correlation peaks (29).
     rho : matching percentage of the existence test (32).
     edge_tolerance : cells of tolerance when correlating edges (A's edges are grey-dilated).
     min_edge_length : edges shorter than this (m) are dropped (Sec. IV-E).
     max_edges : longest edges kept per map, bounding Gamma's size.
     max_hypotheses : translations proposed per heading (best Gamma first).
     search_radius : each proposal slides (m) to the best whole-map agreement within this.
-    min_pairs : edge pairs that must pass (32) at an accepted translation.
+    min_pairs : edge pairs that must pass (32) at an accepted translation.  One: a small
+        overlap is crossed by few edges, and with two required the true translation of
+        most 15-35 % overlaps never reached the decision (intel low-overlap pairs: 2 of
+        10 found with two, 4 of 10 with one; no false accept more on the development
+        negatives); the margin of :mod:`pgvd.decision` now rejects look-alikes.
     min_margin : the winner's overlay evidence beyond its best rival's, per overlapping wall
         cell (:mod:`pgvd.decision`), at least this.  Set on the development negatives
         (``python -m bench.acceptance``): the largest margin of a false hypothesis there
@@ -130,14 +136,15 @@ class MergeParams:
     max_edges: int = 80
     max_hypotheses: int = 40
     search_radius: float = 2.4
-    min_pairs: int = 2
+    min_pairs: int = 1
     min_margin: float = 0.65
     min_agreement: float = 0.0
     min_overlap: float = 3.0
     rival_distance: float = 1.0
     distortion_block: float = 5.0
     disagreement_weight: float = 4.0
-    search_headings: int = 4
+    search_headings: int = 6
+    overlay_peaks: int = 5
     finalists: int = 8
     refine_points: int = 1500
     occupied: float = OCCUPIED
@@ -173,7 +180,21 @@ class MergeDiagnostics:
 
 @dataclass
 class MergeResult:
-    """Outcome of :func:`merge`; ``matrix`` maps B pixels to A pixels."""
+    """Outcome of :func:`merge`; ``matrix`` maps B pixels to A pixels.
+
+    Attributes
+    ----------
+    margin : float
+        The acceptance statistic of :mod:`pgvd.decision`: the winner's overlay
+        evidence beyond its best rival's, per overlapping wall cell; NaN when no
+        hypothesis reached the full-resolution stage.
+    distortion_px : float
+        Largest local misfit of the overlap after the rigid fit, pixels
+        (:func:`pgvd.matching.residual_distortion`): a drifted map has no single
+        rigid fit.  NaN when no hypothesis reached the full-resolution stage.
+    headings_deg : tuple of float
+        The candidate headings (degrees) that went through the PGVD/Gamma stages.
+    """
 
     accepted: bool
     matrix: np.ndarray
@@ -401,6 +422,10 @@ def _search_heading(
     shifts = sim.shift[ia[order], ib[order]].astype(np.int64)
     _, first = np.unique(shifts, axis=0, return_index=True)
     proposals = [(int(x), int(y)) for x, y in shifts[np.sort(first)[: params.max_hypotheses]]]
+    # The whole-map overlay's own peaks propose too: with a small overlap the
+    # edge pairs that cross it are few and their correlation peaks (29) can all
+    # fall elsewhere; the rho test (32) at the translation still has to pass.
+    proposals += overlay.peaks(params.overlay_peaks, radius, params.disagreement_weight)
     clock.lap("gamma")
     out: list[_Hypothesis] = []
     if not proposals:
@@ -603,8 +628,9 @@ def merge(
     -------
     MergeResult
         ``matrix`` maps B pixels to A pixels.  ``accepted`` is False, with a
-        ``reason``, when no transform passes the rho test (32), the edge-pair
-        agreement and the map agreement checks.
+        ``reason``, when no transform passes the rho test (32) and the edge-pair
+        agreement, or when the best one does not stand out from its rivals on
+        the same pair (:mod:`pgvd.decision`).
 
     Raises
     ------
