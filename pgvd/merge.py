@@ -36,7 +36,8 @@ Stages (``timings_ms`` keys):
     ``margin >= min_margin``.  The residual distortion of the overlap
     (:func:`pgvd.matching.residual_distortion`) is reported beside the pose.
 ``refine``
-    trimmed ICP of the wall cells at full resolution.
+    trimmed ICP of the wall cells at full resolution, then a robust (Cauchy)
+    point-to-line alignment that does not stop short along corridors.
 ``covariance``
     Gauss-Newton (point-to-line) covariance of ``(x, y, psi)`` at the optimum.
 """
@@ -64,6 +65,7 @@ from pgvd.matching import (
     map_agreement,
     pair_support,
     refine,
+    refine_point_to_line,
     residual_distortion,
     rho_test,
     rho_threshold,
@@ -495,7 +497,8 @@ def _decide(
 
     ``to_fine`` maps A's coarse crop to A's pixels.  Finalists are refined on
     a subsample of B's walls and scored on subsamples (quick); the winner is
-    then refined on all wall cells.
+    then refined on all wall cells, point-to-point and then point-to-line with a
+    robust loss (:func:`pgvd.matching.refine_point_to_line`).
     Finalists within ``rival_px`` (and 2 degrees) of the winner are its own,
     the others its rivals.  Returns the winner, the
     :class:`pgvd.decision.Decision` and the winner's B->A pixel matrix.
@@ -511,7 +514,11 @@ def _decide(
     return (
         best,
         decision,
-        refine(fine_a.tree, fine_b.walls, decision.winner.matrix, radii=(3.0, 2.0)),
+        refine_point_to_line(
+            fine_a.tree,
+            fine_b.walls,
+            refine(fine_a.tree, fine_b.walls, decision.winner.matrix, radii=(3.0, 2.0)),
+        ),
     )
 
 
