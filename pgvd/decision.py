@@ -10,10 +10,12 @@ small overlap that is crisp but short.
 The decision here compares the winner with its rivals on the same pair.
 Every finalist hypothesis is refined and scored by the overlay evidence
 ``E = agree - w * disagree`` (walls on walls, walls on clear free space, both
-ways, on one subsample of wall cells).  The *rival* is the best finalist whose
-pose differs from the winner's (a look-alike corridor, the other side of a
-symmetric building, a quarter turn).  The statistic is the winner's evidence
-beyond the rival's, per wall cell of the overlap::
+ways, on one subsample of wall cells).  The *rival* is the best of the
+finalists whose pose differs from the winner's (a look-alike corridor, the
+other side of a symmetric building, a quarter turn) and of the winner shifted
+by a few metres (a corridor that looks alike along its length).  The
+statistic is the winner's evidence beyond the rival's, per wall cell of the
+overlap::
 
     margin = (E_win - max(E_rival, 0)) / (agree_win + disagree_win)
 
@@ -106,8 +108,37 @@ def same_pose(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray, deg: float, px
     return bool(np.hypot(*((m1 - m2) @ c)[:2]) <= px)
 
 
+def shifted(matrix: np.ndarray, steps: tuple[float, ...]) -> list[np.ndarray]:
+    """The pose ``matrix`` (B->A pixels) moved by each step along A's x and y axes, both ways.
+
+    Parameters
+    ----------
+    matrix : numpy.ndarray
+        3x3 B pixel -> A pixel.
+    steps : tuple of float
+        Shifts in pixels.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        ``4 len(steps)`` matrices.
+    """
+    out = []
+    for step in steps:
+        for dx, dy in ((step, 0.0), (-step, 0.0), (0.0, step), (0.0, -step)):
+            m = matrix.copy()
+            m[:2, 2] += (dx, dy)
+            out.append(m)
+    return out
+
+
 def decide(
-    scored: list[Scored], weight: float, centre: np.ndarray, deg: float = 2.0, px: float = 20.0
+    scored: list[Scored],
+    weight: float,
+    centre: np.ndarray,
+    deg: float = 2.0,
+    px: float = 20.0,
+    probes: list[Scored] | None = None,
 ) -> Decision:
     """Pick the best-evidence hypothesis and measure it against its best rival.
 
@@ -122,6 +153,11 @@ def decide(
     deg, px : float, optional
         Hypotheses within this heading and displacement of the winner are the
         winner's own (they converged to it in the refinement), not rivals.
+    probes : list of Scored, optional
+        Poses that are rivals only (never the winner): the winner shifted by a
+        few metres (:func:`shifted`).  Along a corridor that looks alike over
+        its length they score nearly as well as the winner, and the margin
+        drops; where the overlap pins the pose they score far less.
 
     Returns
     -------
@@ -138,7 +174,7 @@ def decide(
     win = ranked[0]
     rivals = [
         s.evidence(weight)
-        for s in ranked[1:]
+        for s in [*ranked[1:], *(probes or [])]
         if not same_pose(s.matrix, win.matrix, centre, deg, px)
     ]
     rival = max(rivals, default=-np.inf)

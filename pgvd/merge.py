@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pgvd.decision import Decision, Scored, decide
+from pgvd.decision import Decision, Scored, decide, shifted
 from pgvd.graph import EdgeGraph, build_graph
 from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
@@ -110,6 +110,8 @@ class MergeParams:
     rival_distance : finalists whose pose moves B's wall centroid by more than this (m), or
         turns it by more than 2 degrees, are rivals of the winner; closer ones are the
         winner itself, reached again from another start.
+    probe_shifts : the winner shifted by these multiples of ``rival_distance`` along A's
+        axes is scored as a rival too (:func:`pgvd.decision.shifted`).
     distortion_block : side (m) of the squares of :func:`pgvd.matching.residual_distortion`.
     disagreement_weight : hypotheses are ranked by ``agree - weight * disagree``: a wall on
         clear free space is strong evidence against, a wall on a wall weak evidence for
@@ -143,6 +145,7 @@ class MergeParams:
     min_agreement: float = 0.0
     min_overlap: float = 3.0
     rival_distance: float = 1.0
+    probe_shifts: tuple[float, ...] = (1.5, 3.0)
     distortion_block: float = 5.0
     disagreement_weight: float = 4.0
     search_headings: int = 6
@@ -509,7 +512,13 @@ def _decide(
         m = to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k))
         m = refine(fine_a.tree, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3)
         scored.append(Scored(m, map_agreement(fine_a, fine_b, m, max_points=params.refine_points)))
-    decision = decide(scored, params.disagreement_weight, fine_b.walls.mean(axis=0), px=rival_px)
+    centre = fine_b.walls.mean(axis=0)
+    decision = decide(scored, params.disagreement_weight, centre, px=rival_px)
+    probes = [
+        Scored(m, map_agreement(fine_a, fine_b, m, max_points=params.refine_points))
+        for m in shifted(decision.winner.matrix, tuple(s * rival_px for s in params.probe_shifts))
+    ]
+    decision = decide(scored, params.disagreement_weight, centre, px=rival_px, probes=probes)
     best = finalists[next(i for i, s in enumerate(scored) if s is decision.winner)]
     return (
         best,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pgvd.decision import Scored, decide, same_pose
+from pgvd.decision import Scored, decide, same_pose, shifted
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.matching import WallMap, map_agreement, residual_distortion
@@ -47,6 +47,20 @@ def test_true_pose_stands_out_and_a_rival_as_good_cancels_it(intel):
     # a look-alike: another pose scoring as well as the winner leaves no margin
     twin = Scored(_moved(truth, 200.0), true.agreement)
     assert decide([true, twin], WEIGHT, centre).margin == pytest.approx(0.0)
+
+
+def test_shifted_probes_are_rivals_only(intel):
+    _, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    true = _scored(intel, truth)
+    probes = [_scored(intel, m) for m in shifted(truth, (30.0, 60.0))]
+    assert len(probes) == 8
+    d = decide([true], WEIGHT, centre, probes=probes)
+    # the intel lab pins the pose: 1.5 and 3 m away it scores far less
+    assert d.winner is true and d.margin >= MergeParams().min_margin, d
+    # a probe as good as the winner (a corridor alike along its length) leaves no margin
+    alike = Scored(shifted(truth, (30.0,))[0], true.agreement)
+    assert decide([true], WEIGHT, centre, probes=[alike]).margin == pytest.approx(0.0)
 
 
 def test_decide_needs_a_hypothesis():
