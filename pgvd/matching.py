@@ -549,6 +549,36 @@ def refine(
     return m
 
 
+@dataclass(frozen=True)
+class _LineFit:
+    """Point-to-line residuals of B's walls near A's at one pose (see :func:`_point_to_line`)."""
+
+    moved: np.ndarray  # (M, 2) B's wall cells within the radius, moved into A
+    res: np.ndarray  # (M,) n_i . (R x_i + t - y_i)
+    jac: np.ndarray  # (M, 3) d res / d (tx, ty, psi)
+
+
+def _point_to_line(
+    walls_a: cKDTree, pts: np.ndarray, matrix: np.ndarray, radius: float
+) -> _LineFit:
+    """Residuals along A's wall normals, and their Jacobian, of B's cells within ``radius``.
+
+    ``r_i = n_i . (R x_i + t - y_i)`` with ``y_i`` the nearest wall cell of A and
+    ``n_i`` A's wall normal there; ``J_i = [n_x, n_y, n_i . dR/dpsi x_i]``
+    (eqs. (1)-(2)).
+    """
+    moved = _apply(matrix, pts)
+    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    x, y = pts[ok], walls_a.data[idx[ok]]
+    n = _normals(walls_a, y) if ok.any() else np.zeros((0, 2))
+    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
+    c, s = np.cos(psi), np.sin(psi)
+    dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
+    jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
+    return _LineFit(moved[ok], np.sum(n * (moved[ok] - y), axis=1), jac)
+
+
 def refine_point_to_line(
     walls_a: cKDTree,
     walls_b: np.ndarray,
@@ -594,18 +624,11 @@ def refine_point_to_line(
     pts = walls_b[:: -(-len(walls_b) // max_points)]
     m = matrix.copy()
     for _ in range(iterations):
-        moved = _apply(m, pts)
-        dist, idx = walls_a.query(moved, distance_upper_bound=radius)
-        ok = np.isfinite(dist)
-        if ok.sum() < 10:
+        fit = _point_to_line(walls_a, pts, m, radius)
+        if len(fit.res) < 10:
             break
-        x, y = pts[ok], walls_a.data[idx[ok]]
-        n = _normals(walls_a, y)
+        jac, res = fit.jac, fit.res
         psi = np.arctan2(m[0, 1], m[0, 0])
-        c, s = np.cos(psi), np.sin(psi)
-        dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
-        jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
-        res = np.sum(n * (moved[ok] - y), axis=1)
         w = 1.0 / (1.0 + (res / scale) ** 2)
         # a tiny ridge keeps a corridor's free direction from blowing the step up
         step = np.linalg.solve((jac * w[:, None]).T @ jac + 1e-6 * np.eye(3), -(jac.T @ (w * res)))
@@ -657,15 +680,11 @@ def residual_distortion(
         odometry drift (median 4.0), so it flags drift, it does not measure
         it exactly.
     """
-    moved = _apply(matrix, walls_b)
-    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
-    ok = np.isfinite(dist)
-    if ok.sum() < min_points:
+    fit = _point_to_line(walls_a, walls_b, matrix, radius)
+    if len(fit.res) < min_points:
         return 0.0
-    x, y = moved[ok], walls_a.data[idx[ok]]
-    n = _normals(walls_a, y)
-    r = np.sum(n * (y - x), axis=1)
-    keys = np.floor(x / block).astype(np.int64)
+    n, r = fit.jac[:, :2], -fit.res
+    keys = np.floor(fit.moved / block).astype(np.int64)
     _, group = np.unique(keys, axis=0, return_inverse=True)
     worst = 0.0
     for g in range(int(group.max()) + 1):
