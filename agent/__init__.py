@@ -2,8 +2,10 @@
 
 Modules, by what they hold:
 
-- :mod:`agent.daemon` -- one robot's agent: Zenoh session, declarations, publish/receive,
-  membership, queryables, persistence, status (``pgvd agent``, :mod:`agent.cli.agent`);
+- :mod:`agent.node` -- one robot's agent as a state machine with no I/O (the fleet core):
+  admission, fetching, own-map publication, links, status; it returns :mod:`agent.actions`;
+- :mod:`agent.daemon` -- the core's Zenoh host: session, declarations, threads, state files
+  (``pgvd agent``, :mod:`agent.cli.agent`);
 - :mod:`agent.worker` -- pairwise registration and global-map rebuilds off the Zenoh threads;
 - :mod:`agent.globalmap` -- the global maps as a pure function of local maps and links;
 - :mod:`agent.links` -- link cache, pairs still to register, whose turn it is;
@@ -11,7 +13,8 @@ Modules, by what they hold:
 - :mod:`agent.wire` -- the thin adapter over :mod:`protocol`;
 - :mod:`agent.sources` -- ``carmen:`` log replay and ``map:`` file following;
 - :mod:`agent.state` -- atomic persistence in ``--state-dir``;
-- :mod:`agent.keys`, :mod:`agent.zenoh_config`, :mod:`agent.counters`;
+- :mod:`agent.fetching`, :mod:`agent.status` -- the core's fetch timers and status pieces;
+- :mod:`agent.keys`, :mod:`agent.zenoh_config`, :mod:`agent.counters`, :mod:`agent.inbox`;
 - :mod:`agent.launcher`, :mod:`agent.evaluate`, :mod:`agent.scenario` -- local fleets, their
   ground truth and the log they replay, for ``pgvd demo``, the fleet tests and the benches;
 - :mod:`agent.cli` -- the ``pgvd`` command line, one module per sub-command.

@@ -1,7 +1,8 @@
 """What one agent knows about its fleet: the latest local map of each robot and the links.
 
 Shared between the thread that receives messages and the fusion worker, behind one lock;
-readers take cheap snapshots (grids are immutable once stored).
+readers take cheap snapshots (grids are immutable once stored). Whoever moves it forward wakes
+the worker (:meth:`agent.worker.FusionWorker.wake`, on the core's ``Register`` action).
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ class Snapshot:
 
 
 class FleetBook:
-    """Latest maps and link cache; :attr:`changed` is set whenever either moves forward."""
+    """Latest maps and link cache."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -60,13 +61,11 @@ class FleetBook:
         self._links = LinkCache()
         self._first_needed: dict[LinkKey, float] = {}
         self._alive: frozenset[str] | None = None
-        self.changed = threading.Event()
 
     def set_alive(self, robots: set[str]) -> None:
         """The robots whose agents are up (liveliness), this one included."""
         with self._lock:
             self._alive = frozenset(robots)
-        self.changed.set()
 
     def version(self, robot: str) -> int | None:
         with self._lock:
@@ -89,7 +88,6 @@ class FleetBook:
                 return False
             self._maps[robot] = (version, grid)
             self._links.prune({r: v for r, (v, _) in self._maps.items()})
-        self.changed.set()
         return True
 
     def add_link(self, rec: LinkRecord) -> bool:
@@ -98,10 +96,7 @@ class FleetBook:
             held = {r: epoch_of(v) for r, (v, _) in self._maps.items()}
             if rec.key[1] < held.get(rec.a, -1) or rec.key[3] < held.get(rec.b, -1):
                 return False  # superseded already: useless, and must not be re-chosen
-            new = self._links.add(rec)
-        if new:
-            self.changed.set()
-        return new
+            return self._links.add(rec)
 
     def link_candidates(self) -> list[LinkRecord]:
         """Every link held (all candidates), for persistence and peers' queries."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pgvd.grid import Grid
+from pgvd.grid import Grid, heading
 
 
 def true_matrix(world_to_pixel_a: np.ndarray, world_to_pixel_b: np.ndarray) -> np.ndarray:
@@ -26,7 +26,7 @@ def link_error(
     four corners of B's canvas, so a small rotation error far from the centre counts too.
     """
     m, t = np.asarray(matrix, float), np.asarray(truth, float)
-    rot = np.degrees(np.arctan2(m[0, 1], m[0, 0]) - np.arctan2(t[0, 1], t[0, 0]))
+    rot = np.degrees(heading(m) - heading(t))
     rot = (rot + 180.0) % 360.0 - 180.0
     h, w = shape_b
     corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float).T

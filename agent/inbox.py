@@ -1,15 +1,17 @@
 """The receive queue between Zenoh's callback threads and the agent's main thread.
 
 Bounded by count AND by bytes: with only a count bound, a stalled main thread could hold
-20 000 messages of 64 KB (1.3 GB). :meth:`Inbox.offer` never blocks, because a blocked
-callback stalls its subscriber (zenoh-notes.md); what does not fit is refused and the
-caller counts it as an ``overload`` drop.
+20 000 messages of 64 KB (1.3 GB). :meth:`Inbox.offer` never blocks, because Zenoh runs a
+subscriber's callbacks one at a time: a blocked callback stalls every later sample. What does not
+fit is refused and counted as an ``overload`` drop (:func:`offer_or_drop`).
 """
 
 from __future__ import annotations
 
 import threading
 from collections import deque
+
+from agent.counters import Counters
 
 #: Messages held at most (a flood of tiny messages is bounded by this).
 MAX_ITEMS = 20_000
@@ -70,3 +72,12 @@ class Inbox:
     def queued_bytes(self) -> int:
         with self._ready:
             return self._bytes
+
+
+def offer_or_drop(inbox: Inbox, item: Item, counters: Counters) -> bool:
+    """Queue ``item`` for the main thread, or count an ``overload`` drop; never blocks."""
+    if inbox.offer(item):
+        return True
+    detail = f"receive queue full ({len(inbox)} messages, {inbox.queued_bytes} B)"
+    counters.drop("overload", item[1], detail)
+    return False

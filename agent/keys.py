@@ -10,25 +10,33 @@
 ``pgvd/<fleet>/status/<robot>``        queryable: JSON status of one agent
 =====================================  ==========================================
 
-Robot ids and fleet names are single key chunks: no ``/``, no wildcard characters.
+Robot ids and fleet names are single key chunks: no ``/``, no wildcard characters. The rule is
+the wire format's (:func:`protocol.messages.check_id`), since every message names them too.
 """
 
 from __future__ import annotations
 
-import re
+from protocol.errors import ProtocolError
+from protocol.messages import check_id
 
 PREFIX = "pgvd"
-#: Same rule as ``protocol.messages.check_id``: ids travel inside key expressions.
-_CHUNK = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 
 
 def check_name(value: str, what: str) -> str:
-    """Return ``value`` if it can be one key chunk, else raise ``ValueError`` (one line)."""
-    if not _CHUNK.match(value):
-        raise ValueError(
-            f"{what} must be 1-64 of [A-Za-z0-9_-], starting alphanumeric, got {value!r}"
-        )
-    return value
+    """Return ``value`` if it can be one key chunk, else raise ``ValueError`` (one line).
+
+    The error is a :class:`~protocol.errors.ProtocolError`, itself a ``ValueError``.
+    """
+    return check_id(value, what)
+
+
+def is_name(value: str) -> bool:
+    """Whether ``value`` can be one key chunk (:func:`check_name` would return it)."""
+    try:
+        check_id(value, "name")
+    except ProtocolError:
+        return False
+    return True
 
 
 class FleetKeys:
@@ -67,10 +75,13 @@ class FleetKeys:
     def status(self, robot: str = "*") -> str:
         return f"{self.root}/status/{robot}"
 
-    def robot_of(self, key: str, kind: str) -> str | None:
-        """The robot chunk of ``<root>/<kind>/<robot>...``, or None if ``key`` is not one."""
-        head = f"{self.root}/{kind}/"
-        if not key.startswith(head):
+    def robot_of(self, key: str, kind: str | None = None) -> str | None:
+        """The robot chunk of ``<root>/<kind>/<robot>...``, or None if ``key`` is not one.
+
+        With no ``kind``, of any kind: the publisher of tiles and manifests, the answering agent
+        of ``latest`` and ``links`` replies, robot ``a`` of a link.
+        """
+        parts = key.split("/", 4)
+        if len(parts) < 4 or "/".join(parts[:2]) != self.root or not is_name(parts[3]):
             return None
-        robot = key[len(head) :].split("/", 1)[0]
-        return robot if _CHUNK.match(robot) else None
+        return parts[3] if kind is None or parts[2] == kind else None

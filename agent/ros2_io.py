@@ -30,6 +30,7 @@ from protocol.errors import ProtocolError
 from protocol.ros2.attachment import Attachment, decode_attachment, encode_attachment
 from protocol.ros2.keys import RosNode, data_key
 from protocol.ros2.occupancy import (
+    GridRefused,
     Placement,
     RosMap,
     decode_occupancy_grid,
@@ -41,7 +42,8 @@ from protocol.ros2.types import OCCUPANCY_GRID, TF_MESSAGE
 #: rmw_zenoh's QoS field for /tf: reliable, volatile, keep-last 100 (tf2's publisher profile).
 QOS_TF = "::,100:,:,:,,"
 
-#: ``on_drop(reason, detail)``: a sample was refused; reason is a ProtocolError reason.
+#: ``on_drop(reason, detail)``: a sample was refused; reason is what was wrong with it:
+#: ``type_hash``, ``attachment`` or one of :data:`protocol.ros2.occupancy.REFUSALS`.
 DropFn = Callable[[str, str], None]
 
 
@@ -109,25 +111,28 @@ class RosMapSubscription:
         try:
             ros = self._decode(str(sample.key_expr), sample.payload.to_bytes(),
                                sample.attachment)
-        except ProtocolError as exc:
-            self._on_drop(exc.reason, str(exc))
+        except GridRefused as exc:
+            self._on_drop(exc.what, str(exc))
             return
         with self._lock:
             self._latest, self._fresh = ros, True
 
     def _decode(self, key: str, payload: bytes, attachment: zenoh.ZBytes | None) -> RosMap:
         if key != self._expected:
-            raise ProtocolError(
+            raise GridRefused(
                 f"{self.topic}: sample on {key}, expected type and hash of {self._expected}",
-                "schema",
+                "schema", "type_hash",
             )
         if self.opts.form == "rmw_zenoh":
             # rmw_zenoh's own subscribers drop a sample without one ("Unable to obtain
             # attachment"): a publisher that sends none is not a ROS 2 publisher.
             if attachment is None:
-                raise ProtocolError(f"{self.topic}: sample without an rmw_zenoh attachment",
-                                    "framing")
-            decode_attachment(attachment.to_bytes())
+                raise GridRefused(f"{self.topic}: sample without an rmw_zenoh attachment",
+                                  "framing", "attachment")
+            try:
+                decode_attachment(attachment.to_bytes())
+            except ProtocolError as exc:
+                raise GridRefused(f"{self.topic}: {exc}", exc.reason, "attachment") from None
         return decode_occupancy_grid(payload)
 
     def take(self) -> RosMap | None:
@@ -193,12 +198,26 @@ class RosMapPublisher:
                 ) -> int:
         """Publish ``grid`` and the TF of ``placements``; returns the map's bytes."""
         stamp_ns = time.time_ns() if stamp_ns is None else stamp_ns
+        size = self.publish_map(grid, stamp_ns)
+        self.publish_tf(placements, stamp_ns)
+        return size
+
+    def publish_map(self, grid: Grid, stamp_ns: int) -> int:
+        """Publish ``grid`` on the latched map topic; returns its CDR bytes."""
         cdr = encode_occupancy_grid(grid, self.frame, stamp_ns)
         self._map.put(cdr, attachment=self._attachment(self._map_seq, stamp_ns))
-        if placements:
-            self._tf.put(
-                encode_tf(placements, stamp_ns), attachment=self._attachment(self._tf_seq, stamp_ns)
-            )
+        return len(cdr)
+
+    def publish_tf(self, placements: list[Placement], stamp_ns: int) -> int:
+        """Publish ``placements`` on ``/tf`` (nothing if empty); returns the bytes sent.
+
+        ``/tf`` is volatile: tf2 listeners forget a transform that is not sent again, so
+        the caller repeats it at its rate even when nothing moved.
+        """
+        if not placements:
+            return 0
+        cdr = encode_tf(placements, stamp_ns)
+        self._tf.put(cdr, attachment=self._attachment(self._tf_seq, stamp_ns))
         return len(cdr)
 
     def close(self) -> None:

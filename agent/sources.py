@@ -1,4 +1,4 @@
-"""Where a robot's own map comes from: a replayed CARMEN log or a map_server file.
+"""Where a robot's own map comes from: a replayed laser log, a map_server file or a ROS 2 topic.
 
 ``carmen:LOG[@FROM-TO]``
     Replays the fraction ``FROM``-``TO`` of a laser log, ``speed`` times faster than it
@@ -6,10 +6,17 @@
     in a frame of the robot's own: a rigid transform of the log's world frame, drawn
     deterministically from the robot id unless given.  The frame is reported so that a
     demo or a test can compute the true relative transforms.
+``rosbag:BAG[:TOPIC]``
+    The same replay of a rosbag2's ``sensor_msgs/msg/LaserScan`` topic, each scan placed by
+    the bag's TF or odometry (:func:`pgvd.rosbag.read_rosbag_scans`).
 ``map:FILE.yaml``
     Follows a map_server file that an external SLAM rewrites: a new map is read only when
     the YAML and image have been unchanged for one poll (a writer may be half-way), and a
-    file that fails to parse is retried on the next poll.
+    file that fails to read is counted (``read_errors`` in the status) and retried on the
+    next poll.
+``ros2:/TOPIC``
+    Follows a ``nav_msgs/msg/OccupancyGrid`` topic: the host subscribes
+    (:class:`agent.ros2_io.RosMapSubscription`) and hands the source its ``take``.
 
 A source bumps its *version* only through :class:`ChangeGate`, when the map changed
 enough, so every version is worth registering again (:mod:`agent.links`).
@@ -19,40 +26,76 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from pgvd.io import MapFormatError, map_image_path, read_map
+
+if TYPE_CHECKING:
+    from pgvd.carmen import LaserScan
+    from protocol.ros2.occupancy import RosMap
 
 _CARMEN = re.compile(r"^carmen:(?P<path>.+?)(?:@(?P<lo>[0-9.]+)-(?P<hi>[0-9.]+))?$")
 
 
+#: What ``--source`` accepts, for one-line errors.
+FORMS = "carmen:LOG[@FROM-TO], rosbag:BAG[:TOPIC], map:FILE.yaml or ros2:/TOPIC"
+
+
 @dataclass(frozen=True)
 class SourceSpec:
-    """A parsed ``--source``: ``kind`` is "carmen" or "map"."""
+    """A parsed ``--source``: ``kind`` is "carmen", "rosbag", "map" or "ros2".
+
+    ``path`` is the log, bag or map file (None for ``ros2``); ``topic`` the bag's LaserScan
+    topic (None: its only one) or the ROS 2 map topic.
+    """
 
     kind: str
-    path: Path
+    path: Path | None
     segment: tuple[float, float] = (0.0, 1.0)
+    topic: str | None = None
 
 
 def parse_source(spec: str) -> SourceSpec:
-    """Parse ``carmen:LOG[@FROM-TO]`` or ``map:FILE.yaml``; ``ValueError`` (one line) if bad."""
+    """Parse a ``--source`` (:data:`FORMS`); ``ValueError`` (one line) if bad."""
     if spec.startswith("map:"):
         path = Path(spec[4:])
         if not spec[4:]:
             raise ValueError("map source needs a file: map:FILE.yaml")
         return SourceSpec("map", path)
+    if spec.startswith("ros2:"):
+        from protocol.ros2.keys import check_topic
+
+        return SourceSpec("ros2", None, topic=check_topic(spec[5:]))
+    if spec.startswith("rosbag:"):
+        return _parse_rosbag(spec[7:])
     m = _CARMEN.match(spec)
     if m is None:
-        raise ValueError(f"source must be carmen:LOG[@FROM-TO] or map:FILE.yaml, got {spec!r}")
+        raise ValueError(f"source must be {FORMS}, got {spec!r}")
     lo = float(m["lo"]) if m["lo"] is not None else 0.0
     hi = float(m["hi"]) if m["hi"] is not None else 1.0
     if not 0.0 <= lo < hi <= 1.0:
         raise ValueError(f"segment must satisfy 0 <= FROM < TO <= 1, got {lo}-{hi}")
     return SourceSpec("carmen", Path(m["path"]), (lo, hi))
+
+
+def _parse_rosbag(rest: str) -> SourceSpec:
+    """``BAG[:TOPIC]``: a topic is absolute, so ``:/`` splits it from the bag's path."""
+    bag, sep, topic = rest.rpartition(":")
+    if not sep or not topic.startswith("/"):
+        bag, topic = rest, ""
+    if not bag:
+        raise ValueError("rosbag source needs a bag: rosbag:BAG[:TOPIC]")
+    if topic:
+        from protocol.ros2.keys import check_topic
+
+        check_topic(topic)
+    return SourceSpec("rosbag", Path(bag), topic=topic or None)
 
 
 def frame_for_robot(robot: str, span_m: float = 20.0) -> tuple[float, float, float]:
@@ -136,19 +179,38 @@ def _classes(logodds: np.ndarray) -> np.ndarray:
     return np.sign(logodds).astype(np.int8)
 
 
+def load_scans(spec: SourceSpec) -> list[LaserScan]:
+    """The scans of a ``carmen:`` log or a ``rosbag:`` bag, in the CARMEN form.
+
+    Raises
+    ------
+    ValueError
+        A log or bag that cannot be read (:class:`pgvd.rosbag.BagFormatError` for bags).
+    """
+    assert spec.path is not None
+    if spec.kind == "rosbag":
+        from pgvd.rosbag import read_rosbag_scans
+
+        return read_rosbag_scans(spec.path, spec.topic)
+    from pgvd.carmen import read_carmen
+
+    return read_carmen(spec.path)
+
+
 class CarmenSource:
-    """Replays a CARMEN log segment into a growing local map, in the robot's own frame.
+    """Replays laser scans into a growing local map, in the robot's own frame.
+
+    The scans come from a CARMEN log segment or a rosbag2 (:func:`load_scans`); either way
+    they are cast the same, at the pace they were recorded.
 
     Parameters
     ----------
-    spec : a ``carmen:`` :class:`SourceSpec`.
+    spec : a ``carmen:`` or ``rosbag:`` :class:`SourceSpec`.
     frame : ``(x, y, theta)`` rigid transform from the log's world frame to the robot's.
     resolution : metres per cell.
     speed : replay speed, times real time (log timestamps); ``inf`` integrates at once.
     resume : ``(logodds, cursor)`` persisted by an earlier run, to continue where it stopped.
     """
-
-    kind = "carmen"
 
     def __init__(
         self,
@@ -159,10 +221,9 @@ class CarmenSource:
         resume: tuple[np.ndarray, int] | None = None,
     ) -> None:
         from pgvd.integrate import frame_for, se2, select_segment
-        from pgvd.io import read_carmen
 
-        scans = read_carmen(spec.path)
-        self.scans = select_segment(scans, spec.segment)
+        self.kind = spec.kind
+        self.scans = select_segment(load_scans(spec), spec.segment)
         if not self.scans:
             raise ValueError(f"{spec.path}: segment {spec.segment} holds no scans")
         self.spec = spec
@@ -245,8 +306,6 @@ class MapFileSource:
     done = False
 
     def step(self, now: float) -> bool:
-        from pgvd.io import MapFormatError, read_map
-
         if now < self._next:
             return False
         self._next = now + self.poll
@@ -269,21 +328,22 @@ class MapFileSource:
         return True
 
     def _stat(self) -> tuple[object, ...] | None:
-        from pgvd.io import parse_map_yaml
+        """Size and mtime of the YAML and its image; None while there is no YAML yet.
 
+        An image that cannot be found (bad YAML, missing file) is stamped None
+        rather than skipped, so once the files hold still :func:`read_map` runs
+        and its error is counted: a map that never loads never goes unnoticed.
+        """
         try:
             yaml_stat = self.spec.path.stat()
-            meta = parse_map_yaml(self.spec.path.read_text(), self.spec.path)
-            image = self.spec.path.parent / str(meta.get("image", ""))
-            image_stat = image.stat()
-        except (OSError, ValueError):
+        except OSError:
             return None
-        return (
-            yaml_stat.st_size,
-            yaml_stat.st_mtime_ns,
-            image_stat.st_size,
-            image_stat.st_mtime_ns,
-        )
+        try:
+            image_stat = map_image_path(self.spec.path).stat()
+            image: tuple[int, int] | None = (image_stat.st_size, image_stat.st_mtime_ns)
+        except (MapFormatError, OSError):
+            image = None
+        return (yaml_stat.st_size, yaml_stat.st_mtime_ns, image)
 
     def grid(self) -> Grid:
         if self._grid is None:
@@ -312,7 +372,58 @@ def _same_grid(a: Grid, b: Grid) -> bool:
     )
 
 
-Source = CarmenSource | MapFileSource
+class RosTopicSource:
+    """Follows a ROS 2 ``nav_msgs/msg/OccupancyGrid`` topic (slam_toolbox's ``/map``).
+
+    The host declares the subscription once its Zenoh session is open and hands over its
+    ``take`` (:meth:`attach`); each map taken that differs from the last is a new map for
+    the change gate, which alone decides versions, as for map files. Refused samples are
+    counted by the host, not here.
+    """
+
+    kind = "ros2"
+    done = False
+
+    def __init__(self, spec: SourceSpec) -> None:
+        self.spec = spec
+        self.received = 0
+        self._take: Callable[[], RosMap | None] | None = None
+        self._map: RosMap | None = None
+
+    def attach(self, take: Callable[[], RosMap | None]) -> None:
+        """Read maps from ``take`` (None when nothing new came)."""
+        self._take = take
+
+    def step(self, now: float) -> bool:
+        ros = None if self._take is None else self._take()
+        if ros is None:
+            return False
+        self.received += 1
+        if self._map is not None and _same_grid(ros.grid, self._map.grid):
+            return False  # a latched map sent again (a reconnect, another cache)
+        self._map = ros
+        return True
+
+    def grid(self) -> Grid:
+        if self._map is None:
+            raise RuntimeError("no map received yet")
+        return self._map.grid
+
+    def resume_state(self) -> dict[str, object]:
+        return {}
+
+    def describe(self) -> dict[str, object]:
+        return {
+            "kind": self.kind,
+            "topic": self.spec.topic,
+            "done": False,
+            "received": self.received,
+            "frame_id": None if self._map is None else self._map.frame_id,
+            "stamp_ns": None if self._map is None else self._map.stamp_ns,
+        }
+
+
+Source = CarmenSource | MapFileSource | RosTopicSource
 
 
 def make_source(
@@ -330,6 +441,9 @@ def make_source(
     ValueError
         A missing or unreadable log/map (one line).
     """
+    if spec.kind == "ros2":
+        return RosTopicSource(spec)
+    assert spec.path is not None
     if not spec.path.exists():
         raise ValueError(f"source file not found: {spec.path}")
     if spec.kind == "map":

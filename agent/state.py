@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -26,6 +25,7 @@ from agent.failpoints import failpoint
 from agent.keys import check_name
 from agent.links import LinkRecord, dumps, loads
 from pgvd.grid import Grid
+from pgvd.io import atomic_write
 
 
 @dataclass(frozen=True)
@@ -38,37 +38,22 @@ class StoredMap:
 
 
 def atomic_write_bytes(path: Path, data: bytes, point: str | None = None) -> None:
-    """Write ``data`` to ``path`` so that a crash leaves the old or the new file whole.
+    """Write ``data`` to ``path`` with :func:`pgvd.io.atomic_write`: old or new file, whole.
 
-    The temporary copy is ``.<name>.<random>`` next to ``path``. ``point`` names the failpoint
-    (:mod:`agent.failpoints`) reached with half of the bytes written and flushed, so a test can
-    kill the process while a real half-written copy sits on disk.
+    ``point`` names the failpoint (:mod:`agent.failpoints`) reached with half of the bytes
+    written and flushed, so a test can kill the process while a real half-written copy
+    (``.<name>.<random>.tmp``) sits on disk.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            half = len(data) // 2
-            fh.write(data[:half])
-            fh.flush()
-            if point is not None:
-                failpoint(point)
-            fh.write(data[half:])
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)  # the rename itself must survive a crash too
-    finally:
-        os.close(dir_fd)
 
+    def write(fh: BinaryIO) -> None:
+        half = len(data) // 2
+        fh.write(data[:half])
+        fh.flush()
+        if point is not None:
+            failpoint(point)
+        fh.write(data[half:])
 
-def atomic_write_json(path: Path, obj: object) -> None:
-    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True).encode())
+    atomic_write(path, write)
 
 
 class StateDir:
@@ -120,8 +105,9 @@ class StateDir:
         except (OSError, ValueError) as exc:
             return [], [f"links.json: {exc}"]
 
-    def save_status(self, status: dict[str, object]) -> None:
-        atomic_write_json(self.root / "status.json", status)
+    def save_status(self, payload: bytes) -> None:
+        """Write the status JSON ``payload`` (the bytes a status query is answered with)."""
+        atomic_write_bytes(self.root / "status.json", payload)
 
 
 def remove_temporaries(*patterns: Path) -> list[str]:

@@ -1,6 +1,6 @@
 """An agent's status reply as ``pgvd status`` trusts it: a fleet MAC, then a checked shape.
 
-The reply is the status JSON (:meth:`agent.daemon.Agent.status`); in a keyed fleet its
+The reply is the status JSON (:meth:`agent.node.FleetNode.status`); in a keyed fleet its
 HMAC-SHA256 under the fleet key (:func:`protocol.auth.seal`, as on every map message) rides as
 the reply's Zenoh attachment, so that a tool without the key can still read the JSON while one
 with the key refuses forgeries. Whoever answers under ``pgvd/<fleet>/status/*`` is a stranger
@@ -68,7 +68,9 @@ _TOP = {
     "robots": lambda v: isinstance(v, dict),
     "links": lambda v: isinstance(v, list),
     "drops": lambda v: isinstance(v, dict),
+    "source": lambda v: isinstance(v, dict),
 }
+_SOURCE = {"read_errors": _is_int, "last_error": _maybe(_is_str)}
 _GLOBAL = {
     "digest": _is_str,
     "anchor": _is_str,
@@ -97,6 +99,7 @@ def check_status(obj: object) -> dict:
         raise ValueError("status is not a JSON object")
     _require(obj, "", _TOP)
     _require(obj.get("global") or {}, "global.", _GLOBAL)
+    _require(obj.get("source", {}), "source.", _SOURCE)
     for robot, entry in obj.get("robots", {}).items():
         if not isinstance(entry, dict):
             raise ValueError(f"robots.{robot[:64]} is not an object")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -47,7 +48,7 @@ def on_the_wire(grid: Grid) -> Grid:
 
 #: Tile messages published best-effort are packed to this many bytes, so that each rides one
 #: UDP datagram of a 1500-byte MTU (with Zenoh's framing, see ``zenoh_config.TILE_BATCH_BYTES``):
-#: a lost IP fragment would lose the whole message (zenoh-notes.md).
+#: a message above a few KB rides IP fragmentation, and one lost fragment loses all of it.
 DATAGRAM_BYTES = 1200
 #: Smaller tiles for datagrams: most 64x64 tiles of a real map compress under DATAGRAM_BYTES.
 DATAGRAM_TILE_SIZE = 64
@@ -78,6 +79,18 @@ class TileBudget:
             return True
 
 
+@dataclass(frozen=True)
+class Prepared:
+    """One own version encoded: ``published`` goes out on the tiles and manifest keys, ``whole``
+    (every tile, default message size) answers the ``latest`` queryable. Each is
+    ``(tile messages, manifest)``."""
+
+    version: int
+    grid: Grid
+    published: tuple[list[bytes], bytes]
+    whole: tuple[list[bytes], bytes]
+
+
 class Outbound:
     """Encodes the own map's versions: deltas to publish, and the full latest for queries.
 
@@ -93,15 +106,28 @@ class Outbound:
         self._latest: tuple[int, list[bytes], bytes, Grid] | None = None
         self.fetch_budget = TileBudget(FETCH_TILES_PER_SECOND)
 
+    def encode(self, version: int, grid: Grid, previous: tuple[int, Grid] | None) -> Prepared:
+        """``version`` encoded, to publish (a delta against ``previous`` if given) and to serve.
+
+        Nothing changes until :meth:`install`: a version that is not yet persisted must not be
+        served to a fetch.
+        """
+        full = self._encode(version, grid, None, packed=False)
+        if previous is None and not self.datagrams:
+            return Prepared(version, grid, full, full)
+        return Prepared(version, grid, self._encode(version, grid, previous, self.datagrams), full)
+
+    def install(self, prepared: Prepared) -> None:
+        """Serve ``prepared`` as the latest version from now on."""
+        self._latest = (prepared.version, *prepared.whole, prepared.grid)
+
     def prepare(
         self, version: int, grid: Grid, previous: tuple[int, Grid] | None
     ) -> tuple[list[bytes], bytes]:
-        """Tile messages (a delta against ``previous`` if given) and the manifest of ``version``."""
-        full = self._encode(version, grid, None, packed=False)
-        self._latest = (version, full[0], full[1], grid)
-        if previous is None and not self.datagrams:
-            return full
-        return self._encode(version, grid, previous, packed=self.datagrams)
+        """:meth:`encode` and :meth:`install` ``version``; its tile messages and manifest."""
+        prepared = self.encode(version, grid, previous)
+        self.install(prepared)
+        return prepared.published
 
     def _encode(
         self,

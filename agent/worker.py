@@ -1,8 +1,9 @@
 """The fusion worker: pairwise registration and global-map rebuilds on a thread of their own.
 
-Zenoh callbacks only enqueue (zenoh-notes: a slow callback stalls its subscriber), and the
-receiving thread only reassembles and stores maps; everything that takes CPU time, the
-merge (Sec. IV) and the fusion (33)-(37), runs here, one job at a time:
+Zenoh callbacks only enqueue (Zenoh runs a subscriber's callbacks one at a time, so a slow one
+delays every later sample), and the receiving thread only reassembles and stores maps;
+everything that takes CPU time, the merge (Sec. IV) and the fusion (33)-(37), runs here, one
+job at a time:
 
 1. if some pair lacks a link of its latest versions and it is this agent's turn
    (:func:`agent.links.due_keys`), register it, cache and publish the link, loop;
@@ -112,6 +113,7 @@ class FusionWorker:
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._built: tuple[object, ...] | None = None
         self._rebuilt_at = -np.inf
         #: Seconds between rebuilds of a global map still waiting for links.
@@ -121,15 +123,19 @@ class FusionWorker:
     def start(self) -> None:
         self._thread.start()
 
+    def wake(self) -> None:
+        """The book moved forward: look for work now rather than at the next poll."""
+        self._wake.set()
+
     def stop(self, timeout: float = 1.0) -> None:
         self._stop.set()
-        self.book.changed.set()
+        self._wake.set()
         self._thread.join(timeout)
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            self.book.changed.wait(0.2)
-            self.book.changed.clear()
+            self._wake.wait(0.2)  # also polls: a pair's turn comes with time alone
+            self._wake.clear()
             try:
                 while not self._stop.is_set():
                     more = self.step()

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pgvd.io import read_carmen
+from pgvd.carmen import read_carmen
 from pgvd.pairs import make_pair, write_pair
 
 ROOT = Path(__file__).resolve().parents[1]

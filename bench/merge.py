@@ -5,8 +5,8 @@ Pairs come from two segments of the corrected intel and freiburg-079 logs
 matrix.  Every method runs on every pair in this one process:
 
 ``pgvd``        this project's merge (:func:`pgvd.merge.merge`);
-``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD), when
-                :class:`pgvd.merge.MergeParams` exposes a switch for it;
+``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD):
+                ``MergeParams(probabilistic=False)``;
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pgvd.grid import Grid
-from pgvd.io import read_carmen
+from pgvd.carmen import read_carmen
+from pgvd.grid import Grid, heading
 from pgvd.pairs import (
     DISJOINT_LENGTHS,
     MIN_OVERLAP,
@@ -75,17 +75,6 @@ def _pgvd(**overrides) -> Method:
     return run
 
 
-def _deterministic_switch() -> dict | None:
-    """MergeParams overrides selecting plain GVD (Gamma_det), if the core exposes one."""
-    from pgvd.merge import MergeParams
-
-    names = {f.name for f in dataclasses.fields(MergeParams)}
-    for name, value in (("probabilistic", False), ("deterministic", True)):
-        if name in names:
-            return {name: value}
-    return None
-
-
 def _baseline(module: str, **kwargs) -> Method:
     import importlib
 
@@ -100,10 +89,7 @@ def _baseline(module: str, **kwargs) -> Method:
 
 def methods(exhaustive_step: float = 1.0, exhaustive_coarse: int = 4) -> dict[str, Method]:
     """The methods of the table, in column order."""
-    out: dict[str, Method] = {"pgvd": _pgvd()}
-    det = _deterministic_switch()
-    if det is not None:
-        out["pgvd-det"] = _pgvd(**det)
+    out: dict[str, Method] = {"pgvd": _pgvd(), "pgvd-det": _pgvd(probabilistic=False)}
     out["m-explore"] = _baseline("mexplore")
     out["hough"] = _baseline("hough")
     out["exhaustive"] = _baseline("exhaustive", step_deg=exhaustive_step, coarse=exhaustive_coarse)
@@ -113,12 +99,12 @@ def methods(exhaustive_step: float = 1.0, exhaustive_coarse: int = 4) -> dict[st
 def errors(pair: MapPair, matrix: np.ndarray) -> tuple[float, float]:
     """Heading error (deg) and mean cell error of B's occupied cells against the truth."""
     truth = pair.truth
-    dpsi = np.arctan2(matrix[0, 1], matrix[0, 0]) - np.arctan2(truth[0, 1], truth[0, 0])
-    heading = abs(np.degrees((dpsi + np.pi) % (2 * np.pi) - np.pi))
+    dpsi = heading(matrix) - heading(truth)
+    heading_error = abs(np.degrees((dpsi + np.pi) % (2 * np.pi) - np.pi))
     rows, cols = np.nonzero(pair.b.logodds > 0)
     pts = np.vstack([cols, rows, np.ones_like(rows)]).astype(np.float64)
     cell = float(np.mean(np.linalg.norm((matrix @ pts - truth @ pts)[:2], axis=0)))
-    return float(heading), cell
+    return float(heading_error), cell
 
 
 def evaluate(pair: MapPair, accepted: bool, matrix: np.ndarray, cell_scale: float = 1.0) -> dict:
@@ -393,11 +379,6 @@ def main(argv: list[str] | None = None) -> int:
         notes.append(
             f"Scaling: one intel pair at {SCALE_RESOLUTION} m (~500^2), upsampled x2 and x4 "
             "(nearest: same content, more cells); success there in cells of the base map."
-        )
-    if "pgvd-det" not in table:
-        notes.append(
-            "pgvd-det (plain GVD, the paper's Gamma_det) is missing: pgvd.merge.MergeParams "
-            "has no switch for it."
         )
     noise = tuple(args.odom_noise) if args.odom_noise else None
     pairs = build_pairs(

@@ -38,9 +38,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pgvd.carmen import read_carmen  # noqa: E402
 from pgvd.grid import Grid  # noqa: E402
 from pgvd.integrate import MapFrame, frame_for, integrate, integrate_scan  # noqa: E402
-from pgvd.io import read_carmen, read_map  # noqa: E402
+from pgvd.io import read_map  # noqa: E402
 from protocol import MapReassembler, decode, encode_map, quantise_grid  # noqa: E402
 
 SHARED = ROOT.parent / "shared"

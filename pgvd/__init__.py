@@ -18,7 +18,7 @@ Maps
     :class:`Grid` (log-odds, eq. (9)), :func:`read_map`, :func:`write_map`,
     :func:`write_png`, :class:`MapFormatError`, :func:`resample`.
 Frames (x = column, y = row; a relative transform maps B pixels to A pixels)
-    :func:`rigid_matrix`, :func:`matrix_to_pose`, :func:`relative_matrix`,
+    :func:`rigid_matrix`, :func:`heading`, :func:`matrix_to_pose`, :func:`relative_matrix`,
     :func:`pixel_to_world`, :func:`world_to_pixel`, :func:`warp`, :func:`union_canvas`.
 Merging (the paper's Fig. 1, eqs. (10)-(32))
     :func:`merge`, :class:`MergeParams`, :class:`MergeResult`, :class:`MergeDiagnostics`.
@@ -50,6 +50,7 @@ import types
 #: Public name -> the submodule that defines it.
 _HOME = {
     "Grid": "pgvd.grid",
+    "heading": "pgvd.grid",
     "matrix_to_pose": "pgvd.grid",
     "pixel_to_world": "pgvd.grid",
     "relative_matrix": "pgvd.grid",
@@ -59,9 +60,9 @@ _HOME = {
     "read_map": "pgvd.io",
     "write_map": "pgvd.io",
     "write_png": "pgvd.io",
-    "LaserScan": "pgvd.io",
-    "LogFormatError": "pgvd.io",
-    "read_carmen": "pgvd.io",
+    "LaserScan": "pgvd.carmen",
+    "LogFormatError": "pgvd.carmen",
+    "read_carmen": "pgvd.carmen",
     "frame_for": "pgvd.integrate",
     "integrate": "pgvd.integrate",
     "resample": "pgvd.transform",
@@ -93,6 +94,7 @@ __all__ = [
     "fuse",
     "fuse_many",
     "fuse_maps",
+    "heading",
     "integrate",
     "inverse_covariance",
     "matrix_to_pose",

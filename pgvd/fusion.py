@@ -109,6 +109,7 @@ def fuse_maps(
     matrix: np.ndarray,
     covariance: np.ndarray,
     center: tuple[float, float] = (0.0, 0.0),
+    propagation: bool = True,
 ) -> Grid:
     """Fuse map B into map A on a canvas that holds both whole (Fig. 1, last blocks).
 
@@ -131,6 +132,9 @@ def fuse_maps(
     center : tuple of float, optional
         B pixel about which that heading error acts: eq. (1) rotates about
         B's pixel origin, the default.
+    propagation : bool, optional
+        False is the ablation "without propagation": B is only warped
+        (bilinear), as if the transform were exact; ``covariance`` is not used.
 
     Returns
     -------
@@ -157,7 +161,7 @@ def fuse_maps(
     moved = propagate(
         b.probability(),
         offset @ np.asarray(matrix, dtype=np.float64),
-        covariance,
+        covariance if propagation else np.zeros((3, 3)),
         shape,
         center=center,
         cval=0.5,

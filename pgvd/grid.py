@@ -227,6 +227,33 @@ def rigid_matrix(psi: float, tx: float, ty: float) -> np.ndarray:
     return np.array([[c, s, tx], [-s, c, ty], [0.0, 0.0, 1.0]])
 
 
+def heading(m: np.ndarray) -> float:
+    """The rotation ``psi`` of a rigid pixel-frame matrix: the one place it is read.
+
+    Read as :func:`rigid_matrix` writes it, ``R_psi = [[cos, sin], [-sin, cos]]``
+    of eq. (2): ``psi = atan2(m[0, 1], m[0, 0])``.  Rows point down in the
+    pixel frame, so a positive ``psi`` turns counter-clockwise on screen, and
+    the angle ``atan2(m[1, 0], m[0, 0])`` a y-up (metric) frame reads from the
+    same matrix is ``-psi``.
+
+    Parameters
+    ----------
+    m : numpy.ndarray
+        3x3 rigid homogeneous matrix in the convention of eqs. (1)-(2).
+
+    Returns
+    -------
+    float
+        ``psi`` in radians, in ``[-pi, pi]``.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (2).
+    """
+    return float(np.arctan2(m[0, 1], m[0, 0]))
+
+
 def matrix_to_pose(m: np.ndarray) -> tuple[float, float, float]:
     """Inverse of :func:`rigid_matrix`: ``(psi, tx, ty)`` of a rigid 3x3 matrix.
 
@@ -240,4 +267,4 @@ def matrix_to_pose(m: np.ndarray) -> tuple[float, float, float]:
     tuple of float
         ``(psi, tx, ty)``: heading in radians and translation in pixels.
     """
-    return float(np.arctan2(m[0, 1], m[0, 0])), float(m[0, 2]), float(m[1, 2])
+    return heading(m), float(m[0, 2]), float(m[1, 2])

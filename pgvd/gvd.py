@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage as ndi
-from skimage.morphology import remove_small_holes, remove_small_objects, skeletonize
+from skimage.morphology import skeletonize
+
+from pgvd.morphology import drop_small
 
 #: Offsets of a cell and its 8 neighbours, (row, col).
 _NEIGHBOURHOOD = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
@@ -178,8 +180,9 @@ def free_space(prob: np.ndarray, free_threshold: float = 0.3, min_area: int = 8)
         (H, W) bool free-space mask.
     """
     free = np.asarray(prob) < free_threshold
-    free = remove_small_objects(free, max_size=min_area)
-    return remove_small_holes(free, max_size=min_area)
+    free = drop_small(free, min_area)
+    # A hole is a small component of the complement, as in skimage's remove_small_holes.
+    return ~drop_small(~free, min_area)
 
 
 def pgvd(

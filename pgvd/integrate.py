@@ -20,8 +20,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pgvd.grid import Grid
-from pgvd.io import LaserScan
+from pgvd.carmen import LaserScan
+from pgvd.grid import Grid, heading
 
 #: Rays are sampled at this fraction of a cell so that no crossed cell is skipped
 #: except at the very corners.
@@ -108,6 +108,15 @@ def se2(x: float, y: float, theta: float) -> np.ndarray:
     return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
 
 
+def se2_pose(m: np.ndarray) -> tuple[float, float, float]:
+    """Inverse of :func:`se2`: the planar pose ``(x, y, theta)`` of a metric SE(2) matrix.
+
+    Metric ``y`` points up, so ``theta`` is the negative of the pixel-frame
+    :func:`pgvd.grid.heading` of the same matrix.
+    """
+    return float(m[0, 2]), float(m[1, 2]), -heading(m)
+
+
 def _rays(
     scan: LaserScan, world_to_map: np.ndarray, model: InverseSensorModel
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -117,7 +126,7 @@ def _rays(
     ranges = scan.ranges.astype(np.float64)
     valid = ranges < model.no_return
     ranges = ranges[valid]
-    angles = scan.beam_angles()[valid] + np.arctan2(m[1, 0], m[0, 0])
+    angles = scan.beam_angles()[valid] + se2_pose(m)[2]
     hit = ranges < model.max_range
     length = np.where(hit, ranges, model.max_range)
     return sensor, np.column_stack([np.cos(angles), np.sin(angles)]), length, hit
@@ -250,11 +259,11 @@ def perturb_odometry(
     for prev, scan in itertools.pairwise(scans):
         step = np.linalg.inv(se2(*prev.pose)) @ se2(*scan.pose)
         dist = float(np.hypot(step[0, 2], step[1, 2]))
-        turn = abs(float(np.arctan2(step[1, 0], step[0, 0])))
+        turn = abs(se2_pose(step)[2])
         dx, dy = rng.normal(0.0, sigma_t * dist, 2)
         dtheta = rng.normal(0.0, sigma_r * (turn + dist))
         current = current @ step @ se2(dx, dy, dtheta)
-        pose = np.array([current[0, 2], current[1, 2], np.arctan2(current[1, 0], current[0, 0])])
+        pose = np.array(se2_pose(current))
         out.append(replace(scan, pose=pose))
     return out
 

@@ -183,6 +183,30 @@ def _read_meta(path: Path) -> dict[str, YamlValue]:
     return meta
 
 
+def map_image_path(path: str | os.PathLike[str]) -> Path:
+    """The image file a map_server YAML names, found as :func:`read_map` finds it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.yaml``/``.yml`` file.
+
+    Returns
+    -------
+    pathlib.Path
+        The image path: relative names are relative to the YAML; an absolute path
+        that does not exist falls back to the YAML's directory.  The image itself
+        is not checked.
+
+    Raises
+    ------
+    MapFormatError
+        If the YAML cannot be read or lacks a valid key.
+    """
+    path = Path(path)
+    return _image_path(path, str(_read_meta(path)["image"]))
+
+
 def _image_path(yaml_path: Path, image: str) -> Path:
     """The image named in the YAML: relative to the YAML; an absolute path that does not
     exist falls back to the YAML's directory (files copied from another machine)."""
@@ -470,14 +494,31 @@ def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
 # ----------------------------------------------------------------------------- write
 
 
-def _atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
-    """Write via a temporary file in the same directory, then ``os.replace``.
+def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], object]) -> None:
+    """Write a file so that a crash or power cut leaves either the old or the new one whole.
 
-    The temporary file is created with mode 0666 minus the umask, like any
-    ``open()`` (``tempfile.mkstemp`` would leave the map readable by its owner only).
+    ``write`` fills a temporary file ``.<name>.<random>.tmp`` in the same
+    directory; the file is fsynced, renamed over ``path``, and the directory
+    fsynced so that the rename itself is on disk.  On any error the temporary
+    file is removed and the old file, if any, is untouched.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to create or replace; missing parent directories are created.
+    write : callable
+        Called once with the temporary file, opened for binary writing.
+
+    Raises
+    ------
+    OSError
+        If the directory or the file cannot be written; whatever ``write`` raises.
     """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+    # mode 0666 minus the umask, like any open(): tempfile.mkstemp would leave the file
+    # readable by its owner only
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(fd, "wb") as f:
@@ -488,6 +529,11 @@ def _atomic_write(path: Path, write: Callable[[BinaryIO], object]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
@@ -516,7 +562,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     prob = grid.probability()
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        _atomic_write(path, lambda f: np.save(f, prob.astype(np.float32), allow_pickle=False))
+        atomic_write(path, lambda f: np.save(f, prob.astype(np.float32), allow_pickle=False))
         return
     if suffix not in (".yaml", ".yml"):
         raise ValueError(f"{path}: unknown map format (expected .yaml, .yml or .npy)")
@@ -525,7 +571,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     pixels[prob < FREE_THRESH] = 254
     image = path.with_suffix(".pgm")
     header = f"P5\n{pixels.shape[1]} {pixels.shape[0]}\n255\n".encode()
-    _atomic_write(image, lambda f: f.write(header + pixels.tobytes()))
+    atomic_write(image, lambda f: f.write(header + pixels.tobytes()))
     ox, oy, yaw = (float(v) for v in grid.origin)
     text = (
         f"image: {image.name}\n"
@@ -536,7 +582,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
         f"occupied_thresh: {OCCUPIED_THRESH}\n"
         f"free_thresh: {FREE_THRESH}\n"
     )
-    _atomic_write(path, lambda f: f.write(text.encode()))
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
@@ -582,141 +628,4 @@ def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
         + chunk(b"IDAT", zlib.compress(raw, 6))
         + chunk(b"IEND", b"")
     )
-    _atomic_write(Path(path), lambda f: f.write(png))
-
-
-# =====================================================================================
-# CARMEN laser logs (owner: "carmen" helper). Everything below reads FLASER scans and
-# their corrected poses from Radish/Freiburg ``*.log`` / ``*.log.gz`` files.
-# =====================================================================================
-
-import gzip as _gzip  # noqa: E402
-import math as _math  # noqa: E402
-import zlib as _zlib  # noqa: E402
-from dataclasses import dataclass as _dataclass  # noqa: E402
-from pathlib import Path as _Path  # noqa: E402
-
-import numpy as _np  # noqa: E402
-
-#: A FLASER line with more beams than this is refused as corrupt (real lasers give <= 1081).
-MAX_BEAMS = 100_000
-
-
-@_dataclass(frozen=True)
-class LaserScan:
-    """One ``FLASER`` message: a planar scan and the pose it was taken from.
-
-    Beam ``i`` of ``n`` points at ``theta - fov / 2 + i * fov / (n - 1)`` in the
-    log's world frame (the CARMEN convention), where ``theta`` is ``pose[2]``.
-
-    Attributes
-    ----------
-    timestamp : IPC timestamp of the message, seconds.
-    ranges : (n,) float32 ranges in metres; values at the sensor's maximum
-        (81.83 m in intel, 81.91 m in freiburg-079) mean "no return".
-    pose : (3,) float64 corrected ``x, y, theta`` of the laser (metres, radians).
-    odom : (3,) float64 raw odometry ``x, y, theta``.
-    fov : field of view in radians (FLASER carries none; the logs use 180 degrees).
-    """
-
-    timestamp: float
-    ranges: _np.ndarray
-    pose: _np.ndarray
-    odom: _np.ndarray
-    fov: float = _math.pi
-
-    def beam_angles(self) -> _np.ndarray:
-        """World-frame heading of every beam, radians, as float64."""
-        n = self.ranges.shape[0]
-        if n == 1:
-            return _np.array([self.pose[2]])
-        return self.pose[2] - self.fov / 2 + _np.arange(n) * (self.fov / (n - 1))
-
-
-class LogFormatError(ValueError):
-    """A malformed CARMEN log; the message reads ``<file>:<line>: <problem>``."""
-
-
-def _parse_flaser(tokens: list[str]) -> LaserScan:
-    """One FLASER line, already split, to a :class:`LaserScan`; ``ValueError`` on any flaw.
-
-    Layout: ``FLASER n r1..rn x y theta odom_x odom_y odom_theta ipc_timestamp
-    hostname logger_timestamp``.
-    """
-    if len(tokens) < 2:
-        raise ValueError("FLASER line without a beam count")
-    try:
-        n = int(tokens[1])
-    except ValueError:
-        raise ValueError(f"beam count {tokens[1]!r} is not an integer") from None
-    if not 1 <= n <= MAX_BEAMS:
-        raise ValueError(f"beam count {n} outside 1..{MAX_BEAMS}")
-    expected = n + 11
-    if len(tokens) != expected:
-        raise ValueError(f"FLASER with {n} beams needs {expected} fields, got {len(tokens)}")
-    try:
-        values = _np.array(tokens[2 : n + 9], dtype=_np.float64)
-        logger_ts = float(tokens[n + 10])
-    except ValueError:
-        raise ValueError("non-numeric range, pose or timestamp") from None
-    if not (_np.all(_np.isfinite(values)) and _math.isfinite(logger_ts)):
-        raise ValueError("range, pose or timestamp is not finite")
-    ranges = values[:n]
-    if _np.any(ranges < 0):
-        raise ValueError("negative range")
-    return LaserScan(
-        timestamp=float(values[n + 6]),
-        ranges=ranges.astype(_np.float32),
-        pose=values[n : n + 3].copy(),
-        odom=values[n + 3 : n + 6].copy(),
-    )
-
-
-def read_carmen(path: str | _Path, max_scans: int | None = None) -> list[LaserScan]:
-    """Read the ``FLASER`` scans of a CARMEN log (``.log`` or gzip ``.log.gz``).
-
-    Other message types (``ODOM``, ``PARAM``, ``NEFF``, comments) are skipped.
-
-    Parameters
-    ----------
-    path : the log file; gzip is detected from its magic bytes, not its name.
-    max_scans : stop after this many scans (``None``: read all).
-
-    Returns
-    -------
-    The scans in file order.
-
-    Raises
-    ------
-    LogFormatError
-        On a malformed FLASER line, undecodable text or a corrupt gzip stream,
-        with the file name and 1-based line number.
-    OSError
-        If the file cannot be opened.
-    """
-    path = _Path(path)
-    if max_scans is not None and max_scans < 0:
-        raise ValueError(f"max_scans must be >= 0, got {max_scans}")
-    with open(path, "rb") as raw:
-        gzipped = raw.read(2) == b"\x1f\x8b"
-    scans: list[LaserScan] = []
-    lineno = 0
-    # Bytes lines decoded one at a time, so that every error names its exact line.
-    with _gzip.open(path, "rb") if gzipped else open(path, "rb") as fh:
-        try:
-            for lineno, raw_line in enumerate(fh, start=1):  # noqa: B007 (used below)
-                if max_scans is not None and len(scans) >= max_scans:
-                    break
-                if not raw_line.startswith(b"FLASER"):
-                    continue
-                tokens = raw_line.decode("ascii").split()
-                if tokens[0] == "FLASER":
-                    scans.append(_parse_flaser(tokens))
-        except UnicodeDecodeError:
-            raise LogFormatError(f"{path}:{lineno}: FLASER line is not ASCII text") from None
-        except ValueError as exc:
-            raise LogFormatError(f"{path}:{lineno}: {exc}") from None
-        except (EOFError, _gzip.BadGzipFile, _zlib.error) as exc:
-            # A truncated gzip stream raises EOFError, a corrupt one BadGzipFile or zlib.error.
-            raise LogFormatError(f"{path}:{lineno + 1}: corrupt gzip stream ({exc})") from None
-    return scans
+    atomic_write(Path(path), lambda f: f.write(png))

@@ -12,9 +12,11 @@
   translation counts only when *several* edge pairs pass (32) there.
 * :func:`map_agreement` overlays the whole maps: walls of one map that fall
   on walls of the other agree, walls that fall on clear free space disagree.
-* :func:`refine` aligns the wall cells at full resolution (trimmed ICP) and
+* :func:`refine` aligns the wall cells at full resolution (trimmed ICP);
   :func:`alignment_covariance` reads the covariance from the curvature of the
-  alignment cost at its minimum (a Laplace approximation).
+  alignment cost at its minimum (a Laplace approximation), and
+  :func:`calibrated_covariance` inflates it by the residual misfit, with
+  constants fitted on real pairs, so that it matches the errors the merge makes.
 """
 
 from __future__ import annotations
@@ -27,8 +29,9 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
-from pgvd.grid import rigid_matrix
+from pgvd.grid import heading, rigid_matrix
 from pgvd.morphology import grow
+from pgvd.sampling import subsample
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
 _BLOCK_CELLS = 1 << 21
@@ -480,8 +483,7 @@ def map_agreement(
     """
     wb, wa = b.walls, a.walls
     if max_points > 0:
-        wb = wb[:: -(-len(wb) // max_points)]
-        wa = wa[:: -(-len(wa) // max_points)]
+        wb, wa = subsample(wb, max_points), subsample(wa, max_points)
     ag1, dis1 = a.count(_apply(matrix, wb), tolerance)
     ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), wa), tolerance)
     return Agreement(ag1 + ag2, dis1 + dis2)
@@ -533,7 +535,7 @@ def refine(
         The refined 3x3 rigid matrix (eqs. (1)-(2)), B pixel -> A pixel.
     """
     m = matrix.copy()
-    sub = walls_b[:: -(-len(walls_b) // max_points)]
+    sub = subsample(walls_b, max_points)
     for k, radius in enumerate(radii):
         pts = walls_b if k == len(radii) - 1 else sub
         for _ in range(iterations):
@@ -713,27 +715,39 @@ def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
     return np.column_stack([np.cos(theta), np.sin(theta)])
 
 
-def alignment_covariance(
+@dataclass(frozen=True)
+class AlignmentFit:
+    """The point-to-line alignment of B's walls on A's at a given matrix (Gauss-Newton terms).
+
+    Attributes
+    ----------
+    info : 3x3 ``J^T J`` over ``(tx, ty, psi)`` (psi about B's pixel origin, eq. (1)).
+    sigma2 : residual variance along A's wall normals, px^2 (at least 1/12, quantisation).
+    centroid : ``(x, y)`` mean of those cells in B's pixels.
+    psi : heading of the matrix, eq. (2).
+    """
+
+    info: np.ndarray
+    sigma2: float
+    centroid: np.ndarray
+    psi: float
+
+
+def alignment_fit(
     walls_a: cKDTree,
     walls_b: np.ndarray,
     matrix: np.ndarray,
     radius: float = 2.0,
     max_points: int = 4000,
-    correlation_length: float = 1.0,
-) -> np.ndarray:
-    """Covariance of ``(tx, ty, psi)`` of ``matrix`` from the point-to-line alignment of walls.
+) -> AlignmentFit | None:
+    """Gauss-Newton terms of the point-to-line alignment of B's walls on A's at ``matrix``.
 
     Each wall cell of B that lands within ``radius`` of A's walls gives a
     residual ``r_i = n_i . (R x_i + t - y_i)`` along A's wall normal ``n_i``
     with Jacobian ``J_i = [n_x, n_y, n_i . dR/dpsi x_i]`` (the ``r1, r2`` of
-    eq. (7)).  The Gauss-Newton curvature of the agreement peak gives
-    ``Sigma = sigma^2 (J^T J)^-1`` with ``sigma^2`` the residual variance
-    (at least the variance of grid quantisation, 1/12 cell^2).  Along a
-    featureless corridor ``J^T J`` is nearly singular and the variance large.
-
-    Neighbouring wall cells are not independent observations; the variance
-    is multiplied by ``correlation_length``, the number of consecutive wall
-    cells counted as one observation.
+    eq. (7)).  An even subsample of at most ``max_points`` cells is used
+    (:func:`pgvd.sampling.subsample`); ``info`` is scaled back to all of B's
+    walls, each kept cell standing for the cells between it and the next.
 
     Parameters
     ----------
@@ -747,6 +761,61 @@ def alignment_covariance(
         Cells of B farther than this from A's walls are not counted.
     max_points : int, optional
         Subsample size of B's walls.
+
+    Returns
+    -------
+    AlignmentFit or None
+        None when fewer than 3 cells of B land near A's walls.
+    """
+    pts = subsample(walls_b, max_points)
+    moved = _apply(matrix, pts)
+    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    if ok.sum() < 3:
+        return None
+    x, y = pts[ok], walls_a.data[idx[ok]]
+    n = _normals(walls_a, y)
+    psi = heading(matrix)
+    c, s = np.cos(psi), np.sin(psi)
+    dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
+    jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
+    res = np.sum(n * (moved[ok] - y), axis=1)
+    info = jac.T @ jac
+    # a tiny prior keeps a degenerate direction finite instead of singular
+    info += np.diag([1e-9, 1e-9, 1e-9 * max(1.0, float(np.abs(x).max())) ** 2])
+    return AlignmentFit(
+        info=info * (len(walls_b) / len(pts)),
+        sigma2=max(float(np.mean(res**2)), 1.0 / 12.0),
+        centroid=x.mean(axis=0),
+        psi=float(psi),
+    )
+
+
+def alignment_covariance(
+    walls_a: cKDTree,
+    walls_b: np.ndarray,
+    matrix: np.ndarray,
+    radius: float = 2.0,
+    max_points: int = 4000,
+    correlation_length: float = 1.0,
+) -> np.ndarray:
+    """Laplace covariance of ``(tx, ty, psi)`` of ``matrix`` from :func:`alignment_fit`.
+
+    The Gauss-Newton curvature of the agreement peak gives
+    ``Sigma = sigma^2 (J^T J)^-1`` with ``sigma^2`` the residual variance
+    (at least the variance of grid quantisation, 1/12 cell^2).  Along a
+    featureless corridor ``J^T J`` is nearly singular and the variance large.
+
+    Neighbouring wall cells are not independent observations; the variance
+    is multiplied by ``correlation_length``, the number of consecutive wall
+    cells counted as one observation.  This is the noise of the residuals
+    only: it misses the bias that map content puts into the fit, which
+    :func:`calibrated_covariance` adds.
+
+    Parameters
+    ----------
+    walls_a, walls_b, matrix, radius, max_points
+        As for :func:`alignment_fit`.
     correlation_length : float, optional
         Consecutive wall cells counted as one observation.
 
@@ -761,22 +830,98 @@ def alignment_covariance(
     .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
        using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (3), (7).
     """
-    pts = walls_b[:: -(-len(walls_b) // max_points)]
-    moved = _apply(matrix, pts)
-    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
-    ok = np.isfinite(dist)
-    if ok.sum() < 3:
+    fit = alignment_fit(walls_a, walls_b, matrix, radius, max_points)
+    if fit is None:
         return np.diag([np.inf, np.inf, np.inf])
-    x, y = pts[ok], walls_a.data[idx[ok]]
-    n = _normals(walls_a, y)
-    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
-    c, s = np.cos(psi), np.sin(psi)
-    dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
-    jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
-    res = np.sum(n * (moved[ok] - y), axis=1)
-    sigma2 = max(float(np.mean(res**2)), 1.0 / 12.0)
-    info = jac.T @ jac
-    # a tiny prior keeps a degenerate direction finite instead of singular
-    info += np.diag([1e-9, 1e-9, 1e-9 * max(1.0, float(np.abs(x).max())) ** 2])
-    cov = correlation_length * sigma2 * np.linalg.inv(info)
+    cov = correlation_length * fit.sigma2 * np.linalg.inv(fit.info)
+    return 0.5 * (cov + cov.T)
+
+
+@dataclass(frozen=True)
+class CovarianceModel:
+    """Constants of :func:`calibrated_covariance`.
+
+    Attributes
+    ----------
+    correlation : wall cells per independent residual at a residual of grid
+        quantisation (scales the Laplace covariance).
+    misfit_power : how steeply the covariance grows with the residual variance
+        ``sigma^2`` beyond quantisation: ``(12 sigma^2) ** (misfit_power - 1)``.
+    floor_m : isotropic translation floor (metres) at the centroid of the matched walls.
+    floor_rad : heading floor (radians).
+    """
+
+    correlation: float
+    misfit_power: float
+    floor_m: float
+    floor_rad: float
+
+
+#: Fitted by ``python3 -m bench.covariance fit`` (maximum likelihood) on one half of
+#: the development pairs (intel and freiburg-079 logs, 0.05 m cells); reported on the
+#: other half in ``bench/results/covariance.md``.  The floor came out at about a
+#: fiftieth of a cell and no heading: on these pairs the misfit term carries it all.
+CALIBRATED = CovarianceModel(
+    correlation=15.958, misfit_power=2.8981, floor_m=9.2033e-4, floor_rad=3.3113e-10
+)
+
+
+def calibrated_covariance(
+    fit: AlignmentFit | None, resolution: float, model: CovarianceModel = CALIBRATED
+) -> np.ndarray:
+    """Covariance of ``(tx, ty, psi)`` (eq. (3); px, px, rad) calibrated on real pairs.
+
+    The model, with ``S = (J^T J)^-1``, ``sigma^2`` the residual variance
+    (px^2) of :func:`alignment_fit` and ``q = 1/12`` that of grid
+    quantisation::
+
+        Sigma = correlation sigma^2 (sigma^2 / q) ** (misfit_power - 1) S
+                + A^-1 diag(f^2, f^2, f_psi^2) A^-T
+
+    * The first term is the Laplace approximation of
+      :func:`alignment_covariance` (noise of the residuals, shrinking as one
+      over the matched walls, with the shape of ``S``: a corridor stays
+      uncertain along its length), inflated as the residuals grow beyond
+      quantisation.  On real pairs the errors are biased by map content
+      (walls seen from one side, drift within a map); the residual misfit is
+      what signals it, and the error grows faster than the residual variance
+      (``misfit_power`` > 1).
+    * ``f, f_psi`` are a floor on translation (metres over ``resolution``)
+      and heading at the centroid ``c`` of the matched walls;
+      ``A = [[I, dR/dpsi c], [0, 1]]`` moves the pose from ``c`` to B's pixel
+      origin, the reference point of eq. (1) (a heading error about ``c``
+      moves the origin by ``-dR/dpsi c dpsi``).
+
+    Parameters
+    ----------
+    fit : AlignmentFit or None
+        The alignment at the merge's result (:func:`alignment_fit`).
+    resolution : float
+        Metres per cell of the maps.
+    model : CovarianceModel, optional
+        The constants; by default those fitted on the development pairs.
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 covariance over ``(tx px, ty px, psi rad)`` of eq. (1) about B's
+        pixel origin, eq. (3); ``inf`` on the diagonal when ``fit`` is None.
+
+    Raises
+    ------
+    ValueError
+        If ``resolution`` is not positive.
+    """
+    if fit is None:
+        return np.diag([np.inf, np.inf, np.inf])
+    if not resolution > 0:
+        raise ValueError(f"resolution must be > 0, got {resolution}")
+    misfit = (12.0 * fit.sigma2) ** (model.misfit_power - 1.0)
+    cov = model.correlation * fit.sigma2 * misfit * np.linalg.inv(fit.info)
+    floor = model.floor_m / resolution
+    # T = T_c - R c, so a heading error about the centroid moves B's origin by -dR/dpsi c
+    (cx, cy), c, sn = fit.centroid, np.cos(fit.psi), np.sin(fit.psi)
+    a_inv = np.eye(3)
+    a_inv[:2, 2] = [sn * cx - c * cy, c * cx + sn * cy]
+    cov += a_inv @ np.diag([floor**2, floor**2, model.floor_rad**2]) @ a_inv.T
     return 0.5 * (cov + cov.T)

@@ -39,7 +39,9 @@ Stages (``timings_ms`` keys):
     trimmed ICP of the wall cells at full resolution, then a robust (Cauchy)
     point-to-line alignment that does not stop short along corridors.
 ``covariance``
-    Gauss-Newton (point-to-line) covariance of ``(x, y, psi)`` at the optimum.
+    covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
+    curvature plus a bias and a floor calibrated on real pairs
+    (:func:`pgvd.matching.calibrated_covariance`).
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ from pgvd.matching import (
     OverlayScores,
     PairSupport,
     WallMap,
-    alignment_covariance,
+    alignment_fit,
+    calibrated_covariance,
     map_agreement,
     pair_support,
     refine,
@@ -71,6 +74,7 @@ from pgvd.matching import (
     rho_threshold,
 )
 from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
+from pgvd.sampling import subsample
 from pgvd.transform import warp
 from pgvd.uncertainty import rotation_blur
 
@@ -506,7 +510,7 @@ def _decide(
     the others its rivals.  Returns the winner, the
     :class:`pgvd.decision.Decision` and the winner's B->A pixel matrix.
     """
-    sub_b = fine_b.walls[:: -(-len(fine_b.walls) // params.refine_points)]
+    sub_b = subsample(fine_b.walls, params.refine_points)
     scored = []
     for h in finalists:
         m = to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k))
@@ -773,7 +777,7 @@ def merge(
             agreement.ratio,
             **extra,
         )
-    cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
+    cov = calibrated_covariance(alignment_fit(fine_a.tree, fine_b.walls, matrix), a.resolution)
     clock.lap("covariance")
     diag = (
         _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))

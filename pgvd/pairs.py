@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from pgvd.carmen import LaserScan
+from pgvd.grid import Grid, heading, world_pose_to_pixel_matrix
 from pgvd.integrate import (
     DEFAULT_MODEL,
     InverseSensorModel,
@@ -31,7 +32,7 @@ from pgvd.integrate import (
     se2,
     select_segment,
 )
-from pgvd.io import LaserScan, write_map
+from pgvd.io import write_map
 
 #: Segment lengths (fractions of the log) drawn for overlapping pairs.
 OVERLAP_LENGTHS = (0.05, 0.5)
@@ -127,7 +128,7 @@ def make_pair(
 
     Parameters
     ----------
-    scans : the whole log (see :func:`pgvd.io.read_carmen`).
+    scans : the whole log (see :func:`pgvd.carmen.read_carmen`).
     seg_a, seg_b : segments, as for :func:`pgvd.integrate.select_segment`.
     seed : makes the frames and the odometry noise; same seed, same pair.
     resolution : metres per cell of both maps.
@@ -286,9 +287,7 @@ def write_pair(
     write_map(b_path, pair.b)
     doc = {
         "matrix": None if pair.truth is None else np.round(pair.truth, 9).tolist(),
-        "rotation_deg": None
-        if pair.truth is None
-        else float(np.degrees(np.arctan2(pair.truth[0, 1], pair.truth[0, 0]))),
+        "rotation_deg": None if pair.truth is None else float(np.degrees(heading(pair.truth))),
         "overlap": pair.overlap,
         "name": pair.name,
         **pair.info,

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from pgvd.io import LaserScan
+from pgvd.carmen import LaserScan
 
 SCAN = "sensor_msgs/msg/LaserScan"
 TF_TYPES = ("tf2_msgs/msg/TFMessage",)
@@ -115,10 +115,11 @@ def scan_from_ros(msg: Any, pose: tuple[float, float, float], t: float) -> Laser
     """
     ranges = np.asarray(msg.ranges, dtype=np.float32).copy()
     n = ranges.size
-    if n == 0 or not (math.isfinite(msg.angle_min) and math.isfinite(msg.angle_increment)):
-        raise BagFormatError(f"scan at {t:.3f} s has no beams or a non-finite angle")
-    fov = float(msg.angle_increment) * (n - 1)
+    fov = float(msg.angle_increment) * max(n - 1, 0)
     middle = float(msg.angle_min) + fov / 2.0
+    # finite angles can still overflow: a huge increment times the beams is inf
+    if n == 0 or not (math.isfinite(fov) and math.isfinite(middle)):
+        raise BagFormatError(f"scan at {t:.3f} s has no beams or a non-finite angle")
     if fov < 0:  # beams listed clockwise: CARMEN's are counter-clockwise
         ranges = ranges[::-1].copy()
     bad = ~np.isfinite(ranges) | (ranges < msg.range_min)

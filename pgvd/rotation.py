@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pgvd.sampling import subsample
+
 #: Cells with an occupancy probability above this are walls for the spectrum.
 OCCUPIED = 0.65
 #: The Laplace variance of a correlation peak (``tau / -C''``) overstates the heading
@@ -85,8 +87,7 @@ def angle_spectrum(p: np.ndarray, n_angles: int = 360, max_points: int = 3000) -
     rows, cols = np.nonzero(p > OCCUPIED)
     if rows.size == 0:
         raise ValueError("angle_spectrum: the map has no occupied cells")
-    step = -(-rows.size // max_points)
-    rows, cols = rows[::step], cols[::step]
+    rows, cols = subsample(rows, max_points), subsample(cols, max_points)
     w = p[rows, cols]
     theta = np.arange(n_angles) * (np.pi / n_angles)
     reach = int(np.ceil(np.hypot(*p.shape))) + 1

@@ -24,6 +24,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import fft, ndimage
 
+from pgvd.grid import heading
 from pgvd.transform import warp
 
 #: Angular bins per sigma_psi in the polar blur; 3 keeps the blur's width within ~2 %.
@@ -88,7 +89,7 @@ def _pose_jacobians(m: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     m = np.asarray(m, dtype=np.float64)
     if m.shape != (3, 3) or not np.isfinite(m).all():
         raise ValueError(f"matrix must be a finite 3x3 array, got shape {m.shape}")
-    return m[:2, :2], m[:2, 2], float(np.arctan2(m[0, 1], m[0, 0]))
+    return m[:2, :2], m[:2, 2], heading(m)
 
 
 def compose_covariance(

@@ -192,17 +192,27 @@ class Tile:
         return self.base_checksum is not None
 
 
-def check_crc(value: object, what: str) -> int:
-    """Return ``value`` if it is an unsigned 32-bit integer, else raise ProtocolError."""
+def check_unsigned(value: object, what: str, bits: int) -> int:
+    """Return ``value`` as an int if it is an unsigned ``bits``-bit integer, else raise.
+
+    Bools are refused although Python counts them as ints: no field of the
+    wire format means a flag where it says a number.
+    """
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise ProtocolError(
             f"{what} must be an integer, got {type(value).__name__}", reason="schema"
         )
-    if not 0 <= value < 2**32:
+    out = int(value)  # a plain int whatever came in: numpy scalars wrap, ints do not
+    if not 0 <= out < 2**bits:
         raise ProtocolError(
-            f"{what} must be a 32-bit unsigned integer, got {value}", reason="value"
+            f"{what} must be a {bits}-bit unsigned integer, got {out}", reason="value"
         )
-    return int(value)
+    return out
+
+
+def check_crc(value: object, what: str) -> int:
+    """Return ``value`` if it is an unsigned 32-bit integer (a CRC-32), else raise."""
+    return check_unsigned(value, what, 32)
 
 
 def _check_map_header(
@@ -288,12 +298,8 @@ class Manifest:
             raise ProtocolError(
                 "a delta manifest needs both base_version and digest", reason="schema"
             )
-            if isinstance(self.digest, bool) or not isinstance(self.digest, (int, np.integer)):
-                raise ProtocolError("digest must be an integer", reason="schema")
-            if not 0 <= self.digest < 2**64:
-                raise ProtocolError(
-                    f"digest must be a 64-bit unsigned integer, got {self.digest}", reason="value"
-                )
+        if self.digest is not None:
+            object.__setattr__(self, "digest", check_unsigned(self.digest, "digest", 64))
         if not isinstance(self.checksums, Mapping):
             raise ProtocolError("checksums must map tile index -> checksum", reason="schema")
         n = self.geometry.n_tiles

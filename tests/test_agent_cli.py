@@ -29,6 +29,13 @@ def agent(tmp_path: Path, *extra: str) -> list[str]:
         (["--inbox-mib", "0"], "--inbox-mib must be > 0"),
         (["--min-agreement", "1.5"], "--min-agreement"),
         (["--zenoh-config", "/nonexistent.json5"], "bad Zenoh config"),
+        (["--source", "ros2:robot1/map"], "not an absolute ROS 2 topic"),
+        (["--source", "rosbag:/nonexistent_bag"], "source file not found"),
+        (["--ros-publish", "map merged"], "not an absolute ROS 2 topic"),
+        (["--ros-frame", "/world"], "--ros-frame"),
+        (["--ros-domain", "300"], "domain id"),
+        (["--ros-rate", "0"], "--ros-rate must be > 0"),
+        (["--foxglove", "8765"], "HOST:PORT"),
     ],
 )
 def test_bad_arguments(tmp_path: Path, capsys, extra: list[str], message: str) -> None:

@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.globalmap import build_components, compose_transforms, map_digest, spanning_forest
+from agent.globalmap import build_components, map_digest
 from agent.links import LinkRecord
 from pgvd.fusion import fuse_maps
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
+from pgvd.posegraph import compose_transforms
 from pgvd.transform import resample
 
 
@@ -20,7 +21,8 @@ def link(a: str, b: str, m: np.ndarray, score: float = 0.9, accepted: bool = Tru
     return LinkRecord(a, 1, b, 1, accepted, m, np.diag([0.2, 0.2, 1e-5]), score, a)
 
 
-def test_spanning_forest_is_best_score_first_and_independent_of_input_order() -> None:
+def test_components_use_every_accepted_link_whatever_the_order() -> None:
+    """Was Kruskal's best-score tree; now every accepted link counts (here consistent)."""
     m = np.eye(3)
     links = [
         link("a", "b", m, 0.8),
@@ -28,13 +30,19 @@ def test_spanning_forest_is_best_score_first_and_independent_of_input_order() ->
         link("a", "c", m, 0.7),
         link("d", "e", m, 0.5, accepted=False),
     ]
-    forests = {
-        tuple(
-            (k, tuple(ln.pair for ln in v)) for k, v in sorted(spanning_forest("abcde", p).items())
-        )
+    blank = Grid(np.zeros((4, 4), np.float32), 0.1)
+    maps = {r: (1, blank) for r in "abcde"}
+    layouts = {
+        tuple((c.anchor, c.members, c.used, c.rejected) for c in build_components(maps, p))
         for p in itertools.permutations(links)
     }
-    assert forests == {(("a", (("b", "c"), ("a", "b"))), ("d", ()), ("e", ()))}
+    assert layouts == {
+        (
+            ("a", ("a", "b", "c"), (("a", "b"), ("a", "c"), ("b", "c")), ()),
+            ("d", ("d",), (), ()),
+            ("e", ("e",), (), ()),
+        )
+    }
 
 
 def test_compose_transforms_walks_links_both_ways() -> None:
@@ -143,3 +151,47 @@ def test_composed_covariance_matches_monte_carlo_along_a_reversed_chain() -> Non
     # here that alone would understate the translation variance of d by pixels squared.
     naive = sum(np.trace(c[:2, :2]) for c in (cov_ac, cov_bc, cov_bd))
     assert np.trace(covs["d"][:2, :2]) > naive + 2.0
+
+
+def test_a_wrong_link_on_cycles_is_dropped_and_the_global_map_is_the_right_one(
+    halves: tuple,
+) -> None:
+    """Four real maps, every pair linked; one link 3 m and 10 deg off (a plausible false
+    link) is inconsistent with the three cycles it lies on, and the global map comes out
+    bit for bit as if it had never been published."""
+    a, b, truth = halves
+
+    def rolled(g: Grid, dx: int, dy: int) -> tuple[Grid, np.ndarray]:
+        # (x, y) of g is (x + dx, y + dy) of the copy: copy px -> g px is a shift back
+        return Grid(np.roll(g.logodds, (dy, dx), axis=(0, 1)), g.resolution, g.origin), (
+            rigid_matrix(0.0, -dx, -dy)
+        )
+
+    c, c_to_a = rolled(a, 7, 4)
+    d, d_to_b = rolled(b, -6, 3)
+    place = {"r1": np.eye(3), "r2": truth, "r3": c_to_a, "r4": truth @ d_to_b}
+    maps = {"r1": (1, a), "r2": (1, b), "r3": (1, c), "r4": (1, d)}
+    good = [
+        link(p, q, np.linalg.inv(place[p]) @ place[q]) for p, q in itertools.combinations(place, 2)
+    ]
+    wrong = link("r2", "r3", rigid_matrix(np.radians(10.0), 30.0, 0.0) @ good[3].matrix)
+    assert wrong.pair == good[3].pair
+    (comp,) = build_components(maps, [*good[:3], wrong, *good[4:]])
+    assert comp.rejected == (("r2", "r3"),)
+    assert comp.used == tuple(ln.pair for ln in good if ln.pair != ("r2", "r3"))
+    (clean,) = build_components(maps, [ln for ln in good if ln.pair != ("r2", "r3")])
+    assert comp.digest == clean.digest
+    np.testing.assert_allclose(comp.transforms["r4"], place["r4"], atol=1e-6)
+
+
+def test_a_link_that_is_not_rigid_is_left_out_not_fatal() -> None:
+    """A peer's record can carry any finite matrix; a scaled one is dropped and reported."""
+    blank = Grid(np.zeros((4, 4), np.float32), 0.1)
+    maps = {r: (1, blank) for r in ("r1", "r2", "r3")}
+    good = link("r1", "r2", rigid_matrix(0.1, 2.0, 1.0))
+    scaled = link("r1", "r3", np.diag([2.0, 2.0, 1.0]))
+    comps = build_components(maps, [good, scaled])
+    assert [(c.members, c.used, c.rejected) for c in comps] == [
+        (("r1", "r2"), (("r1", "r2"),), (("r1", "r3"),)),
+        (("r3",), (), (("r1", "r3"),)),
+    ]

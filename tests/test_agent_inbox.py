@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import threading
-from types import SimpleNamespace
 
 import pytest
 
 from agent.counters import Counters
-from agent.daemon import Agent
-from agent.inbox import ITEM_OVERHEAD, Inbox
+from agent.inbox import ITEM_OVERHEAD, Inbox, offer_or_drop
 
 
 def item(size: int, key: str = "pgvd/t/tiles/r1") -> tuple[str, str, bytes]:
@@ -84,9 +82,10 @@ def test_bounds_must_leave_room() -> None:
 
 
 def test_the_agent_counts_what_does_not_fit_as_overload() -> None:
-    """Agent._offer, as called from Zenoh's callbacks: no session needed, nothing blocks."""
-    agent = SimpleNamespace(inbox=Inbox(max_bytes=100_000), counters=Counters())
-    for _ in range(5):
-        Agent._offer(agent, item(40_000))  # type: ignore[arg-type]
-    assert len(agent.inbox) == 2
-    assert agent.counters.snapshot()["drops"] == {"overload": 3}
+    """offer_or_drop, as the agent's Zenoh callbacks call it: no session needed, nothing blocks."""
+    inbox, counters = Inbox(max_bytes=100_000), Counters()
+    assert [offer_or_drop(inbox, item(40_000), counters) for _ in range(5)] == [True] * 2 + [
+        False
+    ] * 3
+    assert len(inbox) == 2
+    assert counters.snapshot()["drops"] == {"overload": 3}

@@ -6,9 +6,11 @@ import json
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from agent import wire
-from agent.keys import FleetKeys, check_name
+from agent.keys import FleetKeys, check_name, is_name
 from agent.zenoh_config import TILE_BATCH_BYTES, ZenohOptions, build_config, tile_session_options
 
 
@@ -21,6 +23,26 @@ def test_keys_live_under_the_fleet_prefix() -> None:
     assert k.robot_of("pgvd/lab/latest/r1/4/m", "latest") == "r1"
     assert k.robot_of("pgvd/other/tiles/r1", "tiles") is None
     assert k.robot_of("pgvd/lab/tiles/r*", "tiles") is None
+
+
+chunk = st.text(st.characters(codec="ascii"), max_size=12)
+keys_like = st.text(max_size=100) | st.builds("pgvd/lab/{}/{}{}".format, chunk, chunk, chunk)
+
+
+@given(keys_like)
+def test_any_key_gives_a_valid_robot_id_or_none(key: str) -> None:
+    robot = FleetKeys("lab").robot_of(key)
+    if robot is not None:
+        parts = key.split("/")
+        assert is_name(robot) and parts[:2] == ["pgvd", "lab"] and parts[3] == robot
+
+
+@given(st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}", fullmatch=True))
+def test_every_valid_robot_id_is_read_back_from_its_keys(robot: str) -> None:
+    k = FleetKeys("lab")
+    assert k.robot_of(k.tiles(robot)) == k.robot_of(k.manifest(robot), "manifest") == robot
+    assert k.robot_of(k.latest_reply(robot, 7, "m"), "latest") == robot
+    assert k.robot_of(k.link(robot, "zz")) == robot and k.robot_of(k.tiles(robot), "link") is None
 
 
 @pytest.mark.parametrize("bad", ["", "a/b", "r*", "$x", "-r", "a" * 65, "r 1", "r.1"])

@@ -84,8 +84,8 @@ def test_latched_map_reaches_a_late_subscriber_and_updates_follow(sessions) -> N
 
 @pytest.mark.parametrize(
     ("kind", "reason"),
-    [("hash", "schema"), ("attachment", "framing"), ("truncated", "framing"),
-     ("size", "value"), ("cells", "value")],
+    [("hash", "type_hash"), ("attachment", "attachment"), ("truncated", "cdr"),
+     ("size", "size"), ("cells", "cells")],
 )
 def test_bad_samples_are_dropped_and_counted(sessions, kind: str, reason: str) -> None:
     robot, agent = sessions

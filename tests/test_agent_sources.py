@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.ndimage import maximum_filter
 
 from agent.evaluate import link_error, true_matrix
@@ -14,12 +16,17 @@ from agent.sources import (
     CarmenSource,
     ChangeGate,
     MapFileSource,
+    RosTopicSource,
+    SourceSpec,
     epoch_due,
     frame_for_robot,
+    make_source,
     parse_frame,
     parse_source,
 )
 from pgvd.grid import Grid
+from pgvd.io import read_map
+from protocol.ros2.occupancy import RosMap
 
 INTEL = Path(__file__).resolve().parents[1] / "agent" / "data" / "intel-corrected.log.gz"
 
@@ -32,6 +39,61 @@ def test_parse_source() -> None:
     for bad in ("nope:x", "map:", "carmen:x@0.5-0.2", "carmen:x@0-1.5"):
         with pytest.raises(ValueError):
             parse_source(bad)
+
+
+def test_parse_ros_sources() -> None:
+    assert parse_source("ros2:/robot1/map") == SourceSpec("ros2", None, topic="/robot1/map")
+    bag = SourceSpec("rosbag", Path("b/run1"), topic="/scan")
+    assert parse_source("rosbag:b/run1:/scan") == bag
+    assert parse_source("rosbag:/data/a:b/run1").path == Path("/data/a:b/run1")
+    assert parse_source("rosbag:run1").topic is None
+    for bad in ("ros2:", "ros2:robot1/map", "ros2:/robot1//map", "rosbag:", "rosbag:b:/2scan"):
+        with pytest.raises(ValueError):
+            parse_source(bad)
+
+
+@given(st.text(max_size=40))
+def test_any_source_text_parses_or_is_refused_in_one_line(text: str) -> None:
+    try:
+        spec = parse_source(text)
+    except ValueError as exc:
+        assert "\n" not in str(exc)
+    else:
+        assert spec.kind in ("carmen", "rosbag", "map", "ros2")
+
+
+def test_ros_topic_source_takes_each_new_map_once() -> None:
+    grids = [Grid(np.full((4, 4), v, np.float32), 0.05) for v in (1.0, 1.0, -1.0)]
+    queue = [RosMap(g, "map", i) for i, g in enumerate(grids)]
+    src = make_source(parse_source("ros2:/robot1/map"), "r1", None, 0.1, 1.0)
+    assert isinstance(src, RosTopicSource) and not src.step(0.0)  # not attached yet
+    src.attach(lambda: queue.pop(0) if queue else None)
+    assert src.step(0.0) and src.grid() is grids[0]
+    assert not src.step(0.1)  # the same map sent again is no news
+    assert src.step(0.2) and src.grid() is grids[2]
+    assert not src.step(0.3)
+    assert src.describe()["received"] == 3 and src.describe()["topic"] == "/robot1/map"
+
+
+def test_a_rosbag_replays_like_the_carmen_log_it_was_written_from(tmp_path: Path) -> None:
+    """The same scans through a rosbag2 (LaserScan + TF) and through the log: the same map."""
+    pytest.importorskip("rosbags")
+    import bags
+
+    from pgvd.carmen import read_carmen
+    from pgvd.integrate import select_segment
+
+    bags.write_scan_bag(tmp_path / "bag", select_segment(read_carmen(INTEL), (0.0, 0.05)))
+    frame = (1.0, -2.0, 0.3)
+    log = CarmenSource(parse_source(f"carmen:{INTEL}@0.0-0.05"), frame, 0.1, 1e9)
+    bag = make_source(parse_source(f"rosbag:{tmp_path / 'bag'}"), "r1", frame, 0.1, 1e9)
+    assert isinstance(bag, CarmenSource) and bag.kind == "rosbag"
+    for src in (log, bag):
+        src.step(0.0)
+        assert src.step(1.0) and src.done
+    a, b = log.grid(), bag.grid()
+    assert a.shape == b.shape and a.origin == pytest.approx(b.origin)
+    assert np.mean(np.sign(a.logodds) == np.sign(b.logodds)) > 0.99
 
 
 def test_frames() -> None:
@@ -110,6 +172,45 @@ def test_map_file_source_waits_for_stable_files_and_survives_bad_ones(
     assert not source.step(3.0)
     assert source.step(4.0)
     assert source.grid().shape[0] > 100 and not source.step(5.0)
+
+
+def _follow(yaml: Path) -> MapFileSource:
+    """A map source that has polled ``yaml`` twice: long enough to read a stable file."""
+    source = MapFileSource(parse_source(f"map:{yaml}"), poll=0.0)
+    source.step(0.0)
+    source.step(1.0)
+    return source
+
+
+@pytest.mark.parametrize("case", ["byte-order mark", "moved absolute image"])
+def test_map_file_source_reads_what_read_map_reads(shared: Path, tmp_path: Path, case) -> None:
+    """A YAML with a BOM, or naming an absolute image path that moved beside it (a map
+    copied from another machine): read_map reads both, so the source must too."""
+    src_dir = shared / "maps" / "intel_split_gt"
+    shutil.copy(src_dir / "intel_partA.pgm", tmp_path / "intel_partA.pgm")
+    text = (src_dir / "intel_partA.yaml").read_text()
+    yaml = tmp_path / "map.yaml"
+    if case == "byte-order mark":
+        yaml.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    else:
+        yaml.write_text(text.replace("intel_partA.pgm", "/gone/robot1/maps/intel_partA.pgm"))
+    expected = read_map(yaml)
+    source = _follow(yaml)
+    assert source.errors == 0 and source.last_error is None
+    np.testing.assert_array_equal(source.grid().logodds, expected.logodds)
+
+
+def test_map_file_source_counts_a_yaml_whose_image_is_missing(shared: Path, tmp_path: Path) -> None:
+    yaml = tmp_path / "map.yaml"
+    yaml.write_text((shared / "maps/intel_split_gt/intel_partA.yaml").read_text())
+    source = _follow(yaml)
+    assert source.errors == 1 and "intel_partA.pgm: no such file" in source.last_error
+    assert source.describe()["read_errors"] == 1
+    source.step(2.0)  # still missing: retried and counted again
+    assert source.errors == 2
+    shutil.copy(shared / "maps/intel_split_gt/intel_partA.pgm", tmp_path)
+    assert not source.step(3.0)  # the image appeared: wait one poll, then read it
+    assert source.step(4.0) and source.errors == 2
 
 
 def test_epoch_due_on_big_change_or_moved_canvas() -> None:

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent import state as state_mod
 from agent.links import LinkRecord
 from agent.state import StateDir, StoredMap
 from pgvd.grid import Grid
@@ -45,7 +44,7 @@ def test_a_crash_during_a_write_leaves_the_old_file_whole(
     def crash(*_: object) -> None:
         raise OSError("disk gone")
 
-    monkeypatch.setattr(state_mod.os, "replace", crash)
+    monkeypatch.setattr(os, "replace", crash)  # the writer is pgvd.io.atomic_write
     with pytest.raises(OSError):
         sd.save_map("r1", StoredMap(2, grid(2)))
     monkeypatch.undo()

@@ -48,6 +48,10 @@ def test_table_shows_robots_versions_links_traffic_and_drops() -> None:
     assert "  drops   limit=12, auth=3, stale_version=3" in text  # most first
     assert "  drops   none" in format_table({"r1": {**STATUS, "drops": {}}})
     assert format_table({}) == "no agent answered"
+    assert "source" not in text  # a source that reads its map says nothing
+    failing = {"kind": "map", "read_errors": 4, "last_error": "m.yaml: no such file"}
+    text = format_table({"r1": {**STATUS, "source": failing}})
+    assert "  source  4 read errors, last: m.yaml: no such file" in text
 
 
 def test_bad_fleet_name_is_exit_2(capsys) -> None:
@@ -89,6 +93,9 @@ def test_a_signed_status_reads_back_and_a_forged_one_does_not() -> None:
         ({"links": [{}]}, r"links\[0\] lacks fields"),
         ({"links": [{**STATUS["links"][0], "score": "high"}]}, r"links\[0\].score"),
         ({"drops": {"auth": 1.5}}, "drops must map"),
+        ({"source": []}, "source has the wrong type"),
+        ({"source": {"read_errors": "4"}}, "source.read_errors has the wrong type"),
+        ({"source": {"last_error": 3}}, "source.last_error has the wrong type"),
     ],
 )
 def test_status_fields_of_the_wrong_shape_are_refused(bad: object, why: str) -> None:
@@ -105,7 +112,10 @@ json_values = st.recursive(
 )
 status_like = st.fixed_dictionaries(
     {},
-    optional={k: json_values | st.just(v) for k, v in STATUS.items()},
+    optional={
+        k: json_values | st.just(v)
+        for k, v in {**STATUS, "source": {"read_errors": 2, "last_error": "x"}}.items()
+    },
 )
 
 

@@ -14,8 +14,8 @@ pytest.importorskip("cv2")
 pytest.importorskip("matplotlib")
 
 from bench.merge import errors, main, methods, upsample
+from pgvd.carmen import read_carmen
 from pgvd.grid import rigid_matrix
-from pgvd.io import read_carmen
 from pgvd.pairs import make_pair
 
 
@@ -66,3 +66,19 @@ def test_upsample_keeps_the_truth(small_pair):
     q = small_pair.truth @ p
     block = np.array([2 * p[0] + 0.5, 2 * p[1] + 0.5, 1.0])
     np.testing.assert_allclose(up.truth @ block, [2 * q[0] + 0.5, 2 * q[1] + 0.5, 1.0])
+
+
+def test_pgvd_det_column_fails_loudly_without_its_switch(monkeypatch):
+    """pgvd-det is MergeParams(probabilistic=False); a core without it is an error, never a
+    table that silently lacks the column."""
+    import dataclasses
+    import importlib
+
+    @dataclasses.dataclass
+    class WithoutSwitch:
+        diagnostics: bool = True
+
+    # the submodule: the attribute pgvd.merge is the function merge
+    monkeypatch.setattr(importlib.import_module("pgvd.merge"), "MergeParams", WithoutSwitch)
+    with pytest.raises(TypeError, match="probabilistic"):
+        methods()

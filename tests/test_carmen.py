@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pgvd.io import LaserScan, LogFormatError, read_carmen
+from pgvd.carmen import LaserScan, LogFormatError, read_carmen
 
 FLASER_3 = "FLASER 3 1.0 2.0 81.83 0.5 -1.0 0.25 0.6 -1.1 0.3 12.5 host 12.75\n"
 

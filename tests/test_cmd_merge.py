@@ -176,3 +176,40 @@ def test_json_into_a_closed_pipe_is_quiet() -> None:
     finally:
         os.close(write)
     assert proc.stderr == "" and proc.returncode == 1
+
+
+def test_three_runs_merge_into_one_map_through_the_cli(shared: Path, tmp_path: Path) -> None:
+    """``pgvd merge A B C``: the design's JSON, the fused map and the plot are written."""
+    d = shared / "maps" / "fr079_albertB"
+    files = [d / f"map{n}.yaml" for n in (312, 342, 371)]
+    fused, plot = tmp_path / "merged.yaml", tmp_path / "merged.png"
+    proc = pgvd_merge(*files, "-o", fused, "--plot", plot, "--json")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    assert [m["file"] for m in doc["maps"]] == [str(f) for f in files]
+    assert {tuple(m) for m in doc["maps"]} == {("file", "component", "matrix", "covariance")}
+    assert [(ln["a"], ln["b"], ln["used"]) for ln in doc["links"]] == [
+        (0, 1, True),
+        (0, 2, True),
+        (1, 2, True),
+    ]
+    assert {tuple(ln) for ln in doc["links"]} == {("a", "b", "accepted", "used", "matrix", "score")}
+    merged = read_map(fused)
+    assert merged.shape[0] >= read_map(files[0]).shape[0]
+    assert plot.stat().st_size > 0
+
+
+def test_maps_that_overlap_nowhere_exit_3_and_bad_input_2(shared: Path, tmp_path: Path) -> None:
+    m = shared / "maps"
+    small = [
+        m / "intel/intel.yaml",
+        m / "uos_avz/avz.yaml",
+        m / "mit_stata_basement/stata_basement.yaml",
+    ]
+    fused = tmp_path / "none.yaml"
+    proc = pgvd_merge(*small, "-o", fused)
+    assert proc.returncode == 3, proc.stderr
+    assert "no overlap" in proc.stdout and not fused.exists()
+    proc = pgvd_merge(small[0], small[1], tmp_path / "missing.yaml")
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("pgvd merge: error: ") and "Traceback" not in proc.stderr

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from pgvd.carmen import LaserScan, read_carmen
 from pgvd.grid import pixel_to_world, relative_matrix
 from pgvd.integrate import (
     InverseSensorModel,
@@ -17,7 +18,7 @@ from pgvd.integrate import (
     se2,
     select_segment,
 )
-from pgvd.io import LaserScan, read_carmen, read_map
+from pgvd.io import read_map
 
 
 @pytest.fixture(scope="module")

@@ -334,3 +334,22 @@ def test_fuzz_read_map_on_random_bytes(
             assert "\n" not in str(exc)
         else:
             assert np.isfinite(g.logodds).all()
+
+
+def test_map_writes_are_durable_file_and_rename(tmp_path: Path, monkeypatch) -> None:
+    """Both the file and its directory are fsynced: after a power cut the rename itself
+    survives, not only the bytes of a temporary file nobody points to."""
+    import os
+    import stat
+
+    synced: list[str] = []
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:
+        synced.append("dir" if stat.S_ISDIR(os.fstat(fd).st_mode) else "file")
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    write_map(tmp_path / "m.npy", Grid.from_probability(np.full((4, 5), 0.9), 0.1))
+    assert synced == ["file", "dir"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npy"]  # no temporary left

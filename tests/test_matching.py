@@ -176,3 +176,16 @@ def test_covariance_is_large_along_a_corridor():
     # two straight parallel walls fix y and the heading, not x
     assert cov[0, 0] > 1e3 * cov[1, 1]
     assert np.sqrt(cov[1, 1]) < 0.1
+
+
+def test_refine_and_covariance_of_an_empty_wall_set(intel):
+    """No wall cells in B: their own guards answer (matrix kept, infinite covariance)."""
+    wm = WallMap(intel, 0.65, 0.3)
+    empty = np.empty((0, 2))
+    start = rigid_matrix(0.2, 5.0, -3.0)
+    np.testing.assert_array_equal(refine(wm.tree, empty, start), start)
+    cov = alignment_covariance(wm.tree, empty, start)
+    assert np.all(np.isinf(np.diag(cov)))
+    blank = WallMap(np.full((40, 50), 0.5), 0.65, 0.3)  # all unknown: no walls, nothing free
+    assert blank.walls.shape == (0, 2)
+    assert map_agreement(wm, blank, start, max_points=500).agree == 0

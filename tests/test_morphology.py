@@ -1,4 +1,6 @@
-"""grow: the separable square dilation equals scipy's binary_dilation."""
+"""grow equals scipy's binary_dilation; drop_small removes what scikit-image removes."""
+
+import inspect
 
 import numpy as np
 import pytest
@@ -7,7 +9,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy import ndimage as ndi
 
-from pgvd.morphology import grow
+from pgvd.io import read_map
+from pgvd.morphology import drop_small, grow
 
 
 @settings(max_examples=60, deadline=None)
@@ -28,3 +31,17 @@ def test_grow_zero_is_a_copy_and_bad_input_is_refused():
         grow(mask, -1)
     with pytest.raises(ValueError, match="2-D"):
         grow(np.ones(3, bool))
+
+
+@pytest.mark.parametrize("building", ["intel", "fr079_albertB"])
+@pytest.mark.parametrize("max_size", [0, 1, 4, 30])
+def test_drop_small_removes_what_skimage_removes(shared, building: str, max_size: int) -> None:
+    morphology = pytest.importorskip("skimage.morphology")
+    if "max_size" not in inspect.signature(morphology.remove_small_objects).parameters:
+        pytest.skip("scikit-image < 0.26 has no max_size to compare with")
+    path = sorted((shared / "maps" / building).glob("*.yaml"))[0]
+    free = read_map(path).probability() < 0.3
+    expected = morphology.remove_small_objects(free, max_size=max_size)
+    np.testing.assert_array_equal(drop_small(free, max_size), expected)
+    holes = morphology.remove_small_holes(free, max_size=max_size)
+    np.testing.assert_array_equal(~drop_small(~free, max_size), holes)

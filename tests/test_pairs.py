@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from pgvd.carmen import read_carmen
 from pgvd.grid import rigid_matrix
-from pgvd.io import read_carmen, read_map
+from pgvd.io import read_map
 from pgvd.pairs import MIN_OVERLAP, make_pair, make_pairs, overlap_fraction, write_pair
 
 

@@ -466,3 +466,20 @@ def test_a_reason_outside_the_fixed_set_is_a_programming_error():
     assert ProtocolError("x", reason="auth").reason == "auth"
     with pytest.raises(ValueError, match="unknown ProtocolError reason 'bad'"):
         ProtocolError("x", reason="bad")
+
+
+DIGEST_GEOMETRY = Geometry((20, 20), 0.05, tile_size=16)
+
+
+@given(digest=st.integers(0, 2**64 - 1), base=st.integers(0, 2**63 - 2))
+def test_any_64_bit_digest_round_trips(digest, base):
+    m = Manifest("f", "r", base + 1, DIGEST_GEOMETRY, {0: 1}, base_version=base, digest=digest)
+    assert decode(encode(m)) == m
+
+
+@given(digest=st.integers(-(2**63), -1))
+def test_a_negative_digest_on_the_wire_is_refused(digest):
+    """msgpack carries signed ints too: the decoder must refuse them, not build a Manifest."""
+    body = [KIND_MANIFEST, "f", "r", 2, [20, 20, 0.05, 0, 0, 0, 16], b"\x00", 1, digest]
+    with refused("value", "64-bit unsigned"):
+        decode(raw(body))

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from refusals import refused
 
 from protocol import Geometry, Heartbeat, Link, Manifest, MapTiles, ProtocolError, Status, Tile
 
@@ -70,3 +73,43 @@ def test_tile_freezes_a_copy_not_the_callers_array():
     tile = Tile(0, 0, cells)
     cells[0, 0] = 1
     assert tile.cells[0, 0] == 0 and not tile.cells.flags.writeable
+
+
+GEOMETRY = Geometry((20, 20), 0.05, tile_size=16)
+
+
+@pytest.mark.parametrize(
+    ("digest", "reason", "why"),
+    [
+        (-5, "value", "64-bit unsigned"),
+        (2**64, "value", "64-bit unsigned"),
+        (2**70, "value", "64-bit unsigned"),
+        (1.5, "schema", "digest must be an integer"),
+        (True, "schema", "digest must be an integer"),
+        ("7", "schema", "digest must be an integer"),
+    ],
+)
+def test_manifest_refuses_a_digest_outside_64_bits(digest, reason, why):
+    with refused(reason, why):
+        Manifest("f", "r", 2, GEOMETRY, {1: 9}, base_version=1, digest=digest)
+
+
+def test_manifest_digest_of_numpy_type_is_kept_as_int():
+    m = Manifest("f", "r", 2, GEOMETRY, {1: 9}, base_version=1, digest=np.uint64(2**64 - 1))
+    assert type(m.digest) is int and m.digest == 2**64 - 1
+
+
+@given(
+    digest=st.one_of(
+        st.integers(max_value=-1),
+        st.integers(min_value=2**64),
+        st.floats(),
+        st.booleans(),
+        st.text(max_size=3),
+        st.binary(max_size=3),
+    )
+)
+def test_any_other_digest_is_refused_by_the_constructor(digest):
+    with pytest.raises(ProtocolError) as err:
+        Manifest("f", "r", 2, GEOMETRY, {}, base_version=1, digest=digest)
+    assert err.value.reason in ("schema", "value")

@@ -8,8 +8,9 @@ import msgpack
 import numpy as np
 import pytest
 
+from pgvd.carmen import read_carmen
 from pgvd.integrate import frame_for, integrate_scan
-from pgvd.io import read_carmen, read_map
+from pgvd.io import read_map
 from protocol import (
     MapReassembler,
     ProtocolError,

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 pytest.importorskip("rosbags")
 from bags import write_scan_bag
 
+from pgvd.carmen import read_carmen
 from pgvd.integrate import frame_for, integrate
-from pgvd.io import read_carmen
 from pgvd.rosbag import BagFormatError, read_rosbag_scans, scan_from_ros
 
 
@@ -70,6 +70,7 @@ def test_bad_bags_and_topics_get_one_clear_error(tmp_path, intel) -> None:
     st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True),
     st.floats(0.0, 1.0), st.floats(0.1, 100.0),
 )
+@example([0.0, 0.0, 0.0], 0.0, 8.98846567431158e307, 0.0, 1.0)  # finite, but the fov overflows
 def test_any_scan_message_becomes_a_castable_scan_or_one_error(
     ranges, angle_min, increment, range_min, range_max
 ) -> None:

@@ -6,8 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from pgvd.grid import Grid, pixel_to_world, relative_matrix, rigid_matrix
+from pgvd.grid import Grid, heading, pixel_to_world, relative_matrix, rigid_matrix
+from pgvd.integrate import se2, se2_pose
 from pgvd.io import read_map
 from pgvd.transform import resample, scale_matrix, union_canvas, warp
 
@@ -94,3 +97,26 @@ def test_union_canvas_holds_both_maps() -> None:
     assert off[:2, 2].tolist() == [float(int(v)) for v in off[:2, 2]]
     # identity: the canvas is A itself
     assert union_canvas((10, 20), (10, 20), np.eye(3))[0] == (10, 20)
+
+
+angles = st.floats(-3.14159, 3.14159)
+offsets = st.floats(-1e4, 1e4)
+
+
+@given(psi=angles, tx=offsets, ty=offsets)
+def test_heading_reads_back_the_psi_of_eq_2(psi, tx, ty) -> None:
+    assert heading(rigid_matrix(psi, tx, ty)) == pytest.approx(psi, abs=1e-12)
+
+
+@given(x=offsets, y=offsets, theta=angles)
+def test_se2_pose_reads_back_a_metric_pose(x, y, theta) -> None:
+    assert se2_pose(se2(x, y, theta)) == pytest.approx((x, y, theta), abs=1e-9)
+
+
+def test_heading_turns_counter_clockwise_on_screen_with_rows_down() -> None:
+    """A point right of the centre (x = 1, y = 0) goes up on screen (y < 0) for psi > 0."""
+    m = rigid_matrix(np.pi / 2, 0.0, 0.0)
+    np.testing.assert_allclose(m @ [1.0, 0.0, 1.0], [0.0, -1.0, 1.0], atol=1e-12)
+    assert heading(m) == pytest.approx(np.pi / 2)
+    # the same matrix read in a y-up frame turns the other way
+    assert se2_pose(m)[2] == pytest.approx(-np.pi / 2)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import signal
 import sys
 import threading
@@ -15,8 +16,16 @@ from agent.cli.common import EXIT_OK, CliError, read_fleet_key
 from agent.failpoints import check_armed
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
+from agent.outputs import OutputOptions
+from agent.ros2_io import RosOptions
 from agent.sources import parse_frame, parse_source
+from agent.view import parse_endpoint
 from agent.zenoh_config import MODES, ZenohOptions, build_config, tile_session_options
+from protocol.ros2.keys import FORMS, check_topic, data_key
+from protocol.ros2.types import DISTROS, OCCUPANCY_GRID
+
+#: A TF frame id: tf2 refuses a leading slash; the rest as ROS names.
+_FRAME_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -24,7 +33,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.description = __doc__
     p.add_argument("--robot", required=True, help="this robot's id ([A-Za-z0-9_-])")
     p.add_argument(
-        "--source", required=True, help="carmen:LOG[@FROM-TO] (fractions) or map:FILE.yaml"
+        "--source",
+        required=True,
+        help="carmen:LOG[@FROM-TO] (fractions), rosbag:BAG[:TOPIC] (a rosbag2's LaserScan "
+        "and TF), map:FILE.yaml, or ros2:/TOPIC (a ROS 2 OccupancyGrid, e.g. ros2:/robot1/map)",
     )
     p.add_argument("--state-dir", required=True, type=Path, help="persistent state directory")
     p.add_argument("--fleet", default="default", help="fleet name (key prefix pgvd/<fleet>/)")
@@ -89,6 +101,30 @@ def configure(p: argparse.ArgumentParser) -> None:
         default=MAX_BYTES >> 20,
         help="MiB of received messages held for decoding; beyond, drops count as overload",
     )
+    ros = p.add_argument_group("ROS 2 (over Zenoh: rmw_zenoh or zenoh-bridge-ros2dds)")
+    ros.add_argument("--ros-domain", type=int, default=0, help="ROS_DOMAIN_ID (default 0)")
+    ros.add_argument(
+        "--ros-distro", choices=DISTROS, default="jazzy", help="the robots' distro (type hashes)"
+    )
+    ros.add_argument(
+        "--ros-keys",
+        choices=FORMS,
+        default="rmw_zenoh",
+        help="rmw_zenoh keys, attachments and tokens, or zenoh-bridge-ros2dds's bare topics",
+    )
+    ros.add_argument(
+        "--ros-publish",
+        metavar="TOPIC",
+        help="publish the global map as a latched nav_msgs/OccupancyGrid here "
+        "(e.g. /map_merged), with /tf from --ros-frame to each <robot>/map",
+    )
+    ros.add_argument("--ros-frame", default="world", help="the merged map's frame (default world)")
+    ros.add_argument(
+        "--ros-rate", type=float, default=1.0, help="Hz of /tf and Foxglove sends (default 1)"
+    )
+    p.add_argument(
+        "--foxglove", metavar="HOST:PORT", help="serve a live view to Foxglove or Lichtblick"
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log every event")
     p.set_defaults(func=run)
 
@@ -102,12 +138,14 @@ def options_from_args(args: argparse.Namespace):
         fleet = check_name(args.fleet, "fleet name")
         source = parse_source(args.source)
         frame = parse_frame(args.frame) if args.frame else None
+        outputs = _output_options(args)
         check_armed()  # a misspelt failpoint must not let a crash test pass without a crash
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    if not source.path.is_file():
+    if source.path is not None and not source.path.exists():
         raise CliError(f"source file not found: {source.path}")
-    for name in ("resolution", "speed", "link_timeout", "announce", "min_interval", "inbox_mib"):
+    for name in ("resolution", "speed", "link_timeout", "announce", "min_interval", "inbox_mib",
+                 "ros_rate"):
         if not getattr(args, name) > 0:
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
     if not 0 <= args.min_change <= 1 or not 0 <= args.epoch_change <= 1:
@@ -157,7 +195,20 @@ def options_from_args(args: argparse.Namespace):
         min_agreement=args.min_agreement,
         epoch_change=args.epoch_change,
         inbox_bytes=args.inbox_mib << 20,
+        outputs=outputs,
     )
+
+
+def _output_options(args: argparse.Namespace) -> OutputOptions:
+    """The ROS 2 and Foxglove options (``ValueError`` with one line if bad)."""
+    ros = RosOptions(domain=args.ros_domain, distro=args.ros_distro, form=args.ros_keys)
+    data_key("/map", OCCUPANCY_GRID, domain=ros.domain, distro=ros.distro, form=ros.form)
+    if args.ros_publish is not None:
+        check_topic(args.ros_publish)
+    if not _FRAME_ID.fullmatch(args.ros_frame):
+        raise ValueError(f"--ros-frame must be a TF frame id like world, got {args.ros_frame!r}")
+    foxglove = parse_endpoint(args.foxglove) if args.foxglove else None
+    return OutputOptions(ros, args.ros_publish, args.ros_frame, args.ros_rate, foxglove)
 
 
 def run(args: argparse.Namespace) -> int:

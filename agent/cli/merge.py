@@ -44,6 +44,14 @@ def configure(p: argparse.ArgumentParser) -> None:
         "b", metavar="B", type=Path, help="map B, resampled to A's resolution if it differs"
     )
     p.add_argument(
+        "more",
+        metavar="C",
+        type=Path,
+        nargs="*",
+        help="more maps: all pairs are registered and placed jointly, as a fleet would "
+        "(--json then lists maps and links; -o writes the largest merged group)",
+    )
+    p.add_argument(
         "-o", "--output", type=Path, metavar="FUSED", help="write the fused map (.yaml or .npy)"
     )
     p.add_argument(
@@ -128,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
     progress = _progress(args)
     say = progress or (lambda line: None)
+    if args.more:
+        return _run_many(args, say)
     say(f"reading {args.a} and {args.b}")
     a = _read(args.a, args.max_cells)
     b = _read(args.b, args.max_cells)
@@ -167,3 +177,53 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"cannot fuse the maps: {exc}") from None
         _write("fused map", args.output, lambda: write_map(args.output, fused))
     return EXIT_OK
+
+
+def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
+    """``pgvd merge A B C ...``: :func:`agent.multimerge.merge_many`, the agents' path."""
+    files = [args.a, args.b, *args.more]
+    say(f"reading {len(files)} maps")
+    grids = [_read(f, args.max_cells) for f in files]
+    for f, g in zip(files, grids, strict=True):
+        cells = g.logodds.size * (g.resolution / grids[0].resolution) ** 2
+        if cells > args.max_cells:
+            raise CliError(f"{f}: resampled to {grids[0].resolution} m/cell, over --max-cells")
+    from agent.multimerge import merge_many
+    from pgvd.render import grid_image
+
+    try:
+        res = merge_many(grids, progress=say)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    doc = res.report([str(f) for f in files])
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+    else:
+        print(_many_summary(doc))
+    largest = res.largest()
+    if args.plot is not None:
+        say(f"drawing {args.plot}")
+        image = grid_image(largest.grid.probability())
+        _write("plot", args.plot, lambda: write_png(args.plot, image))
+    if not res.merged:
+        return EXIT_NO_OVERLAP
+    if args.output is not None:
+        say(f"writing the group of {len(largest.members)} maps to {args.output}")
+        _write("fused map", args.output, lambda: write_map(args.output, largest.grid))
+    return EXIT_OK
+
+
+def _many_summary(doc: dict) -> str:
+    lines = []
+    for i, m in enumerate(doc["maps"]):
+        psi, tx, ty = matrix_to_pose(np.asarray(m["matrix"]))
+        lines.append(
+            f"map {i} {m['file']}: group {m['component']}, rotation {math.degrees(psi):.2f} deg, "
+            f"translation ({tx:.1f}, {ty:.1f}) px"
+        )
+    for ln in doc["links"]:
+        verdict = "no overlap"
+        if ln["accepted"]:
+            verdict = "used" if ln["used"] else "dropped: inconsistent around a cycle"
+        lines.append(f"maps {ln['a']}-{ln['b']}: score {ln['score']:.3f}, {verdict}")
+    return "\n".join(lines)

@@ -123,6 +123,11 @@ def format_table(statuses: dict[str, dict]) -> str:
         # refused), stale_version, overload, foreign_fleet, ... (the agent's own rules).
         drops = sorted(s.get("drops", {}).items(), key=lambda kv: (-kv[1], kv[0]))
         lines.append("  drops   " + (", ".join(f"{k}={v}" for k, v in drops) or "none"))
+        source = s.get("source", {})
+        if source.get("read_errors"):  # a map file the source could not load
+            lines.append(
+                f"  source  {source['read_errors']} read errors, last: {source.get('last_error')}"
+            )
     return "\n".join(lines)
 
 

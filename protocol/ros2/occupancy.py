@@ -30,6 +30,27 @@ from protocol.limits import Limits
 from protocol.ros2.types import OCCUPANCY_GRID, TF_MESSAGE, typestore
 
 
+class GridRefused(ProtocolError):
+    """An OccupancyGrid refused, with what in it was wrong (``what``) besides the reason.
+
+    ``what`` is one of :data:`REFUSALS`, so that a ROS user's status tells a truncated
+    message from a bad resolution, which the protocol's coarser ``reason`` does not.
+    """
+
+    def __init__(self, message: str, reason: str, what: str) -> None:
+        super().__init__(message, reason)
+        self.what = what
+
+    def __reduce__(self) -> tuple[type, tuple[str, str, str]]:
+        return type(self), (str(self), self.reason, self.what)
+
+
+#: What :func:`decode_occupancy_grid` refuses: unparsable bytes, a size over the limits,
+#: ``width * height != len(data)``, a resolution <= 0, a non-finite or tilted origin, a cell
+#: outside -1..100.
+REFUSALS = ("cdr", "limit", "size", "resolution", "origin", "cells")
+
+
 @dataclass(frozen=True)
 class RosMap:
     """One received OccupancyGrid.
@@ -48,26 +69,27 @@ class RosMap:
 
 def _deserialize(cdr: bytes, msgtype: str, limits: Limits) -> Any:
     if len(cdr) > limits.max_cells + 4096:
-        raise ProtocolError(f"{msgtype} of {len(cdr)} bytes is over the cell limit", "limit")
+        raise GridRefused(f"{msgtype} of {len(cdr)} bytes is over the cell limit", "limit",
+                          "limit")
     if len(cdr) < 4 or cdr[:2] not in (b"\x00\x01", b"\x00\x00"):
-        raise ProtocolError(f"{msgtype}: no CDR encapsulation header", "framing")
+        raise GridRefused(f"{msgtype}: no CDR encapsulation header", "framing", "cdr")
     try:
         return typestore().deserialize_cdr(bytes(cdr), msgtype)
     # rosbags raises SerdeError on truncation, but hostile bytes reach struct, numpy and
     # the str decoder first (lengths, UTF-8): whatever it raises, the message is malformed.
     except Exception as exc:
-        raise ProtocolError(f"{msgtype}: CDR does not parse: {exc}", "framing") from None
+        raise GridRefused(f"{msgtype}: CDR does not parse: {exc}", "framing", "cdr") from None
 
 
 def _yaw(q: Any) -> float:
     """Yaw of a quaternion that must be a rotation about z (a 2-D map's origin)."""
     values = (q.x, q.y, q.z, q.w)
     if not all(math.isfinite(v) for v in values):
-        raise ProtocolError("OccupancyGrid origin orientation is not finite", "value")
+        raise GridRefused("OccupancyGrid origin orientation is not finite", "value", "origin")
     norm = math.sqrt(sum(v * v for v in values))
     if not abs(norm - 1.0) < 1e-3 or abs(q.x) > 1e-6 or abs(q.y) > 1e-6:
-        raise ProtocolError(
-            "OccupancyGrid origin orientation is not a unit rotation about z", "value"
+        raise GridRefused(
+            "OccupancyGrid origin orientation is not a unit rotation about z", "value", "origin"
         )
     return 2.0 * math.atan2(q.z, q.w)
 
@@ -86,31 +108,35 @@ def decode_occupancy_grid(cdr: bytes, limits: Limits | None = None) -> RosMap:
 
     Raises
     ------
-    ProtocolError
-        ``framing`` for bytes that do not parse as the type; ``limit`` past the cell bound;
-        ``value`` for ``width * height != len(data)``, a resolution <= 0 or not finite, a
-        non-finite origin, or a cell outside -1..100.
+    GridRefused
+        A :class:`~protocol.errors.ProtocolError`: ``framing`` for bytes that do not parse as
+        the type; ``limit`` past the cell bound; ``value`` for ``width * height !=
+        len(data)``, a resolution <= 0 or not finite, a non-finite origin, or a cell outside
+        -1..100. Its ``what`` (:data:`REFUSALS`) says which.
     """
     limits = limits or Limits()
     msg = _deserialize(cdr, OCCUPANCY_GRID, limits)
     info = msg.info
     width, height, data = int(info.width), int(info.height), np.asarray(msg.data)
     if width * height > limits.max_cells or max(width, height) > limits.max_side:
-        raise ProtocolError(f"OccupancyGrid of {width}x{height} cells is over the limit", "limit")
+        raise GridRefused(f"OccupancyGrid of {width}x{height} cells is over the limit", "limit",
+                          "limit")
     if width * height != data.size or data.size == 0:
-        raise ProtocolError(
-            f"OccupancyGrid is {width}x{height} but carries {data.size} cells", "value"
+        raise GridRefused(
+            f"OccupancyGrid is {width}x{height} but carries {data.size} cells", "value", "size"
         )
     if not (math.isfinite(info.resolution) and info.resolution > 0):
-        raise ProtocolError(f"OccupancyGrid resolution must be > 0, got {info.resolution}", "value")
+        raise GridRefused(f"OccupancyGrid resolution must be > 0, got {info.resolution}",
+                          "value", "resolution")
     position = info.origin.position
     if not all(math.isfinite(v) for v in (position.x, position.y, position.z)):
-        raise ProtocolError("OccupancyGrid origin is not finite", "value")
+        raise GridRefused("OccupancyGrid origin is not finite", "value", "origin")
     yaw = _yaw(info.origin.orientation)
     cells = data.astype(np.int16).reshape(height, width)
     if cells.min() < -1 or cells.max() > 100:
-        raise ProtocolError(
-            f"OccupancyGrid cells must be in -1..100, found {cells.min()}..{cells.max()}", "value"
+        raise GridRefused(
+            f"OccupancyGrid cells must be in -1..100, found {cells.min()}..{cells.max()}",
+            "value", "cells",
         )
     # -1 becomes 255 as map_server's raw shade: beyond 100, hence unknown.
     shade = np.flipud(cells).astype(np.uint8)

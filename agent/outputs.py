@@ -1,0 +1,160 @@
+"""The global map out of the agent: to ROS 2 (OccupancyGrid and TF) and to a Foxglove view.
+
+What leaves is the component holding this agent's robot (:mod:`agent.globalmap`). Its merged
+frame (``--ros-frame``, ROS: ``world``) is the metric frame of the component's anchor map, in
+which the fused map's origin is expressed; each member robot's map frame ``<robot>/map`` is
+placed in it from the component's pixel matrices and the maps' origins
+(:func:`map_placements`). The map is published when it changes (latched, so nav2 and late
+RViz get it); TF and the view are sent again at the rate (``/tf`` is volatile, and a viewer
+that connects late sees the fleet on the next send).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import zenoh
+
+from agent.book import FleetBook
+from agent.counters import Counters
+from agent.globalmap import Component
+from agent.ros2_io import RosMapPublisher, RosOptions
+from agent.status import link_json
+from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from protocol.ros2.occupancy import Placement
+
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """Where the global map goes besides files; see :mod:`agent.cli.agent` for the flags.
+
+    Attributes
+    ----------
+    ros : the ROS 2 network's domain, distro and key form (inputs and outputs alike).
+    publish : the merged map topic (``--ros-publish``, e.g. ``/map_merged``), or None.
+    frame : the merged frame's id (``--ros-frame``).
+    rate : Hz of TF and view sends (``--ros-rate``; m-explore's ``merging_rate``).
+    foxglove : ``(host, port)`` of the Foxglove WebSocket server, or None.
+    """
+
+    ros: RosOptions = field(default_factory=RosOptions)
+    publish: str | None = None
+    frame: str = "world"
+    rate: float = 1.0
+    foxglove: tuple[str, int] | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.publish is not None or self.foxglove is not None
+
+
+def map_frame(robot: str) -> str:
+    """The TF frame of ``robot``'s own map (REP 105's ``map``, namespaced by robot)."""
+    return f"{robot}/map"
+
+
+def map_placements(
+    comp: Component, maps: Mapping[str, tuple[int, Grid]], frame: str
+) -> list[Placement]:
+    """Each member robot's map frame placed in the merged frame ``frame``.
+
+    The merged frame is the anchor map's metric frame, so robot ``r``'s metric map frame
+    reaches it through its pixels: ``P_a^-1 T_r P_r``, with ``P`` a grid's metric -> pixel
+    matrix (:func:`pgvd.grid.world_pose_to_pixel_matrix`) and ``T_r`` the component's
+    ``r`` pixel -> anchor pixel matrix, eqs. (1)-(2).
+
+    Parameters
+    ----------
+    comp : the component whose global map is published.
+    maps : ``{robot: (version, grid)}`` held now; a robot (or the anchor) whose map moved
+        on since the component was built is left out until the next rebuild, as its pixel
+        matrix belongs to the older map.
+
+    Returns
+    -------
+    One :class:`Placement` per member, sorted by robot id.
+    """
+    anchor = maps.get(comp.anchor)
+    if anchor is None or anchor[0] != comp.versions[comp.anchor]:
+        return []
+    to_anchor_metric = np.linalg.inv(world_pose_to_pixel_matrix(anchor[1]))
+    out = []
+    for robot in comp.members:
+        held = maps.get(robot)
+        if held is None or held[0] != comp.versions[robot]:
+            continue
+        m = to_anchor_metric @ comp.transforms[robot] @ world_pose_to_pixel_matrix(held[1])
+        yaw = math.atan2(m[1, 0], m[0, 0])
+        out.append(Placement(frame, map_frame(robot), float(m[0, 2]), float(m[1, 2]), yaw))
+    return out
+
+
+class Outputs:
+    """Sends the global map to ROS 2 and Foxglove, as :class:`OutputOptions` asks.
+
+    Parameters
+    ----------
+    opts : what to serve.
+    robot : this agent's robot id (a stable GID for its ROS publisher).
+    session : the agent's open Zenoh session (timestamping enabled) when publishing to ROS.
+    counters : where the bytes sent to ROS are counted (``ros_map_bytes``, ``ros_tf_bytes``).
+    """
+
+    def __init__(self, opts: OutputOptions, robot: str, session: zenoh.Session | None,
+                 counters: Counters) -> None:
+        self.opts = opts
+        self.counters = counters
+        self._digest: str | None = None
+        self._placed = False
+        self._placements: list[Placement] = []
+        self._next = -math.inf
+        self._ros: RosMapPublisher | None = None
+        self._view = None
+        if opts.publish is not None:
+            assert session is not None
+            gid = hashlib.sha256(f"pgvd-ros-gid:{robot}".encode()).digest()[:16]
+            self._ros = RosMapPublisher(session, opts.publish, opts.frame, opts.ros, gid)
+        if opts.foxglove is not None:
+            from agent.view import FoxgloveView
+
+            self._view = FoxgloveView(*opts.foxglove, frame=opts.frame)
+
+    def tick(self, now: float, comp: Component | None, book: FleetBook) -> None:
+        """At the rate: publish ``comp``'s map if it changed, then TF and the view.
+
+        ``now`` is monotonic seconds; ``book`` holds the maps and links of now.
+        """
+        if comp is None or now < self._next:
+            return
+        self._next = now + 1.0 / self.opts.rate
+        stamp = time.time_ns()
+        if comp.digest != self._digest:
+            self._digest, self._placed = comp.digest, False
+            if self._ros is not None:
+                self.counters.add("ros_map_bytes", self._ros.publish_map(comp.grid, stamp))
+                self.counters.add("ros_maps_published")
+        if not self._placed:
+            maps = {r: held for r in comp.members if (held := book.map_of(r)) is not None}
+            placements = map_placements(comp, maps, self.opts.frame)
+            # Until every member is placed (a map moved on since the rebuild), the previous
+            # placements stand in: a robot missing from TF would vanish from RViz.
+            self._placed = len(placements) == len(comp.members)
+            if self._placed or not self._placements:
+                self._placements = placements
+        if self._ros is not None:
+            self.counters.add("ros_tf_bytes", self._ros.publish_tf(self._placements, stamp))
+        if self._view is not None:
+            versions = book.versions()
+            links = [link_json(rec, versions) for rec in book.links()]
+            self._view.show(comp.grid, self._placements, links, stamp)
+
+    def close(self) -> None:
+        if self._ros is not None:
+            self._ros.close()
+        if self._view is not None:
+            self._view.close()

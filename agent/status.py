@@ -1,0 +1,85 @@
+"""The pieces of an agent's status JSON (:meth:`agent.node.FleetNode.status`).
+
+``pgvd status`` reads it back through :mod:`agent.status_reply`; ``pgvd demo``, the fleet tests
+and ``bench/`` read the ``status.json`` each agent writes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from agent.globalmap import Component
+from agent.links import LinkRecord
+from pgvd.grid import heading
+
+
+@dataclass(frozen=True)
+class HostFacts:
+    """What only the process that runs the core knows, for the status."""
+
+    pid: int
+    source: dict[str, object]
+    merges: int
+    merge_seconds: float
+    inbox_messages: int
+    inbox_bytes: int
+
+
+def robots_json(
+    me: str, versions: Mapping[str, int], alive: Mapping[str, bool]
+) -> dict[str, dict[str, object]]:
+    """Every robot known by its map or its liveliness: the version held and whether it is up."""
+    robots: dict[str, dict[str, object]] = {
+        r: {"version": v, "alive": r == me or alive.get(r, False)}
+        for r, v in sorted(versions.items())
+    }
+    for r, up in alive.items():
+        robots.setdefault(r, {"version": None, "alive": up})
+    return robots
+
+
+def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]:
+    """A link as the status shows it, with its rotation in degrees."""
+    psi = float(np.degrees(heading(rec.matrix)))
+    return {
+        "a": rec.a,
+        "version_a": rec.version_a,
+        "b": rec.b,
+        "version_b": rec.version_b,
+        "accepted": rec.accepted,
+        "score": round(rec.score, 4),
+        "rotation_deg": round(psi, 3),
+        "matrix": rec.matrix.tolist(),
+        "decided_by": rec.decided_by,
+        # False for a link of older epochs that stands in while the current one is computed.
+        "current": rec.current(versions),
+    }
+
+
+def component_json(comp: Component) -> dict[str, object]:
+    """A component of the global map, without its grid."""
+    return {
+        "anchor": comp.anchor,
+        "members": list(comp.members),
+        "versions": comp.versions,
+        "used": [list(p) for p in comp.used],
+        "rejected": [list(p) for p in comp.rejected],
+        "digest": comp.digest,
+        "shape": list(comp.grid.shape),
+        "unblurred": list(comp.unblurred),
+    }
+
+
+def global_json(own: Component | None) -> dict[str, object] | None:
+    """This robot's global map in brief, None before the first rebuild that holds it."""
+    if own is None:
+        return None
+    return {"anchor": own.anchor, "digest": own.digest, "members": list(own.members)}
+
+
+def versions_of(components: Iterable[Component]) -> dict[str, int]:
+    """``{robot: version}`` that went into ``components``."""
+    return {r: v for c in components for r, v in c.versions.items()}

@@ -1,0 +1,518 @@
+"""Robust SE(2) pose graph: every map's frame from all pairwise transforms at once.
+
+Nodes are maps, each one pixel frame; an edge ``(a, b)`` is a pairwise transform ``Z``
+(eq. (1) as a matrix, B pixel -> A pixel) with its covariance over ``(x px, y px, psi)``,
+eq. (3), as the merge of Saeedi et al. (IROS 2012) returns it.  In each connected
+component the lowest node id is the anchor; the unknowns are the matrices ``X_i`` from
+node ``i``'s pixels to the anchor's, and an edge predicts ``Z = X_a^-1 X_b``.  Its
+residual is the difference of the ``(tx, ty, psi)`` parameters of ``X_a^-1 X_b`` and
+``Z`` (heading wrapped), the parametrisation of the covariance, weighted by the inverse
+covariance: a weighted least-squares pose graph solved by Gauss-Newton.
+
+Outliers: graduated non-convexity with the truncated least-squares cost (GNC-TLS; Yang,
+Antonante, Tzoumas and Carlone, "Graduated Non-Convexity for Robust Spatial Perception:
+From Non-Minimal Solvers to Global Outlier Rejection", RA-L 2020), rather than pairwise
+consistency maximisation (PCM; Mangelson et al., ICRA 2018), because:
+
+- PCM tests *pairs* of loop closures, each pair closing a cycle through the robots'
+  odometry.  Here a map is one frame with no odometry and there is at most one link
+  per pair of maps, so no two links ever close a cycle on their own: cycles have three
+  or more links, and PCM's pairwise test has nothing to test (its group-k extension
+  needs a hypergraph maximum clique, NP-hard, for every k up to the longest cycle);
+- GNC works on the pose graph itself, one weighted least squares per step, and is
+  deterministic: no random sampling, no clique search whose ties depend on an order.
+
+GNC-TLS is not guaranteed to find the *largest* consistent set (Yang et al. report
+failures beyond ~70-80 % outliers), and a lone cycle cannot say *which* of its links is
+wrong: the link left with the largest residual by the least squares is dropped, which
+need not be the wrong one.  A wrong link is identified where it lies on several cycles
+whose other links agree.  After GNC, rejected links are offered back one at a time
+(smallest residual first) and kept where every link used stays under the threshold, so
+the set used is maximal: no rejected link can be added without breaking a cycle.
+
+A link lying on no cycle (a bridge) has zero residual and is never rejected, so a graph
+without cycles comes out exactly as the composition along its tree
+(:func:`compose_transforms`).
+
+What the weighting assumes: the link covariances of today's merge are right in shape
+but overconfident (standard deviations of ~0.1 px and ~0.01 deg where real errors on
+maps with ground truth reach a pixel and 0.1 deg).  Each link's covariance is therefore
+floored, ``Sigma + diag(floor_px^2, floor_px^2, floor_psi^2)``, both for the weights
+and for the chi-square test that decides inliers.  The placements' covariances
+returned are the links' own covariances propagated to first order through the
+estimator (eq. (4)), as the composition along a tree does.  Once covariances are
+calibrated the floors can go to zero.
+
+Determinism: edges are sorted by content before anything is computed, nodes by id, and
+nothing is random; the same edges in any order give the same result bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from scipy.stats import chi2
+
+from pgvd.grid import matrix_to_pose, rigid_matrix
+from pgvd.uncertainty import check_covariance, compose_covariance, inverse_covariance
+
+
+class Link(Protocol):
+    """An edge: ``matrix`` maps pixels of ``b`` to pixels of ``a``, with ``covariance``."""
+
+    @property
+    def a(self) -> str: ...
+    @property
+    def b(self) -> str: ...
+    @property
+    def matrix(self) -> np.ndarray: ...
+    @property
+    def covariance(self) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class PoseGraphParams:
+    """Parameters of :func:`solve`.
+
+    Attributes
+    ----------
+    floor_px : standard deviation added to each link's translation, pixels.
+    floor_deg : standard deviation added to each link's heading, degrees.
+    confidence : a link is an inlier while its squared Mahalanobis residual stays under
+        the chi-square quantile of 3 degrees of freedom at this confidence.
+    mu_factor : GNC's step on the surrogate's parameter (Yang et al. use 1.4).
+    max_gnc_steps : GNC steps at most.
+    max_gn_steps : Gauss-Newton steps at most per weighted least squares.
+    """
+
+    floor_px: float = 2.0
+    floor_deg: float = 1.0
+    confidence: float = 0.99
+    mu_factor: float = 1.4
+    max_gnc_steps: int = 200
+    max_gn_steps: int = 20
+
+    def __post_init__(self) -> None:
+        if not (self.floor_px > 0 and self.floor_deg > 0):
+            raise ValueError("covariance floors must be > 0 (the weights invert them)")
+        if not 0 < self.confidence < 1:
+            raise ValueError(f"confidence must be in (0, 1), got {self.confidence}")
+        if not self.mu_factor > 1:
+            raise ValueError(f"mu_factor must be > 1, got {self.mu_factor}")
+
+    @property
+    def threshold(self) -> float:
+        """Squared Mahalanobis residual above which a link is an outlier."""
+        return float(chi2.ppf(self.confidence, 3))
+
+    @property
+    def floor(self) -> np.ndarray:
+        return np.diag([self.floor_px**2, self.floor_px**2, math.radians(self.floor_deg) ** 2])
+
+
+@dataclass(frozen=True)
+class Solution:
+    """Placements of every node, and which links the joint solution kept.
+
+    Attributes
+    ----------
+    components : node ids per component of the links kept, each sorted (its anchor
+        first), components sorted by anchor.
+    transforms : ``{node: 3x3}`` from the node's pixels to its anchor's pixels.
+    covariances : ``{node: 3x3}`` over ``(x px, y px, psi)`` of that transform.
+    used : per input link, in the order given: kept in the joint solution.
+    residuals : per input link, squared Mahalanobis residual (floored covariance)
+        against the placements of the component holding ``a``; NaN where ``b`` ended in
+        another component.
+    """
+
+    components: tuple[tuple[str, ...], ...]
+    transforms: dict[str, np.ndarray]
+    covariances: dict[str, np.ndarray]
+    used: tuple[bool, ...]
+    residuals: tuple[float, ...]
+
+
+def components(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list[tuple[str, ...]]:
+    """Connected components, each sorted, sorted by their lowest node (the anchor)."""
+    parent = {n: n for n in nodes}
+
+    def find(n: str) -> str:
+        while parent[n] != n:
+            parent[n] = parent[parent[n]]
+            n = parent[n]
+        return n
+
+    for a, b in edges:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    groups: dict[str, list[str]] = {}
+    for n in sorted(parent):
+        groups.setdefault(find(n), []).append(n)
+    return [tuple(groups[r]) for r in sorted(groups)]
+
+
+def compose_transforms(
+    anchor: str, tree: Sequence[Link]
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Matrices node px -> anchor px along ``tree``, and their first-order covariances.
+
+    A link's matrix maps ``b`` to ``a``; walking it from ``b`` to ``a`` uses the inverse
+    and its covariance.  Covariances compose to first order, eq. (4), with the Jacobian of
+    eq. (1): a parent's heading error also moves the child's translation
+    (:func:`pgvd.uncertainty.compose_covariance`).  On a tree this is also the
+    least-squares solution of the pose graph, whose residuals are all zero.
+    """
+    mats = {anchor: np.eye(3)}
+    covs = {anchor: np.zeros((3, 3))}
+    adjacency: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
+    for ln in tree:
+        adjacency.setdefault(ln.a, []).append((ln.b, ln.matrix, ln.covariance))
+        adjacency.setdefault(ln.b, []).append(
+            (ln.a, np.linalg.inv(ln.matrix), inverse_covariance(ln.matrix, ln.covariance))
+        )
+    frontier = [anchor]
+    while frontier:
+        node = frontier.pop(0)
+        for child, m, cov in sorted(adjacency.get(node, []), key=lambda t: t[0]):
+            if child in mats:
+                continue
+            mats[child] = mats[node] @ m
+            covs[child] = compose_covariance(mats[node], covs[node], m, cov)
+            frontier.append(child)
+    return mats, covs
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Links of one component as arrays: node indices, measured poses, covariances."""
+
+    ia: np.ndarray  # (m,) int
+    ib: np.ndarray  # (m,) int
+    z: np.ndarray  # (m, 3) measured (tx, ty, psi)
+    info: np.ndarray  # (m, 3, 3) inverse of the floored covariance
+    cov: np.ndarray  # (m, 3, 3) the link's own covariance
+
+    def subset(self, keep: np.ndarray) -> _Edges:
+        return _Edges(self.ia[keep], self.ib[keep], self.z[keep], self.info[keep], self.cov[keep])
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def _rot_t(psi: np.ndarray) -> np.ndarray:
+    """``R_psi^T`` of eq. (2) for every heading, (m, 2, 2)."""
+    c, s = np.cos(psi), np.sin(psi)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def _residuals(x: np.ndarray, e: _Edges) -> np.ndarray:
+    """``pose(X_a^-1 X_b) - pose(Z)`` per edge, (m, 3), heading wrapped."""
+    d = x[e.ib, :2] - x[e.ia, :2]
+    t = np.einsum("mij,mj->mi", _rot_t(x[e.ia, 2]), d)
+    psi = _wrap(x[e.ib, 2] - x[e.ia, 2] - e.z[:, 2])
+    return np.column_stack([t - e.z[:, :2], psi])
+
+
+def _jacobians(x: np.ndarray, e: _Edges) -> tuple[np.ndarray, np.ndarray]:
+    """d residual / d x_a and d x_b, each (m, 3, 3)."""
+    psi = x[e.ia, 2]
+    c, s = np.cos(psi), np.sin(psi)
+    rt = _rot_t(psi)
+    drt = np.stack([np.stack([-s, -c], -1), np.stack([c, -s], -1)], -2)  # d R^T / d psi
+    d = x[e.ib, :2] - x[e.ia, :2]
+    ja = np.zeros((len(psi), 3, 3))
+    jb = np.zeros((len(psi), 3, 3))
+    ja[:, :2, :2] = -rt
+    ja[:, :2, 2] = np.einsum("mij,mj->mi", drt, d)
+    ja[:, 2, 2] = -1.0
+    jb[:, :2, :2] = rt
+    jb[:, 2, 2] = 1.0
+    return ja, jb
+
+
+def _normal_equations(x: np.ndarray, e: _Edges, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``H = sum w J^T Omega J`` (3n x 3n) and ``g = sum w J^T Omega r`` over all nodes."""
+    n = len(x)
+    r = _residuals(x, e)
+    ja, jb = _jacobians(x, e)
+    wo = w[:, None, None] * e.info
+    wor = (wo @ r[:, :, None])[:, :, 0]
+    h = np.zeros((n, n, 3, 3))
+    g = np.zeros((n, 3))
+    for i, ji in ((e.ia, ja), (e.ib, jb)):
+        jit = ji.transpose(0, 2, 1)
+        np.add.at(g, i, (jit @ wor[:, :, None])[:, :, 0])
+        for k, jk in ((e.ia, ja), (e.ib, jb)):
+            np.add.at(h, (i, k), jit @ wo @ jk)
+    return h.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n), g.ravel()
+
+
+def _edge_rows(x: np.ndarray, e: _Edges) -> np.ndarray:
+    """Each edge's Jacobian as a (3, 3n) row block, (m, 3, 3n)."""
+    n = len(x)
+    ja, jb = _jacobians(x, e)
+    rows = np.zeros((len(e.z), 3, n, 3))
+    m = np.arange(len(e.z))
+    rows[m, :, e.ia] = ja
+    rows[m, :, e.ib] += jb
+    return rows.reshape(len(e.z), 3, 3 * n)
+
+
+def _damped_solve(h: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``h^-1 rhs`` with a tiny damping: unknowns no weighted link constrains stay at 0
+    (their rows are empty) instead of making ``h`` singular."""
+    damping = 1e-12 * (1.0 + np.abs(np.diag(h)).max(initial=0.0))
+    return np.linalg.solve(h + damping * np.eye(len(h)), rhs)
+
+
+def _gauss_newton(x: np.ndarray, e: _Edges, w: np.ndarray, steps: int, free: slice) -> np.ndarray:
+    """Weighted least squares from ``x``; node 0 (the anchor) is held fixed.
+
+    ``free`` selects the parameters solved for within each node (all three, or the
+    translation alone with the headings held).  A tiny damping keeps nodes whose links
+    all carry zero weight where they are instead of making the system singular.
+    """
+    x = x.copy()
+    for _ in range(steps):
+        h, g = _normal_equations(x, e, w)
+        idx = (np.arange(3 * len(x)).reshape(-1, 3)[1:, free]).ravel()
+        dx = _damped_solve(h[np.ix_(idx, idx)], -g[idx])
+        x.reshape(-1)[idx] += dx
+        if np.abs(dx).max(initial=0.0) < 1e-9:
+            break
+    return x
+
+
+def _chordal_headings(n: int, e: _Edges, w: np.ndarray) -> np.ndarray:
+    """Headings by chordal relaxation: least squares on ``e^{i psi}``, then projected.
+
+    ``psi_b = psi_a + psi_z`` is linear in unit complex numbers, ``z_b = z_a u``; solving
+    it unconstrained and normalising is the usual initialisation of pose graphs (no
+    starting point needed, so an outlier on a spanning tree does not bias the start).
+    """
+    u = np.exp(1j * e.z[:, 2])
+    weight = np.sqrt(w * e.info[:, 2, 2])
+    a = np.zeros((len(u), n), dtype=complex)
+    a[np.arange(len(u)), e.ib] = 1.0
+    a[np.arange(len(u)), e.ia] -= u
+    a *= weight[:, None]
+    rhs = -a[:, 0]  # the anchor's z is 1
+    real = np.block([[a[:, 1:].real, -a[:, 1:].imag], [a[:, 1:].imag, a[:, 1:].real]])
+    sol = _damped_solve(real.T @ real, real.T @ np.concatenate([rhs.real, rhs.imag]))
+    z = np.concatenate([[1.0 + 0j], sol[: n - 1] + 1j * sol[n - 1 :]])
+    return np.where(np.abs(z) > 1e-12, np.angle(z), 0.0)
+
+
+def _weighted_solution(n: int, e: _Edges, w: np.ndarray, params: PoseGraphParams) -> np.ndarray:
+    """Placements ``(n, 3)`` minimising the weighted squared residuals: chordal headings,
+    then translations for those headings (a linear problem: one step), then all."""
+    x = np.zeros((n, 3))
+    x[:, 2] = _chordal_headings(n, e, w)
+    x = _gauss_newton(x, e, w, 1, slice(0, 2))
+    return _gauss_newton(x, e, w, params.max_gn_steps, slice(0, 3))
+
+
+def _mahalanobis(x: np.ndarray, e: _Edges) -> np.ndarray:
+    r = _residuals(x, e)
+    return np.einsum("mi,mij,mj->m", r, e.info, r)
+
+
+def _tls_weights(r2: np.ndarray, mu: float, c2: float) -> np.ndarray:
+    """GNC-TLS weight update of Yang et al. (2020), closed form per residual."""
+    lo, hi = mu / (mu + 1) * c2, (mu + 1) / mu * c2
+    mid = np.sqrt(c2 * mu * (mu + 1) / np.maximum(r2, 1e-300)) - mu
+    return np.where(r2 >= hi, 0.0, np.where(r2 <= lo, 1.0, np.clip(mid, 0.0, 1.0)))
+
+
+def _gnc_inliers(n: int, e: _Edges, params: PoseGraphParams) -> np.ndarray:
+    """GNC-TLS: the surrogate starts convex (mu small) and tends to the TLS cost."""
+    c2 = params.threshold
+    w = np.ones(len(e.z))
+    x = _weighted_solution(n, e, w, params)
+    r2 = _mahalanobis(x, e)
+    if r2.max(initial=0.0) <= c2:
+        return np.ones(len(w), dtype=bool)
+    mu = c2 / max(2.0 * r2.max() - c2, 1e-12)
+    for _ in range(params.max_gnc_steps):
+        new = _tls_weights(r2, mu, c2)
+        x = _weighted_solution(n, e, new, params)
+        r2 = _mahalanobis(x, e)
+        binary = np.all((new == 0.0) | (new == 1.0))
+        if binary and np.array_equal(new, w):
+            break
+        w = new
+        mu *= params.mu_factor
+    return w > 0.5
+
+
+def _consistent(n: int, e: _Edges, keep: np.ndarray, params: PoseGraphParams) -> bool:
+    x = _weighted_solution(n, e.subset(keep), np.ones(int(keep.sum())), params)
+    return bool(_mahalanobis(x, e.subset(keep)).max(initial=0.0) <= params.threshold)
+
+
+def _maximal(n: int, e: _Edges, keep: np.ndarray, params: PoseGraphParams) -> np.ndarray:
+    """Offer each rejected link back, smallest residual first; keep it where the whole
+    set stays consistent.  Links to nodes the kept set does not reach always fit."""
+    keep = keep.copy()
+    x = _weighted_solution(n, e, keep.astype(float), params)
+    r2 = _mahalanobis(x, e)
+    for k in sorted(np.flatnonzero(~keep), key=lambda k: (r2[k], k)):
+        trial = keep.copy()
+        trial[k] = True
+        if _consistent(n, e, trial, params):
+            keep = trial
+    return keep
+
+
+def _sandwich_covariances(x: np.ndarray, e: _Edges) -> np.ndarray:
+    """First-order covariance of the placements, ``A Sigma A^T`` with
+    ``A = H^-1 J^T Omega`` the estimator's sensitivity to each link, ``Sigma`` the
+    links' own covariances (eq. (4) through the least squares).  (n, 3, 3)."""
+    n = len(x)
+    h, _ = _normal_equations(x, e, np.ones(len(e.z)))
+    hinv = np.linalg.inv(h[3:, 3:])
+    sens = hinv @ _edge_rows(x, e)[:, :, 3:].transpose(0, 2, 1) @ e.info
+    out = np.tensordot(sens @ e.cov, sens, axes=([0, 2], [0, 2]))
+    covs = np.zeros((n, 3, 3))
+    for i in range(1, n):
+        block = out[3 * i - 3 : 3 * i, 3 * i - 3 : 3 * i]
+        covs[i] = (block + block.T) / 2.0
+    return covs
+
+
+def _prepare(nodes: Sequence[str], links: Sequence[Link], params: PoseGraphParams) -> _Edges:
+    index = {n: i for i, n in enumerate(nodes)}
+    z = np.array([matrix_to_pose(ln.matrix) for ln in links]).reshape(-1, 3)[:, [1, 2, 0]]
+    cov = np.array([check_covariance(ln.covariance) for ln in links]).reshape(-1, 3, 3)
+    return _Edges(
+        ia=np.array([index[ln.a] for ln in links], dtype=int),
+        ib=np.array([index[ln.b] for ln in links], dtype=int),
+        z=z,
+        info=np.linalg.inv(cov + params.floor),
+        cov=cov,
+    )
+
+
+def link_problem(link: Link, nodes: Collection[str]) -> str | None:
+    """Why :func:`solve` would refuse ``link``, or None if it is fine."""
+    where = f"link ({link.a!r}, {link.b!r})"
+    if link.a == link.b or link.a not in nodes or link.b not in nodes:
+        return f"{where} must join two distinct known nodes"
+    m = np.asarray(link.matrix, dtype=np.float64)
+    if m.shape != (3, 3) or not np.isfinite(m).all():
+        return f"{where}: matrix must be a finite 3x3 array"
+    if not np.allclose(m[:2, :2] @ m[:2, :2].T, np.eye(2), atol=1e-6) or not np.allclose(
+        m[2], [0.0, 0.0, 1.0]
+    ):
+        return f"{where}: matrix is not rigid"
+    try:
+        check_covariance(link.covariance)
+    except ValueError as exc:
+        return f"{where}: {exc}"
+    return None
+
+
+def _content_key(ln: Link) -> tuple[str, str, bytes, bytes]:
+    return (
+        ln.a,
+        ln.b,
+        np.asarray(ln.matrix, dtype=np.float64).tobytes(),
+        np.asarray(ln.covariance, dtype=np.float64).tobytes(),
+    )
+
+
+def _place(
+    comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Transforms to ``comp[0]`` and covariances of one component from its kept links."""
+    if len(links) == len(comp) - 1:  # a tree: composition is the least-squares optimum
+        return compose_transforms(comp[0], links)
+    e = _prepare(comp, links, params)
+    x = _weighted_solution(len(comp), e, np.ones(len(links)), params)
+    covs = _sandwich_covariances(x, e)
+    mats = {n: rigid_matrix(x[i, 2], x[i, 0], x[i, 1]) for i, n in enumerate(comp)}
+    mats[comp[0]] = np.eye(3)
+    return mats, {n: covs[i] for i, n in enumerate(comp)}
+
+
+def solve(
+    nodes: Iterable[str], links: Sequence[Link], params: PoseGraphParams | None = None
+) -> Solution:
+    """Place every node in its component's anchor frame from all links at once.
+
+    Parameters
+    ----------
+    nodes : node ids (maps); nodes no link reaches are components of their own.
+    links : pairwise transforms, ``matrix`` B px -> A px and its 3x3 covariance over
+        ``(x px, y px, psi rad)``, eq. (3).  Several links may join the same pair.
+    params : thresholds and floors, :class:`PoseGraphParams`.
+
+    Returns
+    -------
+    :class:`Solution`; components are those of the links kept.
+
+    Raises
+    ------
+    ValueError
+        On a link :func:`link_problem` finds fault with.
+    """
+    params = params or PoseGraphParams()
+    node_list = sorted(set(nodes))
+    for ln in links:
+        problem = link_problem(ln, set(node_list))
+        if problem:
+            raise ValueError(problem)
+    order = sorted(range(len(links)), key=lambda i: _content_key(links[i]))
+    ordered = [links[i] for i in order]
+    keep = np.zeros(len(ordered), dtype=bool)
+    for comp in components(node_list, [(ln.a, ln.b) for ln in ordered]):
+        members = set(comp)
+        idx = [k for k, ln in enumerate(ordered) if ln.a in members]
+        if len(idx) == len(comp) - 1:
+            keep[idx] = True  # no cycle: nothing can be checked, nothing rejected
+            continue
+        e = _prepare(comp, [ordered[k] for k in idx], params)
+        inliers = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
+        keep[idx] = inliers
+    kept = [ln for ln, k in zip(ordered, keep, strict=True) if k]
+    final = components(node_list, [(ln.a, ln.b) for ln in kept])
+    transforms: dict[str, np.ndarray] = {}
+    covariances: dict[str, np.ndarray] = {}
+    for comp in final:
+        members = set(comp)
+        mats, covs = _place(comp, [ln for ln in kept if ln.a in members], params)
+        transforms.update(mats)
+        covariances.update(covs)
+    anchor_of = {n: comp[0] for comp in final for n in comp}
+    r2 = np.full(len(ordered), np.nan)
+    for k, ln in enumerate(ordered):
+        if anchor_of[ln.a] == anchor_of[ln.b]:
+            r2[k] = _link_residual(ln, transforms, params)
+    used = np.zeros(len(links), dtype=bool)
+    residuals = np.full(len(links), np.nan)
+    used[order] = keep
+    residuals[order] = r2
+    return Solution(
+        components=tuple(final),
+        transforms={n: transforms[n] for n in node_list},
+        covariances={n: covariances[n] for n in node_list},
+        used=tuple(bool(u) for u in used),
+        residuals=tuple(float(r) for r in residuals),
+    )
+
+
+def _link_residual(ln: Link, transforms: dict[str, np.ndarray], params: PoseGraphParams) -> float:
+    """Squared Mahalanobis residual of one link against the placements."""
+    pred = np.linalg.inv(transforms[ln.a]) @ transforms[ln.b]
+    p_psi, p_x, p_y = matrix_to_pose(pred)
+    z_psi, z_x, z_y = matrix_to_pose(ln.matrix)
+    r = np.array([p_x - z_x, p_y - z_y, float(_wrap(np.array(p_psi - z_psi)))])
+    info = np.linalg.inv(check_covariance(ln.covariance) + params.floor)
+    return float(r @ info @ r)

@@ -1,0 +1,68 @@
+"""agent.priors: known initial poses give the true transform of real maps that share a frame."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from agent.priors import pair_prior, parse_known_pose, prior_matrix
+from pgvd.grid import Grid, relative_matrix
+from pgvd.io import read_map
+
+
+def test_poses_of_a_shared_frame_give_the_ground_truth(shared) -> None:
+    # The halves of a log rendered in one world frame: the truth is their origins' difference.
+    a, b = (read_map(p) for p in sorted((shared / "maps" / "intel_split_gt").glob("*.yaml")))
+    np.testing.assert_allclose(
+        prior_matrix(a, (0.0, 0.0, 0.0), b, (0.0, 0.0, 0.0)), relative_matrix(a, b), atol=1e-9
+    )
+
+
+def test_a_moved_map_frame_is_undone_by_its_pose(shared) -> None:
+    """B re-expressed in a frame turned by 0.4 rad and shifted: its pose there gives the truth."""
+    a, b = (read_map(p) for p in sorted((shared / "maps" / "intel_split_gt").glob("*.yaml")))
+    x, y, yaw = 3.0, -2.0, 0.4
+    c, s = math.cos(yaw), math.sin(yaw)
+    # B's origin seen from a frame whose pose in the world is (x, y, yaw).
+    ox, oy, oyaw = b.origin
+    local = (c * (ox - x) + s * (oy - y), -s * (ox - x) + c * (oy - y), oyaw - yaw)
+    moved = Grid(b.logodds, b.resolution, local)
+    np.testing.assert_allclose(
+        prior_matrix(a, (0.0, 0.0, 0.0), moved, (x, y, yaw)), relative_matrix(a, b), atol=1e-6
+    )
+
+
+poses = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-3.1, 3.1))
+
+
+@given(poses, poses, poses)
+def test_priors_compose_around_a_chain(pa, pb, pc) -> None:
+    grids = [Grid(np.zeros((h, w), np.float32), 0.05, o) for h, w, o in
+             [(40, 30, (1.0, 2.0, 0.0)), (25, 50, (-3.0, 0.5, 0.2)), (60, 20, (0.0, 0.0, -1.0))]]
+    a, b, c = grids
+    np.testing.assert_allclose(
+        prior_matrix(a, pa, b, pb) @ prior_matrix(b, pb, c, pc), prior_matrix(a, pa, c, pc),
+        atol=1e-6,
+    )
+
+
+def test_a_prior_needs_both_poses() -> None:
+    g = Grid(np.zeros((4, 4), np.float32))
+    assert pair_prior({"r1": (0.0, 0.0, 0.0)}, "r1", g, "r2", g) is None
+    assert pair_prior({"r1": (0, 0, 0), "r2": (1, 0, 0)}, "r1", g, "r2", g) is not None
+
+
+def test_known_poses_parse() -> None:
+    assert parse_known_pose("robot_2=4.0,-1.5,0.3") == ("robot_2", (4.0, -1.5, 0.3))
+    assert parse_known_pose("r1=0,0,0") == ("r1", (0.0, 0.0, 0.0))
+    assert parse_known_pose("r1=1e1,.5,-3.14") == ("r1", (10.0, 0.5, -3.14))
+
+
+@pytest.mark.parametrize("text", ["r1", "r1=1,2", "r1=1,2,3,4", "=1,2,3", "r1=a,2,3", "r1=1;2;3"])
+def test_bad_known_poses_get_one_line(text: str) -> None:
+    with pytest.raises(ValueError, match="ROBOT=x,y,yaw"):
+        parse_known_pose(text)

@@ -1,0 +1,249 @@
+"""ROS 2 robots in the fleet, end to end: real agent processes, a ROS 2 node on the wire.
+
+The ROS side is tests/ros2_peer.py, written from rmw_zenoh's documentation (no project code
+on the wire). It publishes two segments of the Intel log, each mapped in a random frame of
+its own (agent/scenario.py), as latched ``nav_msgs/msg/OccupancyGrid`` on ``/r1/map`` and
+``/r2/map`` before any agent runs; agents r1 and r2 follow those topics (``--source ros2:``)
+and r1 publishes the merged map on ``/map_merged`` with ``/tf``. Then every kind of bad ROS
+message is sent to r2's topic. A second fleet replays a rosbag2 written from the Intel log
+beside a CARMEN-source peer.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+import bags
+import ros2_peer
+
+from agent.evaluate import link_error, true_matrix
+from agent.launcher import ROOT, LocalFleet, free_port, wait_for
+from agent.scenario import LOG, random_frames, segments
+from agent.state import StateDir
+from pgvd.carmen import read_carmen
+from pgvd.integrate import frame_for, integrate_scan, se2, select_segment
+from pgvd.io import read_map
+
+pytestmark = [pytest.mark.fleet, pytest.mark.slow]
+
+TF = "tf2_msgs/msg/TFMessage"
+ROBOTS = ("r1", "r2")
+
+
+def _ros_map(segment: tuple[float, float], frame_deg: tuple[float, float, float]) -> dict:
+    """An Intel segment mapped in ``frame`` as a SLAM node would publish it (0.1 m cells)."""
+    x, y, deg = frame_deg
+    world_to_map = se2(x, y, math.radians(deg))
+    scans = select_segment(read_carmen(LOG), segment)
+    frame = frame_for(scans, 0.1, world_to_map)
+    logodds = frame.empty()
+    for scan in scans:
+        integrate_scan(logodds, scan, frame)
+    prob = frame.grid(logodds).probability()
+    cells = np.full(prob.shape, -1, dtype=np.int8)
+    cells[prob > 0.65], cells[prob < 0.196] = 100, 0
+    h, w = prob.shape
+    cdr = ros2_peer.grid_cdr(np.flipud(cells).ravel(), w, h, 0.1, frame.origin)
+    return {"cdr": cdr, "world_to_map": world_to_map, "shape": (h, w), "origin": frame.origin}
+
+
+def _status_cli(endpoint: str, fleet: str) -> dict:
+    """``pgvd status --json`` run as a user would."""
+    cmd = [sys.executable, "-m", "agent.cli", "status", "--fleet", fleet, "--connect", endpoint]
+    res = subprocess.run([*cmd, "--json"], cwd=ROOT, capture_output=True, text=True, timeout=30)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout)
+
+
+class _Collector:
+    """Samples of one key, decoded with rosbags, from Zenoh's callback thread."""
+
+    def __init__(self, msgtype: str) -> None:
+        self.msgtype = msgtype
+        self.lock = threading.Lock()
+        self.got: list = []
+
+    def __call__(self, sample) -> None:
+        msg = ros2_peer.TS.deserialize_cdr(sample.payload.to_bytes(), self.msgtype)
+        att = sample.attachment
+        with self.lock:
+            self.got.append((msg, len(sample.payload.to_bytes()), att and att.to_bytes()))
+
+    def last(self):
+        with self.lock:
+            return self.got[-1] if self.got else None
+
+
+def _bad_inputs(robot_session, topic: str, good: dict) -> dict[str, int]:
+    """Every kind of bad OccupancyGrid on ``topic``; returns the drops each should count."""
+    cells = np.zeros(16, dtype=np.int8)
+    wrong_hash = ros2_peer.LatchedPublisher(robot_session, topic, type_hash="RIHS01_" + "0" * 64)
+    pub = ros2_peer.LatchedPublisher(robot_session, topic)
+    time.sleep(1.0)  # let the agent's subscriber see the new publishers
+    wrong_hash.put(ros2_peer.grid_cdr(cells, 4, 4, 0.1, (0.0, 0.0)))
+    pub.put(good["cdr"][: len(good["cdr"]) // 3])  # truncated
+    pub.put(b"\x00\x01\x00\x00" + bytes(range(256)) * 4)  # garbage after a CDR header
+    pub.put(ros2_peer.grid_cdr(cells, 5, 4, 0.1, (0.0, 0.0)))  # width * height != len(data)
+    pub.put(ros2_peer.grid_cdr(cells, 4, 4, 0.0, (0.0, 0.0)))  # resolution 0
+    pub.put(ros2_peer.grid_cdr(cells, 4, 4, -0.1, (0.0, 0.0)))  # resolution < 0
+    pub.put(ros2_peer.grid_cdr(cells, 4, 4, 0.1, (math.nan, 0.0)))  # NaN origin
+    pub.put(ros2_peer.grid_cdr(np.full(16, 101, np.int8), 4, 4, 0.1, (0.0, 0.0)))  # > 100
+    pub.put(ros2_peer.grid_cdr(np.full(16, -2, np.int8), 4, 4, 0.1, (0.0, 0.0)))  # < -1
+    pub.put(ros2_peer.grid_cdr(cells, 4, 4, 0.1, (0.0, 0.0)), with_attachment=False)
+    time.sleep(1.0)
+    wrong_hash.close()
+    pub.close()
+    return {"ros2_type_hash": 1, "ros2_cdr": 2, "ros2_size": 1, "ros2_resolution": 2,
+            "ros2_origin": 1, "ros2_cells": 2, "ros2_attachment": 1}
+
+
+@pytest.fixture(scope="module")
+def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    work = tmp_path_factory.mktemp("ros2fleet")
+    frames = random_frames(2, seed=12)
+    maps = {r: _ros_map(seg, fr) for r, seg, fr in zip(ROBOTS, segments(2), frames, strict=True)}
+    out: dict = {"maps": maps}
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    robot = ros2_peer.session(listen=endpoint)
+    publishers = [ros2_peer.LatchedPublisher(robot, f"/{r}/map") for r in ROBOTS]
+    merged, tf = _Collector(ros2_peer.GRID), _Collector(TF)
+    subs = []
+    try:
+        # Published before any agent runs: only the publishers' caches hold the maps.
+        for r, pub in zip(ROBOTS, publishers, strict=True):
+            pub.put(maps[r]["cdr"])
+        subs.append(robot.declare_subscriber(ros2_peer.key("/tf", TF), tf))
+        subs.append(ros2_peer.latched_subscriber(robot, ros2_peer.key("/map_merged"), merged))
+        with LocalFleet("ros", work, ["--connect", endpoint, "--link-timeout", "3"]) as fleet:
+            fleet.add("r1", "ros2:/r1/map", ["--ros-publish", "/map_merged", "--ros-rate", "4"])
+            fleet.add("r2", "ros2:/r2/map")
+
+            def merged_both() -> bool:
+                st = fleet.statuses()
+                return all(
+                    s and s["global"] and s["global"]["members"] == list(ROBOTS) and s["settled"]
+                    for s in st.values()
+                )
+
+            out["merged"] = wait_for(merged_both, 120)
+            out["statuses"] = fleet.statuses()
+            digest = out["statuses"]["r1"]["global"]["digest"]
+            time.sleep(1.0)  # a TF send at 4 Hz after the global map it places
+            out["tf"], out["merged_map"] = tf.last(), merged.last()
+            out["global"] = read_map(fleet.agents["r1"].out_dir / "global.yaml")
+            # A subscriber that comes after the publication still gets the map (transient local).
+            late = _Collector(ros2_peer.GRID)
+            subs.append(ros2_peer.latched_subscriber(robot, ros2_peer.key("/map_merged"), late))
+            wait_for(late.last, 10)
+            out["late"] = late.last()
+
+            out["expected_drops"] = _bad_inputs(robot, "/r2/map", maps["r2"])
+            wait_for(lambda: (fleet.agents["r2"].status() or {}).get("drops"), 5)
+            out["status_cli"] = _status_cli(fleet.agents["r2"].endpoint, "ros")
+            out["alive"] = [r for r, a in fleet.agents.items() if a.alive()]
+            out["digest_after"] = fleet.agents["r1"].status()["global"]["digest"]
+            out["digest_before"] = digest
+    finally:
+        for sub in subs:
+            sub.undeclare()
+        for pub in publishers:
+            pub.close()
+        robot.close()
+    return out
+
+
+def test_two_ros_robots_merge_and_the_merged_map_reaches_ros(ros_fleet: dict) -> None:
+    assert ros_fleet["merged"], ros_fleet["statuses"]
+    got = ros_fleet["merged_map"]
+    assert got is not None
+    msg, size, att = got
+    glob = ros_fleet["global"]
+    assert msg.header.frame_id == "world"
+    assert (msg.info.height, msg.info.width) == glob.shape
+    assert np.allclose([msg.info.origin.position.x, msg.info.origin.position.y],
+                       glob.origin[:2], atol=1e-3)
+    assert set(np.unique(msg.data)) == {-1, 0, 100}
+    assert len(att) == 33  # rmw_zenoh's attachment: an unmodified ROS 2 subscriber takes it
+    counts = ros_fleet["status_cli"]["r1"]["counts"]  # after the last publication
+    assert counts["ros_maps_published"] >= 1 and counts["ros_map_bytes"] >= size
+
+
+def test_tf_places_each_robot_map_within_2_cells_and_half_a_degree(ros_fleet: dict) -> None:
+    tf_msg = ros_fleet["tf"][0]
+    placed = {t.child_frame_id: t for t in tf_msg.transforms}
+    assert sorted(placed) == ["r1/map", "r2/map"]
+    anchor = ros_fleet["maps"]["r1"]["world_to_map"]  # the merged frame is r1's map frame
+    for robot in ROBOTS:
+        t = placed[f"{robot}/map"]
+        assert t.header.frame_id == "world"
+        q = t.transform.rotation
+        yaw = 2.0 * math.atan2(q.z, q.w)
+        got = se2(t.transform.translation.x, t.transform.translation.y, yaw)
+        truth = anchor @ np.linalg.inv(ros_fleet["maps"][robot]["world_to_map"])
+        deg = math.degrees(math.atan2(got[1, 0], got[0, 0]) - math.atan2(truth[1, 0], truth[0, 0]))
+        assert abs((deg + 180.0) % 360.0 - 180.0) <= 0.5, (robot, deg)
+        h, w = ros_fleet["maps"][robot]["shape"]
+        ox, oy = ros_fleet["maps"][robot]["origin"]
+        corners = np.array([[ox, oy, 1], [ox + w * 0.1, oy, 1], [ox, oy + h * 0.1, 1],
+                            [ox + w * 0.1, oy + h * 0.1, 1]]).T
+        cells = np.linalg.norm((got @ corners - truth @ corners)[:2], axis=0).max() / 0.1
+        assert cells <= 2.0, (robot, cells)
+
+
+def test_a_late_ros_subscriber_still_gets_the_merged_map(ros_fleet: dict) -> None:
+    late = ros_fleet["late"]
+    assert late is not None
+    assert (late[0].info.height, late[0].info.width) == ros_fleet["global"].shape
+
+
+def test_each_bad_ros_message_is_dropped_and_counted_by_reason(ros_fleet: dict) -> None:
+    assert ros_fleet["alive"] == list(ROBOTS)
+    drops = ros_fleet["status_cli"]["r2"]["drops"]
+    assert drops == ros_fleet["expected_drops"]
+    assert ros_fleet["digest_after"] == ros_fleet["digest_before"]  # nothing bad got in
+
+
+@pytest.fixture(scope="module")
+def bag_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    work = tmp_path_factory.mktemp("bagfleet")
+    seg_bag, seg_log = segments(2)
+    bag = work / "intel_bag"
+    bags.write_scan_bag(bag, select_segment(read_carmen(LOG), seg_bag))
+    fb, fc = random_frames(2, seed=7)
+    with LocalFleet("bags", work, ["--speed", "200", "--link-timeout", "3"]) as fleet:
+        fleet.add("rb", f"rosbag:{bag}:/scan", [f"--frame={fb[0]},{fb[1]},{fb[2]}"])
+        fleet.add("rc", f"carmen:{LOG}@{seg_log[0]}-{seg_log[1]}",
+                  [f"--frame={fc[0]},{fc[1]},{fc[2]}"])
+
+        def merged() -> bool:
+            st = fleet.statuses()
+            return all(s and s["source"]["done"] and s["global"]
+                       and s["global"]["members"] == ["rb", "rc"] and s["settled"]
+                       for s in st.values())
+
+        ok = wait_for(merged, 120)
+        shapes = {r: StateDir(a.state_dir).load_maps()[0][r].grid.shape
+                  for r, a in fleet.agents.items()}
+        return {"merged": ok, "statuses": fleet.statuses(), "shapes": shapes}
+
+
+def test_a_replayed_rosbag_merges_with_a_carmen_peer(bag_fleet: dict) -> None:
+    assert bag_fleet["merged"], bag_fleet["statuses"]
+    st = bag_fleet["statuses"]
+    assert st["rb"]["source"]["kind"] == "rosbag"
+    w2p = {r: np.array(s["source"]["world_to_pixel"]) for r, s in st.items()}
+    links = [ln for ln in st["rb"]["links"] if ln["current"] and ln["accepted"]]
+    assert len(links) == 1
+    ln = links[0]
+    truth = true_matrix(w2p[ln["a"]], w2p[ln["b"]])
+    deg, cells = link_error(ln["matrix"], truth, bag_fleet["shapes"][ln["b"]])
+    assert deg <= 2.0 and cells <= 3.0, (deg, cells)
