@@ -30,12 +30,14 @@ Stages (``timings_ms`` keys):
     only if at least ``min_pairs`` edge pairs pass (32) *at that
     translation*.  Hypotheses of all headings are ranked by the overlay
     evidence ``agree - disagreement_weight * disagree`` (walls on walls vs
-    walls on clear free space, both ways).  The winner is refined and
-    checked again at full resolution: it is accepted only if
-    agreement / (agreement + disagreement) >= ``min_agreement`` over at
-    least ``min_overlap`` metres of agreeing walls.
+    walls on clear free space, both ways).  The finalists are refined and
+    scored again at full resolution, and the winner is accepted only if it
+    stands out from its rivals on the same pair (:mod:`pgvd.decision`):
+    ``margin >= min_margin``.  The residual distortion of the overlap
+    (:func:`pgvd.matching.residual_distortion`) is reported beside the pose.
 ``refine``
-    trimmed ICP of the wall cells at full resolution.
+    trimmed ICP of the wall cells at full resolution, then a robust (Cauchy)
+    point-to-line alignment that does not stop short along corridors.
 ``covariance``
     covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
     curvature plus a bias and a floor calibrated on real pairs
@@ -50,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pgvd.decision import Decision, Scored, decide, shifted
 from pgvd.graph import EdgeGraph, build_graph
 from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
@@ -65,6 +68,8 @@ from pgvd.matching import (
     map_agreement,
     pair_support,
     refine,
+    refine_point_to_line,
+    residual_distortion,
     rho_test,
     rho_threshold,
 )
@@ -85,17 +90,33 @@ class MergeParams:
     search_headings : candidates that go through the PGVD stages: those whose whole-map
         overlay (best ``agree - disagreement_weight * disagree`` over all translations)
         is largest.
+    overlay_peaks : the best local maxima of the whole-map overlay, per searched heading,
+        proposed as translations beside the edge pairs' correlation peaks (29).
     rho : matching percentage of the existence test (32).
     edge_tolerance : cells of tolerance when correlating edges (A's edges are grey-dilated).
     min_edge_length : edges shorter than this (m) are dropped (Sec. IV-E).
     max_edges : longest edges kept per map, bounding Gamma's size.
     max_hypotheses : translations proposed per heading (best Gamma first).
     search_radius : each proposal slides (m) to the best whole-map agreement within this.
-    min_pairs : edge pairs that must pass (32) at an accepted translation.
-    min_agreement : minimum agreement / (agreement + disagreement) of the overlay at full
-        resolution.  On the project's real test pairs true merges score >= 0.94 and the
-        best false overlays (long look-alike corridors of disjoint halves) <= 0.89.
-    min_overlap : minimum length (m) of agreeing walls, so a sliver of overlap is no match.
+    min_pairs : edge pairs that must pass (32) at an accepted translation.  One: a small
+        overlap is crossed by few edges, and with two required the true translation of
+        most 15-35 % overlaps never reached the decision (intel low-overlap pairs: 2 of
+        10 found with two, 4 of 10 with one; no false accept more on the development
+        negatives); the margin of :mod:`pgvd.decision` now rejects look-alikes.
+    min_margin : the winner's overlay evidence beyond its best rival's, per overlapping wall
+        cell (:mod:`pgvd.decision`), at least this.  Set on the development negatives
+        (``python -m bench.acceptance``): the largest margin of a false hypothesis there
+        (a building against its own mirror image) was below 0.6.
+    min_agreement : optional floor on agreement / (agreement + disagreement) of the final
+        overlay (0: the margin decides alone; ``pgvd agent --min-agreement`` sets it).
+    min_overlap : minimum length (m) of agreeing walls; small, so that a short but crisp
+        overlap can pass: the margin, not the size, decides.
+    rival_distance : finalists whose pose moves B's wall centroid by more than this (m), or
+        turns it by more than 2 degrees, are rivals of the winner; closer ones are the
+        winner itself, reached again from another start.
+    probe_shifts : the winner shifted by these multiples of ``rival_distance`` along A's
+        axes is scored as a rival too (:func:`pgvd.decision.shifted`).
+    distortion_block : side (m) of the squares of :func:`pgvd.matching.residual_distortion`.
     disagreement_weight : hypotheses are ranked by ``agree - weight * disagree``: a wall on
         clear free space is strong evidence against, a wall on a wall weak evidence for
         (walls are everywhere in a building), so a large overlap with some conflicts
@@ -104,7 +125,14 @@ class MergeParams:
     refine_points : wall cells per map used when refining and scoring the finalists.
     occupied, free : probability thresholds of walls and free space.
     probabilistic : False matches the plain GVD (every GVD cell certain), the paper's
-        deterministic comparison Gamma_det of (41).
+        deterministic comparison Gamma_det of (41) (ablation: without PGVD weighting).
+    rho_veto : False drops the existence test (32): every edge pair with a positive
+        correlation proposes its translation and no translation needs ``min_pairs``
+        supporting pairs (ablation).
+    gamma_ranking : False proposes translations in edge order instead of best Gamma (27)
+        first (ablation).
+    heading_blur : False builds B's PGVD without the tangential blur of the heading
+        variance, eq. (8) (ablation).
     diagnostics : fill :attr:`MergeResult.diagnostics`.
     """
 
@@ -116,16 +144,24 @@ class MergeParams:
     max_edges: int = 80
     max_hypotheses: int = 40
     search_radius: float = 2.4
-    min_pairs: int = 2
-    min_agreement: float = 0.92
-    min_overlap: float = 15.0
+    min_pairs: int = 1
+    min_margin: float = 0.65
+    min_agreement: float = 0.0
+    min_overlap: float = 3.0
+    rival_distance: float = 1.0
+    probe_shifts: tuple[float, ...] = (1.5, 3.0)
+    distortion_block: float = 5.0
     disagreement_weight: float = 4.0
-    search_headings: int = 4
+    search_headings: int = 6
+    overlay_peaks: int = 5
     finalists: int = 8
     refine_points: int = 1500
     occupied: float = OCCUPIED
     free: float = 0.3
     probabilistic: bool = True
+    rho_veto: bool = True
+    gamma_ranking: bool = True
+    heading_blur: bool = True
     diagnostics: bool = True
 
 
@@ -153,7 +189,21 @@ class MergeDiagnostics:
 
 @dataclass
 class MergeResult:
-    """Outcome of :func:`merge`; ``matrix`` maps B pixels to A pixels."""
+    """Outcome of :func:`merge`; ``matrix`` maps B pixels to A pixels.
+
+    Attributes
+    ----------
+    margin : float
+        The acceptance statistic of :mod:`pgvd.decision`: the winner's overlay
+        evidence beyond its best rival's, per overlapping wall cell; NaN when no
+        hypothesis reached the full-resolution stage.
+    distortion_px : float
+        Largest local misfit of the overlap after the rigid fit, pixels
+        (:func:`pgvd.matching.residual_distortion`): a drifted map has no single
+        rigid fit.  NaN when no hypothesis reached the full-resolution stage.
+    headings_deg : tuple of float
+        The candidate headings (degrees) that went through the PGVD/Gamma stages.
+    """
 
     accepted: bool
     matrix: np.ndarray
@@ -164,6 +214,9 @@ class MergeResult:
     timings_ms: dict[str, float]
     reason: str
     diagnostics: MergeDiagnostics | None = field(default=None, repr=False)
+    margin: float = float("nan")
+    distortion_px: float = float("nan")
+    headings_deg: tuple[float, ...] = ()
 
     def to_json(self) -> dict:
         """The object ``pgvd merge --json`` prints, plus ``reason``.
@@ -181,6 +234,8 @@ class MergeResult:
             "score": float(self.score),
             "timings_ms": {k: round(float(v), 3) for k, v in self.timings_ms.items()},
             "reason": self.reason,
+            "margin": float(self.margin) if np.isfinite(self.margin) else None,
+            "distortion_px": float(self.distortion_px) if np.isfinite(self.distortion_px) else None,
         }
 
 
@@ -338,6 +393,11 @@ def _rotate(
     return _Rotated(heading, rb, rot, centre, overlay)
 
 
+def _ranked(turned: list[_Rotated], weight: float) -> list[_Rotated]:
+    """Rotated B's, best whole-map overlay evidence first."""
+    return sorted(turned, key=lambda r: -r.overlay.best_evidence(weight))
+
+
 def _search_heading(
     turned: _Rotated,
     graph_a: EdgeGraph,
@@ -350,18 +410,31 @@ def _search_heading(
     """All verified translations for one candidate heading (coarse scale)."""
     heading, rot, overlay = turned.heading, turned.rotation, turned.overlay
     # eq. (8) with zero translation: the heading uncertainty as a tangential blur
-    rb = rotation_blur(turned.prob, float(np.sqrt(heading.variance)), turned.centre)
+    rb = (
+        rotation_blur(turned.prob, float(np.sqrt(heading.variance)), turned.centre)
+        if params.heading_blur
+        else turned.prob
+    )
     s_b, sp_b = _pgvd(rb, params)
     clock.lap("pgvd")
     graph_b = _keep_edges(build_graph(s_b, sp_b, min_len), params.max_edges)
     clock.lap("graph")
     sim = correlator.similarity(graph_b.edges)
-    passing = rho_test(sim.gamma, graph_a.edges, graph_b.edges, params.rho)
+    passing = (
+        rho_test(sim.gamma, graph_a.edges, graph_b.edges, params.rho)
+        if params.rho_veto
+        else sim.gamma > 0
+    )
     ia, ib = np.nonzero(passing)
-    order = np.argsort(-sim.gamma[ia, ib], kind="stable")
+    rank = -sim.gamma[ia, ib] if params.gamma_ranking else np.arange(ia.size)
+    order = np.argsort(rank, kind="stable")
     shifts = sim.shift[ia[order], ib[order]].astype(np.int64)
     _, first = np.unique(shifts, axis=0, return_index=True)
     proposals = [(int(x), int(y)) for x, y in shifts[np.sort(first)[: params.max_hypotheses]]]
+    # The whole-map overlay's own peaks propose too: with a small overlap the
+    # edge pairs that cross it are few and their correlation peaks (29) can all
+    # fall elsewhere; the rho test (32) at the translation still has to pass.
+    proposals += overlay.peaks(params.overlay_peaks, radius, params.disagreement_weight)
     clock.lap("gamma")
     out: list[_Hypothesis] = []
     if not proposals:
@@ -375,6 +448,7 @@ def _search_heading(
     )
     for tx, ty in refined:
         ok = pairs.correlation((tx, ty)) > thresh
+        support = pair_support(ok) if params.rho_veto else params.min_pairs
         agreement = overlay.at((tx, ty))
         out.append(
             _Hypothesis(
@@ -382,7 +456,7 @@ def _search_heading(
                 coarse_matrix=_translation(tx, ty) @ rot,
                 evidence=agreement.agree - params.disagreement_weight * agreement.disagree,
                 ratio=agreement.ratio,
-                support=pair_support(ok),
+                support=support,
                 passing=ok,
                 graph_b=graph_b,
                 rotation=rot,
@@ -424,22 +498,41 @@ def _decide(
     to_fine: np.ndarray,
     k: int,
     params: MergeParams,
-) -> tuple[_Hypothesis, np.ndarray]:
-    """Refine every finalist at full resolution and keep the best overlay evidence.
+    rival_px: float,
+) -> tuple[_Hypothesis, Decision, np.ndarray]:
+    """Refine every finalist at full resolution and weigh the best against its rivals.
 
     ``to_fine`` maps A's coarse crop to A's pixels.  Finalists are refined on
     a subsample of B's walls and scored on subsamples (quick); the winner is
-    then refined on all wall cells.  Returns it with its B->A pixel matrix.
+    then refined on all wall cells, point-to-point and then point-to-line with a
+    robust loss (:func:`pgvd.matching.refine_point_to_line`).
+    Finalists within ``rival_px`` (and 2 degrees) of the winner are its own,
+    the others its rivals.  Returns the winner, the
+    :class:`pgvd.decision.Decision` and the winner's B->A pixel matrix.
     """
     sub_b = subsample(fine_b.walls, params.refine_points)
     scored = []
     for h in finalists:
         m = to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k))
         m = refine(fine_a.tree, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3)
-        ag = map_agreement(fine_a, fine_b, m, max_points=params.refine_points)
-        scored.append((ag.agree - params.disagreement_weight * ag.disagree, ag.ratio, h, m))
-    _, _, best, matrix = max(scored, key=lambda x: (x[0], x[1]))
-    return best, refine(fine_a.tree, fine_b.walls, matrix, radii=(3.0, 2.0))
+        scored.append(Scored(m, map_agreement(fine_a, fine_b, m, max_points=params.refine_points)))
+    centre = fine_b.walls.mean(axis=0)
+    decision = decide(scored, params.disagreement_weight, centre, px=rival_px)
+    probes = [
+        Scored(m, map_agreement(fine_a, fine_b, m, max_points=params.refine_points))
+        for m in shifted(decision.winner.matrix, tuple(s * rival_px for s in params.probe_shifts))
+    ]
+    decision = decide(scored, params.disagreement_weight, centre, px=rival_px, probes=probes)
+    best = finalists[next(i for i, s in enumerate(scored) if s is decision.winner)]
+    return (
+        best,
+        decision,
+        refine_point_to_line(
+            fine_a.tree,
+            fine_b.walls,
+            refine(fine_a.tree, fine_b.walls, decision.winner.matrix, radii=(3.0, 2.0)),
+        ),
+    )
 
 
 def _edge_mask(graph: EdgeGraph, idx: np.ndarray) -> np.ndarray:
@@ -500,6 +593,7 @@ def _result(
     score: float,
     covariance: np.ndarray,
     diagnostics: MergeDiagnostics | None = None,
+    **extra: object,
 ) -> MergeResult:
     psi, tx, ty = matrix_to_pose(matrix)
     return MergeResult(
@@ -512,14 +606,19 @@ def _result(
         timings_ms=clock.total(),
         reason=reason,
         diagnostics=diagnostics,
+        **extra,
     )
 
 
 def _rejected(
-    reason: str, clock: _Clock, matrix: np.ndarray | None = None, score: float = 0.0
+    reason: str,
+    clock: _Clock,
+    matrix: np.ndarray | None = None,
+    score: float = 0.0,
+    **extra: object,
 ) -> MergeResult:
     m = np.eye(3) if matrix is None else matrix
-    return _result(False, reason, clock, m, score, np.full((3, 3), np.nan))
+    return _result(False, reason, clock, m, score, np.full((3, 3), np.nan), **extra)
 
 
 def merge(
@@ -549,8 +648,9 @@ def merge(
     -------
     MergeResult
         ``matrix`` maps B pixels to A pixels.  ``accepted`` is False, with a
-        ``reason``, when no transform passes the rho test (32), the edge-pair
-        agreement and the map agreement checks.
+        ``reason``, when no transform passes the rho test (32) and the edge-pair
+        agreement, or when the best one does not stand out from its rivals on
+        the same pair (:mod:`pgvd.decision`).
 
     Raises
     ------
@@ -613,12 +713,12 @@ def merge(
     radius = max(1, round(params.search_radius / coarse_res))
     clock.lap("verify")
     canvases: dict[float, np.ndarray] = {}
-    turned = sorted(
-        (_rotate(h, cb, scores, params, canvases) for h in headings),
-        key=lambda r: -r.overlay.best_evidence(params.disagreement_weight),
+    turned = _ranked(
+        [_rotate(h, cb, scores, params, canvases) for h in headings], params.disagreement_weight
     )
     clock.lap("verify")
     hyps: list[_Hypothesis] = []
+    searched: tuple[float, ...] = ()
     for t in turned[: params.search_headings]:
         # A heading's hypotheses score at most its best overlay evidence, and the
         # finalists are the best by evidence: once that many supported ones beat
@@ -626,6 +726,7 @@ def merge(
         # cannot change the outcome, so its PGVD/Gamma stages are skipped.
         if _decided(hyps, params, t.overlay.best_evidence(params.disagreement_weight)):
             break
+        searched += (float(np.degrees(t.heading.psi)),)
         hyps += _search_heading(t, graph_a, correlator, params, min_len, radius, clock)
     good = [h for h in hyps if h.support >= params.min_pairs]
     if not good:
@@ -639,17 +740,34 @@ def merge(
     fine_b = WallMap(pb, params.occupied, params.free)
     clock.lap("verify")
     to_fine = _scale(k) @ off_a
-    best, matrix = _decide(_finalists(good, params.finalists), fine_a, fine_b, to_fine, k, params)
+    finalists = _finalists(good, params.finalists)
+    rival_px = params.rival_distance / a.resolution
+    best, decision, matrix = _decide(finalists, fine_a, fine_b, to_fine, k, params, rival_px)
     clock.lap("refine")
     agreement = map_agreement(fine_a, fine_b, matrix)
     overlap_m = 0.5 * agreement.agree * a.resolution
+    distortion = residual_distortion(
+        fine_a.tree, fine_b.walls, matrix, block=params.distortion_block / a.resolution
+    )
     clock.lap("verify")
+    extra = {"margin": decision.margin, "distortion_px": distortion, "headings_deg": searched}
+    if decision.margin < params.min_margin:
+        evidence = decision.winner.evidence(params.disagreement_weight)
+        return _rejected(
+            f"the best pose does not stand out: margin {decision.margin:.2f} < "
+            f"{params.min_margin} (evidence {evidence:.0f}, best rival {decision.rival:.0f})",
+            clock,
+            matrix,
+            agreement.ratio,
+            **extra,
+        )
     if agreement.ratio < params.min_agreement:
         return _rejected(
             f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {params.min_agreement}",
             clock,
             matrix,
             agreement.ratio,
+            **extra,
         )
     if overlap_m < params.min_overlap:
         return _rejected(
@@ -657,6 +775,7 @@ def merge(
             clock,
             matrix,
             agreement.ratio,
+            **extra,
         )
     cov = calibrated_covariance(alignment_fit(fine_a.tree, fine_b.walls, matrix), a.resolution)
     clock.lap("covariance")
@@ -667,4 +786,4 @@ def merge(
     )
     if diag is not None:
         clock.lap("diagnostics")
-    return _result(True, "accepted", clock, matrix, agreement.ratio, cov, diag)
+    return _result(True, "accepted", clock, matrix, agreement.ratio, cov, diag, **extra)

@@ -17,6 +17,7 @@ from pgvd.matching import (
     alignment_covariance,
     map_agreement,
     refine,
+    refine_point_to_line,
     rho_test,
     similarity,
 )
@@ -136,6 +137,29 @@ def test_refine_and_covariance_on_real_walls(intel):
     cov = alignment_covariance(wm.tree, walls_b, m)
     assert np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0)
     assert np.sqrt(cov[0, 0]) < 1.0 and np.sqrt(cov[2, 2]) < np.radians(0.5)
+
+
+def test_point_to_line_refinement_recovers_a_turn_that_slides_along_walls(intel):
+    wm = WallMap(intel, 0.65, 0.3)
+    truth = rigid_matrix(np.radians(1.0), 3.0, -2.0)
+    walls_b = (wm.walls - truth[:2, 2]) @ np.linalg.inv(truth[:2, :2]).T  # A = truth(B)
+    # start 0.4 deg and 1.5 px off, inside the capture radius
+    start = rigid_matrix(np.radians(1.4), 4.5, -2.0)
+    m = refine_point_to_line(wm.tree, walls_b, start)
+
+    def error(mat: np.ndarray) -> float:
+        """Mean displacement (px) of B's walls between ``mat`` and the truth."""
+        return float(
+            np.linalg.norm(
+                (walls_b @ (mat - truth)[:2, :2].T) + (mat - truth)[:2, 2], axis=1
+            ).mean()
+        )
+
+    assert error(m) < 0.2 < error(start), (error(start), error(m))
+    # a third of B's walls displaced by 8 px (a drifted part) does not drag the pose
+    bent = walls_b.copy()
+    bent[: len(bent) // 3] += 8.0
+    assert error(refine_point_to_line(wm.tree, bent, truth)) < 0.5
 
 
 def test_covariance_is_large_along_a_corridor():

@@ -84,8 +84,9 @@ def test_result_json_and_diagnostics(albert, shared):
     js = r.to_json()
     assert set(js) == {
         "accepted", "matrix", "rotation_deg", "translation_px", "covariance", "score",
-        "timings_ms", "reason",
+        "timings_ms", "reason", "margin", "distortion_px",
     }  # fmt: skip
+    assert js["margin"] >= MergeParams().min_margin and js["distortion_px"] >= 0
     assert np.array(js["matrix"]).shape == (3, 3) and np.array(js["covariance"]).shape == (3, 3)
     assert js["timings_ms"]["total"] >= max(v for k, v in js["timings_ms"].items() if k != "total")
     assert {"rotation", "pgvd", "graph", "gamma", "verify", "refine"} <= set(js["timings_ms"])

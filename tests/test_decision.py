@@ -1,0 +1,87 @@
+"""The acceptance decision (pgvd.decision) and the residual distortion, on real maps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pgvd.decision import Scored, decide, same_pose, shifted
+from pgvd.grid import Grid, relative_matrix, rigid_matrix
+from pgvd.io import read_map
+from pgvd.matching import WallMap, map_agreement, residual_distortion
+from pgvd.merge import MergeParams, merge
+
+WEIGHT = MergeParams().disagreement_weight
+
+
+@pytest.fixture(scope="module")
+def intel(shared):
+    a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
+    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
+    fine_a = WallMap(a.probability(), 0.65, 0.3)
+    fine_b = WallMap(b.probability(), 0.65, 0.3)
+    return fine_a, fine_b, relative_matrix(a, b)
+
+
+def _scored(intel, matrix: np.ndarray) -> Scored:
+    fine_a, fine_b, _ = intel
+    return Scored(matrix, map_agreement(fine_a, fine_b, matrix, max_points=1500))
+
+
+def _moved(truth: np.ndarray, dx: float) -> np.ndarray:
+    return rigid_matrix(0.0, dx, 0.0) @ truth
+
+
+def test_true_pose_stands_out_and_a_rival_as_good_cancels_it(intel):
+    _, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    true, off = _scored(intel, truth), _scored(intel, _moved(truth, 60.0))
+    d = decide([off, true], WEIGHT, centre)
+    assert d.winner is true
+    assert d.margin >= MergeParams().min_margin, d
+    assert d.rival < true.evidence(WEIGHT)
+    # the same pose reached twice is not a rival of itself
+    again = Scored(_moved(truth, 1.0), true.agreement)
+    assert same_pose(again.matrix, truth, centre, 2.0, 20.0)
+    assert decide([true, again], WEIGHT, centre).rival == -np.inf
+    # a look-alike: another pose scoring as well as the winner leaves no margin
+    twin = Scored(_moved(truth, 200.0), true.agreement)
+    assert decide([true, twin], WEIGHT, centre).margin == pytest.approx(0.0)
+
+
+def test_shifted_probes_are_rivals_only(intel):
+    _, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    true = _scored(intel, truth)
+    probes = [_scored(intel, m) for m in shifted(truth, (30.0, 60.0))]
+    assert len(probes) == 8
+    d = decide([true], WEIGHT, centre, probes=probes)
+    # the intel lab pins the pose: 1.5 and 3 m away it scores far less
+    assert d.winner is true and d.margin >= MergeParams().min_margin, d
+    # a probe as good as the winner (a corridor alike along its length) leaves no margin
+    alike = Scored(shifted(truth, (30.0,))[0], true.agreement)
+    assert decide([true], WEIGHT, centre, probes=[alike]).margin == pytest.approx(0.0)
+
+
+def test_decide_needs_a_hypothesis():
+    with pytest.raises(ValueError, match="at least one"):
+        decide([], WEIGHT, np.zeros(2))
+
+
+def test_distortion_grows_when_part_of_b_is_displaced(intel):
+    fine_a, fine_b, truth = intel
+    rigid = residual_distortion(fine_a.tree, fine_b.walls, truth)
+    # bend B: walls right of its middle move by 6 px along y, as drift would move them
+    bent = fine_b.walls.copy()
+    moved_x = (bent @ truth[:2, :2].T + truth[:2, 2])[:, 0]
+    bent[moved_x > np.median(moved_x), 1] += 6.0
+    drifted = residual_distortion(fine_a.tree, bent, truth)
+    assert rigid < 3.0 and drifted > rigid + 3.0, (rigid, drifted)
+
+
+def test_a_building_against_its_mirror_image_is_rejected(shared):
+    a = read_map(shared / "maps" / "fr079_split_gt" / "fr079_partA.yaml")
+    mirror = Grid(np.ascontiguousarray(a.logodds[:, ::-1]), a.resolution)
+    r = merge(a, mirror, MergeParams(diagnostics=False))
+    assert not r.accepted, r.reason
+    assert r.margin < MergeParams().min_margin
