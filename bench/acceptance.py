@@ -2,7 +2,7 @@
 
 Pair sets (every map in a random frame, true B -> A matrix known):
 
-``standard``  intel and freiburg-079 log pairs (:mod:`pgvd.pairs`), overlap >= 10 %,
+``standard``  intel and freiburg-079 log pairs (:mod:`bench.pairs`), overlap >= 10 %,
               with their disjoint pairs;
 ``low``       log pairs with overlap 15-35 %;
 ``drifted``   log pairs with extra odometry noise (0.01 m/m, 0.002 rad/rad), and
@@ -45,10 +45,10 @@ from pathlib import Path
 import numpy as np
 
 from bench.merge import RESULTS, build_pairs, evaluate
+from bench.pairs import MapPair
 from pgvd.grid import Grid, rigid_matrix
 from pgvd.io import read_map
 from pgvd.merge import MergeParams, merge
-from pgvd.pairs import MapPair
 from pgvd.rotation import estimate_headings
 from pgvd.transform import resample, warp
 

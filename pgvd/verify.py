@@ -33,6 +33,12 @@ from pgvd.merge import MergeParams, MergeResult
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
 BASIN_M = 1.0
+#: A prediction has no rival hypotheses to be measured against (the merge's margin test,
+#: :mod:`pgvd.decision`), so it must meet absolute floors: the overlay agreement and agreeing
+#: wall length on which the merge was accepted before that test (true merges >= 0.94 on the
+#: development pairs, the best false overlays <= 0.89).
+MIN_AGREEMENT = 0.92
+MIN_OVERLAP_M = 15.0
 #: Largest change of heading (degrees) by the refinement for the prediction to count.
 BASIN_DEG = 5.0
 
@@ -139,11 +145,13 @@ def verify(
     agreement = map_agreement(fine_a, fine_b, matrix)
     overlap_m = 0.5 * agreement.agree * a.resolution
     lap("verify")
-    if agreement.ratio < params.min_agreement:
-        why = f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {params.min_agreement}"
+    min_agreement = max(params.min_agreement, MIN_AGREEMENT)
+    min_overlap = max(params.min_overlap, MIN_OVERLAP_M)
+    if agreement.ratio < min_agreement:
+        why = f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {min_agreement}"
         return result(False, why, matrix, agreement.ratio, nan)
-    if overlap_m < params.min_overlap:
-        why = f"overlap too small: {overlap_m:.1f} m of agreeing walls < {params.min_overlap} m"
+    if overlap_m < min_overlap:
+        why = f"overlap too small: {overlap_m:.1f} m of agreeing walls < {min_overlap} m"
         return result(False, why, matrix, agreement.ratio, nan)
     k = max(1, round(params.coarse_resolution / a.resolution))
     cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
