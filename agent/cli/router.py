@@ -75,12 +75,14 @@ def run_router(config: zenoh.Config, stop: threading.Event) -> None:
     except zenoh.ZError as exc:
         raise CliError(f"cannot start the router: {zenoh_error(exc)}") from exc
     with session:
+        endpoints = json.loads(config.get_json("listen/endpoints") or "[]")
+        # "ready" first: declared before it, the listener's callback thread could print a
+        # session's "open" line ahead of it (seen under load), breaking the one-line contract.
+        print(f"ready {session.info.zid()} listening on {json.dumps(endpoints)}", flush=True)
         # history: a router linking to us while we were opening is reported too.
         listener = session.info.declare_transport_events_listener(
             _print_transport_event, history=True
         )
-        endpoints = json.loads(config.get_json("listen/endpoints") or "[]")
-        print(f"ready {session.info.zid()} listening on {json.dumps(endpoints)}", flush=True)
         stop.wait()
         # A callback listener still declared when the session closes can hang the process.
         listener.undeclare()
