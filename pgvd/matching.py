@@ -555,7 +555,8 @@ def refine(
 class _LineFit:
     """Point-to-line residuals of B's walls near A's at one pose (see :func:`_point_to_line`)."""
 
-    moved: np.ndarray  # (M, 2) B's wall cells within the radius, moved into A
+    cells: np.ndarray  # (M, 2) B's wall cells within the radius, in B's frame
+    moved: np.ndarray  # (M, 2) the same cells moved into A
     res: np.ndarray  # (M,) n_i . (R x_i + t - y_i)
     jac: np.ndarray  # (M, 3) d res / d (tx, ty, psi)
 
@@ -574,11 +575,11 @@ def _point_to_line(
     ok = np.isfinite(dist)
     x, y = pts[ok], walls_a.data[idx[ok]]
     n = _normals(walls_a, y) if ok.any() else np.zeros((0, 2))
-    psi = np.arctan2(matrix[0, 1], matrix[0, 0])
+    psi = heading(matrix)
     c, s = np.cos(psi), np.sin(psi)
     dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
     jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
-    return _LineFit(moved[ok], np.sum(n * (moved[ok] - y), axis=1), jac)
+    return _LineFit(x, moved[ok], np.sum(n * (moved[ok] - y), axis=1), jac)
 
 
 def refine_point_to_line(
@@ -768,19 +769,12 @@ def alignment_fit(
         None when fewer than 3 cells of B land near A's walls.
     """
     pts = subsample(walls_b, max_points)
-    moved = _apply(matrix, pts)
-    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
-    ok = np.isfinite(dist)
-    if ok.sum() < 3:
+    fit = _point_to_line(walls_a, pts, matrix, radius)
+    if len(fit.res) < 3:
         return None
-    x, y = pts[ok], walls_a.data[idx[ok]]
-    n = _normals(walls_a, y)
+    x, res = fit.cells, fit.res
     psi = heading(matrix)
-    c, s = np.cos(psi), np.sin(psi)
-    dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
-    jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
-    res = np.sum(n * (moved[ok] - y), axis=1)
-    info = jac.T @ jac
+    info = fit.jac.T @ fit.jac
     # a tiny prior keeps a degenerate direction finite instead of singular
     info += np.diag([1e-9, 1e-9, 1e-9 * max(1.0, float(np.abs(x).max())) ** 2])
     return AlignmentFit(
