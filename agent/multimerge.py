@@ -55,7 +55,7 @@ class ManyMerge:
         return max(self.components, key=lambda c: len(c.members))
 
     def report(self, files: Sequence[str]) -> dict[str, object]:
-        """The ``--json`` object of ``pgvd merge A B C ...`` (design.md)."""
+        """The ``--json`` object of ``pgvd merge A B C ...`` (docs/architecture.md)."""
         index = {r: i for i, r in enumerate(self.ids)}
         comp_of = {r: k for k, c in enumerate(self.components) for r in c.members}
         maps = []

@@ -1,6 +1,7 @@
 """Where a ROS 2 topic lives in Zenoh's key space, for rmw_zenoh and for zenoh-bridge-ros2dds.
 
-rmw_zenoh (``docs/design.md`` of ros2/rmw_zenoh, and ``liveliness_utils.cpp``):
+rmw_zenoh (the design document of the ros2/rmw_zenoh repository, and its
+``liveliness_utils.cpp``):
 
 - data: ``<domain>/<topic without the leading slash>/<DDS type name>/<type hash>``;
 - liveliness, one token per entity:
