@@ -10,6 +10,12 @@ through, for the duration of one merge.  That is private API: if it is gone,
 nothing is recorded (None) rather than something guessed, and a
 ``candidates`` field of MergeResult, if the method exposes one, is in
 :func:`result_json` anyway.
+
+:class:`Finalists` records, the same way, the refined B->A matrices of the
+finalists that reach the decision: the ``scored`` hypotheses handed to
+``pgvd.merge.decide`` (:func:`pgvd.decision.decide`).  With them the bench
+separates "the search did not find the pose" from "the decision did not pick
+or accept it" (pose recall, :mod:`bench.recall`).
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -59,6 +65,30 @@ def result_json(result: object) -> dict:
     }
 
 
+@contextlib.contextmanager
+def _wrapping(name: str, seen: Callable[..., None]) -> Iterator[bool]:
+    """Wrap ``pgvd.merge.<name>`` so that ``seen`` gets each call's arguments first.
+
+    Yields False (and wraps nothing) when the private function is gone.
+    """
+    # pgvd.merge is the function (pgvd's public API); the module is in sys.modules.
+    core = importlib.import_module("pgvd.merge")
+    original = getattr(core, name, None)
+    if original is None:
+        yield False
+        return
+
+    def wrapped(*args, **kwargs):
+        seen(*args, **kwargs)
+        return original(*args, **kwargs)
+
+    setattr(core, name, wrapped)
+    try:
+        yield True
+    finally:
+        setattr(core, name, original)
+
+
 class SearchedHeadings:
     """Collects the headings (degrees) that went through matching during one merge."""
 
@@ -67,22 +97,31 @@ class SearchedHeadings:
 
     @contextlib.contextmanager
     def watching(self) -> Iterator[None]:
-        # pgvd.merge is the function (pgvd's public API); the module is in sys.modules.
-        core = importlib.import_module("pgvd.merge")
-        original = getattr(core, "_search_heading", None)
-        if original is None:
-            self.degrees = None
-            yield
-            return
         seen: list[float] = []
-
-        def wrapped(turned, *args, **kwargs):
-            seen.append(float(np.degrees(turned.heading.psi)))
-            return original(turned, *args, **kwargs)
-
-        core._search_heading = wrapped
-        try:
+        with _wrapping(
+            "_search_heading", lambda turned, *_, **__: seen.append(np.degrees(turned.heading.psi))
+        ) as ok:
             yield
-        finally:
-            core._search_heading = original
-            self.degrees = seen
+        self.degrees = [float(d) for d in seen] if ok else None
+
+
+class Finalists:
+    """Collects the refined B->A matrices of the finalists of one merge (before the decision).
+
+    ``matrices`` is None when the hook is gone, an empty list when no hypothesis
+    reached the decision.
+    """
+
+    def __init__(self) -> None:
+        self.matrices: list[np.ndarray] | None = None
+
+    @contextlib.contextmanager
+    def watching(self) -> Iterator[None]:
+        # decide() is called once for the finalists and again with the shifted probes:
+        # the finalists are the ``scored`` argument of the last call.
+        calls: list[list] = []
+        with _wrapping("decide", lambda scored, *_, **__: calls.append(list(scored))) as ok:
+            yield
+        self.matrices = [np.asarray(s.matrix) for s in calls[-1]] if calls else []
+        if not ok:
+            self.matrices = None

@@ -23,7 +23,8 @@ error of B's occupied cells within 3 cells.  Times are wall-clock per merge
 in this process.  Time scaling uses one intel pair rendered at ~500^2 cells
 and upsampled (nearest, x2 and x4, so the content is identical) to ~1000^2 and
 ~2000^2.  Every pair's record (truth, what the method exposes: for pgvd every
-MergeResult field and the headings searched) is in ``merge.json``.
+MergeResult field, the headings searched and the finalists that reached the
+decision, each marked a success or not) is in ``merge.json``.
 
 Run from the project root::
 
@@ -46,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import report
-from bench.capture import SearchedHeadings, result_json, to_json
+from bench.capture import Finalists, SearchedHeadings, result_json, to_json
 from bench.pairs import MapPair, make_pair
 from bench.sets import (
     DRIFT,
@@ -83,10 +84,14 @@ def _pgvd(**overrides) -> Method:
     params = MergeParams(diagnostics=False, **overrides)
 
     def run(a: Grid, b: Grid) -> tuple[bool, np.ndarray, dict]:
-        searched = SearchedHeadings()
-        with searched.watching():
+        searched, finalists = SearchedHeadings(), Finalists()
+        with searched.watching(), finalists.watching():
             result = merge(a, b, params)
-        extra = {"result": result_json(result), "searched_deg": searched.degrees}
+        extra = {
+            "result": result_json(result),
+            "searched_deg": searched.degrees,
+            "finalists": finalists.matrices,
+        }
         return bool(result.accepted), np.asarray(result.matrix), extra
 
     return run
@@ -209,6 +214,11 @@ def run_pairs(entries: list[Entry], table: dict[str, Method]) -> list[dict]:
             seconds = time.perf_counter() - t0
             rec = pair_record(entry)
             rec.update(evaluate(pair, accepted, matrix))
+            if extra.get("finalists") is not None:
+                # pose recall (bench.recall): would each finalist have been a success?
+                rec["finalist_success"] = [
+                    evaluate(pair, True, m)["success"] for m in extra["finalists"]
+                ]
             rec.update(method=name, seconds=seconds, matrix=matrix.tolist(), **extra)
             records.append(to_json(rec))
             mark = "ok" if rec["success"] else ("ACC" if accepted else "rej")

@@ -1,10 +1,18 @@
-"""Heading-candidate recall of a bench run, from its ``merge.json`` alone (no rerun).
+"""Heading and pose recall of a bench run, from its ``merge.json`` alone (no rerun).
 
-For every overlapping pair (negatives have nothing to find), is the true heading within
-``--tolerance`` degrees (2 by default, the success bound) of any heading that
-went through pgvd's matching stages?  The searched headings are the
-``searched_deg`` of each pgvd record (:mod:`bench.capture`).  Printed per set
-and per source, with the misses listed.
+For every overlapping pair (negatives have nothing to find):
+
+*heading recall*: is the true heading within ``--tolerance`` degrees (2 by
+default, the success bound) of any heading that went through pgvd's matching
+stages?  The searched headings are the ``searched_deg`` of each pgvd record
+(:mod:`bench.capture`).
+
+*pose recall*: is one of the finalists that reached the decision, after its
+refinement, within the success bounds of the truth (``finalist_success`` of
+each record)?  A pair that fails with its pose found was lost by the decision;
+one that fails without it, by the search.
+
+Printed per set and per source, with the heading misses listed.
 
     python3 -m bench.recall [bench/results/merge.json] [--method pgvd] [--tolerance 2]
 """
@@ -42,10 +50,25 @@ def recall(records: list[dict], tolerance: float) -> dict:
     return {"hits": len(gaps) - len(misses), "pairs": len(gaps), "misses": misses}
 
 
+def pose_recall(records: list[dict]) -> tuple[int, int, int]:
+    """Pairs with a finalist within the success bounds, pairs that record finalists, and
+    pairs that failed although a finalist was right (lost by the decision)."""
+    known = [r for r in records if r.get("finalist_success") is not None]
+    found = [r for r in known if any(r["finalist_success"])]
+    return len(found), len(known), sum(not r["success"] for r in found)
+
+
+def _share(hits: int, total: int) -> str:
+    return f"{hits}/{total} ({100 * hits / total:.1f} %)" if total else "-"
+
+
 def table(records: list[dict], tolerance: float) -> list[str]:
-    """Markdown rows: recall per set and per source."""
-    lines = ["| group | recall | misses (pair: degrees to the nearest searched heading) |"]
-    lines.append("|---|---|---|")
+    """Markdown rows: heading and pose recall per set and per source."""
+    lines = [
+        "| group | success | pose recall | lost by the decision | heading recall "
+        "| heading misses (pair: degrees to the nearest searched heading) |"
+    ]
+    lines.append("|---|---|---|---|---|---|")
     groups = [("set", s) for s in sorted({r["set"] for r in records})]
     groups += [("source", s) for s in sorted({r["source"] for r in records})]
     for key, value in [*groups, ("all", None)]:
@@ -53,9 +76,13 @@ def table(records: list[dict], tolerance: float) -> list[str]:
         got = recall(mine, tolerance)
         if not got["pairs"]:
             continue
-        share = f"{got['hits']}/{got['pairs']} ({100 * got['hits'] / got['pairs']:.1f} %)"
+        found, known, lost = pose_recall(mine)
+        success = _share(sum(r["success"] for r in mine), len(mine))
         miss = ", ".join(f"{p}: {g}" for p, g in got["misses"]) or "-"
-        lines.append(f"| {value or '**all**'} | {share} | {miss} |")
+        lines.append(
+            f"| {value or '**all**'} | {success} | {_share(found, known)} | {lost} "
+            f"| {_share(got['hits'], got['pairs'])} | {miss} |"
+        )
     return lines
 
 
@@ -71,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.json}: no searched headings recorded for {args.method}")
         return 1
     gaps = [g for g in map(nearest_gap, records) if g is not None]
-    print(f"# Heading-candidate recall ({args.method}, within {args.tolerance} deg)\n")
+    print(f"# Heading (within {args.tolerance} deg) and pose recall ({args.method})\n")
     print("\n".join(table(records, args.tolerance)))
     print(f"\nmedian gap {np.median(gaps):.2f} deg, max {np.max(gaps):.2f} deg")
     return 0
