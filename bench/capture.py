@@ -90,19 +90,22 @@ def _wrapping(name: str, seen: Callable[..., None]) -> Iterator[bool]:
 
 
 class SearchedHeadings:
-    """Collects the headings (degrees) that went through matching during one merge."""
+    """Collects the headings (degrees) that went through matching during one merge, and
+    their standard deviations (degrees, the square root of the candidates' variance)."""
 
     def __init__(self) -> None:
         self.degrees: list[float] | None = None
+        self.sigmas: list[float] | None = None
 
     @contextlib.contextmanager
     def watching(self) -> Iterator[None]:
-        seen: list[float] = []
+        seen: list = []
         with _wrapping(
-            "_search_heading", lambda turned, *_, **__: seen.append(np.degrees(turned.heading.psi))
+            "_search_heading", lambda turned, *_, **__: seen.append(turned.heading)
         ) as ok:
             yield
-        self.degrees = [float(d) for d in seen] if ok else None
+        self.degrees = [float(np.degrees(h.psi)) for h in seen] if ok else None
+        self.sigmas = [float(np.degrees(np.sqrt(h.variance))) for h in seen] if ok else None
 
 
 class Finalists:

@@ -90,6 +90,7 @@ def _pgvd(**overrides) -> Method:
         extra = {
             "result": result_json(result),
             "searched_deg": searched.degrees,
+            "searched_sigma_deg": searched.sigmas,
             "finalists": finalists.matrices,
         }
         return bool(result.accepted), np.asarray(result.matrix), extra

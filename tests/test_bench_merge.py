@@ -49,6 +49,11 @@ def test_tiny_bench_run(shared, tmp_path):
             # Every MergeResult field but the images, and the headings that were searched.
             assert {"accepted", "matrix", "covariance", "score", "timings_ms"} <= set(r["result"])
             assert r["searched_deg"] and all(-180 <= d <= 180 for d in r["searched_deg"])
+            assert len(r["searched_sigma_deg"]) == len(r["searched_deg"])
+            # each finalist that reached the decision, judged against the truth (bench.recall)
+            assert isinstance(r["finalist_success"], list)
+            if r["overlap"] == 0:
+                assert not any(r["finalist_success"])
     # The exhaustive reference finds the truth of an overlapping real pair.
     exhaustive = [r for r in doc["records"] if r["method"] == "exhaustive" and r["overlap"] > 0]
     assert any(r["success"] for r in exhaustive)
