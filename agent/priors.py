@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
+from agent.keys import check_name
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
 from pgvd.integrate import se2
 
@@ -33,10 +34,22 @@ def parse_known_pose(text: str) -> tuple[str, Pose]:
             f"known pose must be ROBOT=x,y,yaw (metres, radians), e.g. r2=4.0,-1.5,0.3; "
             f"got {text!r}"
         )
+    robot = check_name(m["robot"], "robot id of a known pose")
     pose = (float(m["x"]), float(m["y"]), float(m["yaw"]))
     if not all(math.isfinite(v) for v in pose):
-        raise ValueError(f"known pose of {m['robot']} is not finite: {text!r}")
-    return m["robot"], pose
+        raise ValueError(f"known pose of {robot} is not finite: {text!r}")
+    return robot, pose
+
+
+def parse_known_poses(texts: Iterable[str]) -> dict[str, Pose]:
+    """Each ``--known-pose`` by robot; ``ValueError`` (one line) for a bad one or a robot twice."""
+    poses: dict[str, Pose] = {}
+    for text in texts:
+        robot, pose = parse_known_pose(text)
+        if robot in poses:
+            raise ValueError(f"known pose of {robot} given twice")
+        poses[robot] = pose
+    return poses
 
 
 def prior_matrix(a: Grid, pose_a: Pose, b: Grid, pose_b: Pose) -> np.ndarray:
