@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from agent.priors import pair_prior, parse_known_pose, parse_known_poses, prior_matrix
 from pgvd.grid import Grid, relative_matrix
+from pgvd.integrate import se2
 from pgvd.io import read_map
 
 
@@ -101,3 +102,12 @@ def test_a_known_pose_needs_a_robot_id(text: str) -> None:
 def test_a_huge_known_pose_is_not_finite() -> None:
     with pytest.raises(ValueError, match="not finite"):
         parse_known_pose("r1=1e999,0,0")
+
+
+@given(st.floats(-20, 20), st.floats(-20, 20), st.floats(0, 360))
+def test_a_replay_frame_gives_the_pose_of_its_map_frame(x: float, y: float, deg: float) -> None:
+    """:func:`agent.scenario.known_pose` inverts the world -> map transform a replay uses."""
+    from agent.scenario import known_pose
+
+    world_to_map = se2(x, y, math.radians(deg))
+    np.testing.assert_allclose(se2(*known_pose((x, y, deg))) @ world_to_map, np.eye(3), atol=1e-9)
