@@ -206,13 +206,16 @@ def test_a_disjoint_verdict_is_searched_the_first_time() -> None:
     assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "searches": 1}
 
 
+def _rejected_in_epoch_0(h: Harness, a: str, b: str) -> None:
+    """``a`` and ``b`` held at epoch 0, whose search rejected the pair."""
+    h.book.put_map(a, V(0), tiny(int(a[1])))
+    h.book.put_map(b, V(0), tiny(int(b[1])))
+    h.book.add_link(LinkRecord(a, V(0), b, V(0), False, np.eye(3), np.zeros((3, 3)), 0.1, b))
+
+
 def test_a_disjoint_verdict_on_a_pair_rejected_before_rejects_without_search() -> None:
     h = Checking("r3", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
-    h.book.put_map("r1", V(0), tiny(1))
-    h.book.put_map("r3", V(0), tiny(3))
-    h.book.add_link(
-        LinkRecord("r1", V(0), "r3", V(0), False, np.eye(3), np.zeros((3, 3)), 0.1, "r3")
-    )
+    _rejected_in_epoch_0(h, "r1", "r3")
     _chain(h)  # epoch 1 of every map: r1-r3 needs a link again
     assert h.worker.step(now=0.0)
     assert h.calls == [] and [ln.accepted for ln in h.links] == [False]
@@ -243,11 +246,7 @@ def test_a_prior_goes_before_the_chain_and_confirms_alone() -> None:
 def test_a_prior_the_check_rejects_is_searched_even_for_a_pair_rejected_before() -> None:
     """A chain's rejection of a pair rejected before stands; a prior's never does."""
     h = Checking("r1", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
-    h.book.put_map("r1", V(0), tiny(1))
-    h.book.put_map("r2", V(0), tiny(2))
-    h.book.add_link(
-        LinkRecord("r1", V(0), "r2", V(0), False, np.eye(3), np.zeros((3, 3)), 0.1, "r1")
-    )
+    _rejected_in_epoch_0(h, "r1", "r2")
     h.book.put_map("r1", V(1), tiny(1))
     h.book.put_map("r2", V(1), tiny(2))
     h.worker.poses = {"r1": (0.0, 0.0, 0.0), "r2": (1.0, 2.0, 0.3)}
