@@ -11,6 +11,9 @@ from pgvd.merge import MergeParams, _known_box, _with_refined, coarsen
 from pgvd.rotation import HeadingCandidate
 from pgvd.transform import warp
 
+#: The refinement as measured on the bench (off by default, see MergeParams.heading_span).
+ON = MergeParams(heading_span=6.0, heading_step=3.0)
+
 
 @pytest.fixture(scope="module")
 def intel_parts(shared):
@@ -38,16 +41,17 @@ def _gap_deg(a: float, b: float) -> float:
 def test_a_candidate_a_few_degrees_off_is_refined_to_the_truth(intel_parts, off_deg):
     ca, cb, psi = intel_parts
     start = HeadingCandidate(psi + np.radians(off_deg), 1e-4, 0.9)
-    out = _with_refined([start], ca, cb, MergeParams())
-    # the Radon candidate is kept, and the refined one is added within 1 degree of the truth
+    out = _with_refined([start], ca, cb, ON)
+    # the Radon candidate is kept, and the refined one is added within the 2 degrees of
+    # heading recall (bench.recall): 3 degree steps on 0.4 m cells place it no closer
     assert out[0] == start and len(out) == 2
-    assert _gap_deg(out[1].psi, psi) < 1.0, np.degrees([out[1].psi, psi])
+    assert _gap_deg(out[1].psi, psi) <= 2.0 + 1e-9, np.degrees([out[1].psi, psi])
     assert out[1].variance == start.variance
 
 
 def test_a_candidate_at_the_truth_stays_and_span_zero_turns_the_refinement_off(intel_parts):
     ca, cb, psi = intel_parts
     right = HeadingCandidate(psi, 1e-4, 0.9)
-    assert _with_refined([right], ca, cb, MergeParams()) == [right]
+    assert _with_refined([right], ca, cb, ON) == [right]
     off = HeadingCandidate(psi + np.radians(4.0), 1e-4, 0.9)
     assert _with_refined([off], ca, cb, MergeParams(heading_span=0.0)) == [off]
