@@ -14,6 +14,9 @@ Methods, all in this one process:
 ``pgvd``        this project's merge (:func:`pgvd.merge.merge`);
 ``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD):
                 ``MergeParams(probabilistic=False)``;
+``pgvd-heading`` pgvd with the Radon candidates refined on the whole-map overlay:
+                ``MergeParams(heading_span=6)`` (off by default; :mod:`bench.recall`
+                ``--method pgvd-heading`` shows what it finds);
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -110,7 +113,7 @@ def _baseline(module: str, **kwargs) -> Method:
     return run
 
 
-METHOD_NAMES = ("pgvd", "pgvd-det", "m-explore", "hough", "exhaustive")
+METHOD_NAMES = ("pgvd", "pgvd-det", "pgvd-heading", "m-explore", "hough", "exhaustive")
 
 
 def methods(
@@ -120,6 +123,7 @@ def methods(
     makers: dict[str, Callable[[], Method]] = {
         "pgvd": _pgvd,
         "pgvd-det": lambda: _pgvd(probabilistic=False),
+        "pgvd-heading": lambda: _pgvd(heading_span=6.0),
         "m-explore": lambda: _baseline("mexplore"),
         "hough": lambda: _baseline("hough"),
         "exhaustive": lambda: _baseline(
