@@ -36,7 +36,7 @@ import numpy as np
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, build_components
-from agent.links import LinkKey, LinkRecord, due_keys
+from agent.links import LinkKey, LinkRecord, due_keys, open_keys
 from agent.memory import release_free_memory
 from pgvd.grid import Grid
 from pgvd.posegraph import Solution, link_problem, solve
@@ -216,6 +216,8 @@ class FusionWorker:
         self.check = check
         self.counters = counters or Counters()
         self._placements: tuple[object, Solution | None] = (None, None)
+        #: When each needed key's turn came (:func:`agent.links.open_keys`).
+        self._opened_at: dict[LinkKey, float] = {}
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
@@ -259,20 +261,31 @@ class FusionWorker:
         """Do one job; True if there may be more to do right away."""
         now = time.monotonic() if now is None else now
         snap = self.book.snapshot(now)
+        robots = sorted(snap.maps)
+        predicted = (
+            {k for k in snap.needed if self._predicted(snap, k[0], k[2]) is not None}
+            if self.check is not None
+            else set()
+        )
+        # Without checks every pair is a search anyway: no wave to wait for.
+        opened = snap.needed if self.check is None else open_keys(snap.needed, predicted, robots)
+        # A pair's turn (and the timeouts of the agents stepping in) counts from when its
+        # wave opened, not from when it was first needed: else every agent of a late wave
+        # would be past its timeout at once and search it too.
+        self._opened_at = {k: self._opened_at.get(k, now) for k in opened}
         due = due_keys(
             self.me,
-            snap.needed,
-            snap.first_needed,
+            opened,
+            self._opened_at,
             now,
             self.effective_timeout(len(snap.maps)),
-            sorted(snap.maps),
+            robots,
             snap.alive,
         )
         if due:
             # Checks first: they take tens of milliseconds, and each link they add may
             # turn a pair waiting for a full search into one more check.
-            if self.check is not None:
-                due.sort(key=lambda k: self._predicted(snap, k[0], k[2]) is None)
+            due.sort(key=lambda k: k not in predicted)
             self._register(snap, due[0])
             return True
         signature = (

@@ -286,3 +286,20 @@ def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
     assert verdict is not None and not verdict.accepted
     monkeypatch.setattr("pgvd.verify.BASIN_M", 1e-3)  # any correction leaves the basin
     assert verify_check()(a, b, off) is None
+
+
+def test_a_later_wave_waits_for_the_first_and_becomes_a_check() -> None:
+    """r1 searches its neighbour r2 at once, but its opposite r3 only once the first wave is
+    decided, and then as a check: the links r2-r3-r4 placed r3 beside r1."""
+    h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    assert h.worker.step(now=0.0)
+    assert [ln.pair for ln in h.links] == [("r1", "r2")] and len(h.calls) == 1
+    # r1-r3 is r1's turn, but r2-r3, r3-r4 and r1-r4 of the first wave are still to search
+    assert not h.worker.step(now=0.1) and len(h.links) == 1
+    h.book.add_link(_link("r2", "r3", np.eye(3)))
+    h.book.add_link(_link("r3", "r4", np.eye(3)))
+    assert h.worker.step(now=0.2)
+    assert [ln.pair for ln in h.links] == [("r1", "r2"), ("r1", "r3")]
+    assert len(h.calls) == 1 and len(h.checked) == 1  # checked, not searched
