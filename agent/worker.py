@@ -15,11 +15,14 @@ first (:func:`verify_check`: a local refinement and the overlay acceptance, tens
 milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where the check is
 inconclusive.  A prediction under which the two maps share too few walls, or disagree once
 refined within the basin, is a decided rejection -- a search could only find a transform the
-chain contradicts -- but only for a pair a search already rejected in an earlier epoch: were
-the chain wrong, a first search is what finds the true link that exposes it around a cycle.
-So full searches grow with the robots (each joins its component once, plus the pairs whose
-chain is off), not with the pairs.  Which way a link was decided does not enter the global
-map, which stays a function of the maps and the links (fleet invariant 2).
+chain contradicts -- but only for a pair a search already rejected in an earlier epoch, or
+whose robots the chain joins over links on cycles only (:func:`cycle_checked`): were the chain
+wrong on a bridge, a first search is what finds the true link that exposes it around a cycle.
+Searches go by waves (:func:`agent.links.open_keys`): neighbours on the circle of robots
+first, a pair further apart only once the nearer ones are decided, and by then most pairs are
+checks.  So full searches grow with the robots (each joins its component once, plus the pairs
+whose chain is off), not with the pairs.  Which way a link was decided does not enter the
+global map, which stays a function of the maps and the links (fleet invariant 2).
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from agent.globalmap import Component, FuseFn, build_components
 from agent.links import LinkKey, LinkRecord, due_keys, open_keys
 from agent.memory import release_free_memory
 from pgvd.grid import Grid
-from pgvd.posegraph import Solution, link_problem, solve
+from pgvd.posegraph import Solution, cycle_blocks, link_problem, solve
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
     from pgvd.merge import MergeParams
@@ -107,13 +110,14 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
 def verify_check(min_agreement: float | None = None) -> CheckFn:
     """:func:`pgvd.verify.verify` as a :data:`CheckFn`, with the merge's thresholds.
 
-    Confirmed: the refined transform is the link.  Rejected (a verdict the worker takes
-    only for a pair a search rejected before) when, at the place the chain puts the maps,
-    they cannot pass the merge's tests: fewer than ``min_overlap`` metres of walls of either
-    map on the other's known space (agreeing or not) at the *predicted* transform, or the
-    overlay refined within the basin (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still
-    disagrees.  A search there could only find a transform the chain contradicts.  A
-    correction beyond the basin is inconclusive: the chain may be off, the search decides.
+    Confirmed: the refined transform is the link.  Rejected (a verdict the worker takes only
+    for a pair a search rejected before, or joined by a chain over cycles) when, at the place
+    the chain puts the maps, they cannot pass the merge's tests: fewer than ``min_overlap``
+    metres of walls of either map on the other's known space (agreeing or not) at the
+    *predicted* transform, or the overlay refined within the basin
+    (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still disagrees.  A search there could
+    only find a transform the chain contradicts.  A correction beyond the basin is
+    inconclusive: the chain may be off, the search decides.
     """
     from pgvd.matching import WallMap, map_agreement
     from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, verify
@@ -150,13 +154,30 @@ def _identity(ln: LinkRecord) -> tuple[object, ...]:
     return (ln.key, ln.decided_by, ln.version_a, ln.version_b)
 
 
+def _usable(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> list[LinkRecord]:
+    """The accepted links the pose graph can take (as :func:`agent.globalmap.build_components`)."""
+    return [ln for ln in links if ln.accepted and link_problem(ln, maps) is None]
+
+
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
     """The robust pose graph (:func:`pgvd.posegraph.solve`, GNC-TLS) of the accepted links.
 
     A link inconsistent around a cycle is not kept, so it does not enter a prediction.
     """
-    usable = [ln for ln in links if ln.accepted and link_problem(ln, maps) is None]
-    return solve(maps, usable)
+    return solve(maps, _usable(maps, links))
+
+
+def cycle_checked(
+    maps: dict[str, tuple[int, Grid]], links: list[LinkRecord], sol: Solution
+) -> list[tuple[str, ...]]:
+    """Groups of robots placed relative to each other only through links on cycles.
+
+    The 2-edge-connected components (:func:`pgvd.posegraph.cycle_blocks`) of the links
+    ``sol`` (:func:`placements` of ``maps`` and ``links``) kept: within one, a wrong link
+    would disagree with the rest of a cycle and the robust solution would have dropped it.
+    """
+    kept = [ln.pair for ln, u in zip(_usable(maps, links), sol.used, strict=True) if u]
+    return cycle_blocks(maps, kept)
 
 
 def predict(sol: Solution, a: str, b: str) -> np.ndarray | None:
@@ -215,7 +236,8 @@ class FusionWorker:
         self.fuse = fuse
         self.check = check
         self.counters = counters or Counters()
-        self._placements: tuple[object, Solution | None] = (None, None)
+        #: The placements and their :func:`cycle_checked` groups, with the inputs' signature.
+        self._placements: tuple[object, Solution | None, list[tuple[str, ...]]] = (None, None, [])
         #: When each needed key's turn came (:func:`agent.links.open_keys`).
         self._opened_at: dict[LinkKey, float] = {}
         self.merges = 0
@@ -352,10 +374,16 @@ class FusionWorker:
             return None
         self.counters.add("checks")
         res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
-        if res is not None and not res.accepted and not _rejected_before(snap.links, a, b):
-            # Only a search may reject a pair first: were the chain wrong (a false
-            # link on a bridge), skipping it would lose the true link that closes a cycle
-            # around the false one and lets the pose graph reject it.
+        if (
+            res is not None
+            and not res.accepted
+            and not _rejected_before(snap.links, a, b)
+            and not any(a in g and b in g for g in self._placements[2])
+        ):
+            # A first rejection needs a search unless the chain from a to b runs only
+            # over links on cycles: were it wrong (a false link on a bridge), skipping the
+            # search would lose the true link that closes a cycle around the false one
+            # and lets the pose graph reject it.
             res = None
         if res is not None:
             self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
@@ -368,7 +396,8 @@ class FusionWorker:
             tuple(_identity(ln) for ln in snap.links),
         )
         if self._placements[0] != signature:
-            self._placements = (signature, placements(snap.maps, snap.links))
+            sol = placements(snap.maps, snap.links)
+            self._placements = (signature, sol, cycle_checked(snap.maps, snap.links, sol))
         sol = self._placements[1]
         return None if sol is None else predict(sol, a, b)
 

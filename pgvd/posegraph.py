@@ -157,6 +157,24 @@ def components(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list[t
     return [tuple(groups[r]) for r in sorted(groups)]
 
 
+def cycle_blocks(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list[tuple[str, ...]]:
+    """The 2-edge-connected components: nodes that no single edge's removal separates.
+
+    Two nodes of one block are joined by two paths without a common edge, so a link on the
+    way from one to the other lies on a cycle; a wrong link there disagrees with the rest of
+    its cycle, where the robust solution (GNC-TLS) can reject it.  Between blocks runs a
+    bridge, which no cycle checks.  Components of the edges that are not bridges (an edge is
+    a bridge when its ends fall apart without it), sorted as :func:`components`.
+    """
+    nodes, edges = list(nodes), list(edges)
+    kept = []
+    for i, (a, b) in enumerate(edges):
+        rest = components(nodes, edges[:i] + edges[i + 1 :])
+        if any(a in c and b in c for c in rest):
+            kept.append((a, b))
+    return components(nodes, kept)
+
+
 def compose_transforms(
     anchor: str, tree: Sequence[Link]
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

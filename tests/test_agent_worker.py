@@ -303,3 +303,20 @@ def test_a_later_wave_waits_for_the_first_and_becomes_a_check() -> None:
     assert h.worker.step(now=0.2)
     assert [ln.pair for ln in h.links] == [("r1", "r2"), ("r1", "r3")]
     assert len(h.calls) == 1 and len(h.checked) == 1  # checked, not searched
+
+
+def test_a_disjoint_verdict_over_a_chain_on_cycles_rejects_without_search() -> None:
+    """r1-r2-r3-r4-r1 all linked consistently: r2-r4's chain runs over a cycle, so the
+    check's rejection stands; over the bridge r4-r5, r2-r5 is still searched."""
+    h = Checking("r2", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    for i in range(1, 6):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in [("r1", "r2"), ("r2", "r3"), ("r3", "r4"), ("r1", "r4"), ("r4", "r5")]:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    h.worker.link_timeout = 0.0
+    # r2's own pairs go first: r2-r4, then r2-r5 (once past any timeout)
+    assert h.worker.step(now=0.0) and h.worker.step(now=100.0)
+    assert [(ln.pair, ln.accepted) for ln in h.links[:2]] == [
+        (("r2", "r4"), False), (("r2", "r5"), True),
+    ]  # fmt: skip
+    assert len(h.calls) == 1  # r2-r5 searched (the harness's search accepts), r2-r4 not

@@ -8,9 +8,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from pgvd.grid import matrix_to_pose, rigid_matrix
-from pgvd.posegraph import PoseGraphParams, Solution, compose_transforms, solve
+from pgvd.posegraph import (
+    PoseGraphParams,
+    Solution,
+    components,
+    compose_transforms,
+    cycle_blocks,
+    solve,
+)
 
 #: A link's own (overconfident) covariance, as the merge reports them: ~0.1 px, 0.01 deg.
 COV = np.diag([0.01, 0.01, 3e-8])
@@ -214,3 +223,31 @@ def test_placement_covariance_matches_monte_carlo_on_a_cycle() -> None:
 def test_bad_links_are_refused(edge: Edge, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         solve(["r0", "r1"], [edge])
+
+
+def test_cycle_blocks_split_at_bridges() -> None:
+    """A triangle r0-r1-r2, a bridge r2-r3, a square r3-r4-r5-r6, a lone r7."""
+    edges = [("r0", "r1"), ("r1", "r2"), ("r0", "r2"), ("r2", "r3")]
+    edges += [("r3", "r4"), ("r4", "r5"), ("r5", "r6"), ("r3", "r6")]
+    nodes = [f"r{i}" for i in range(8)]
+    assert cycle_blocks(nodes, edges) == [
+        ("r0", "r1", "r2"), ("r3", "r4", "r5", "r6"), ("r7",),
+    ]  # fmt: skip
+    assert cycle_blocks(nodes[:4], edges[1:2] + edges[3:4]) == [("r0",), ("r1",), ("r2",), ("r3",)]
+
+
+@given(st.integers(1, 8), st.data())
+def test_cycle_blocks_survive_the_loss_of_any_one_edge(n: int, data: st.DataObject) -> None:
+    """Within a block, no single edge's removal separates two nodes; blocks partition nodes
+    and lie inside the connected components."""
+    nodes = [f"r{i}" for i in range(n)]
+    pairs = [(a, b) for i, a in enumerate(nodes) for b in nodes[i + 1 :]]
+    edges = data.draw(st.lists(st.sampled_from(pairs), unique=True)) if pairs else []
+    blocks = cycle_blocks(nodes, edges)
+    assert sorted(r for blk in blocks for r in blk) == nodes
+    comps = components(nodes, edges)
+    assert all(any(set(blk) <= set(c) for c in comps) for blk in blocks)
+    for i in range(len(edges)):
+        rest = components(nodes, edges[:i] + edges[i + 1 :])
+        for blk in blocks:
+            assert any(set(blk) <= set(c) for c in rest)
