@@ -11,6 +11,7 @@ import pytest
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import (
+    PREVIEW_SHARE,
     FusionWorker,
     GlobalState,
     Registration,
@@ -320,3 +321,21 @@ def test_a_disjoint_verdict_over_a_chain_on_cycles_rejects_without_search() -> N
         (("r2", "r4"), False), (("r2", "r5"), True),
     ]  # fmt: skip
     assert len(h.calls) == 1  # r2-r5 searched (the harness's search accepts), r2-r4 not
+
+
+def test_slow_rebuilds_space_previews_out() -> None:
+    """A preview that took 2 s waits 2 / PREVIEW_SHARE s for the next; a settled map not."""
+    h = Harness("r3")
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    h.worker._rebuild_seconds = 2.0  # as measured by the last rebuild
+    assert h.worker.preview_gap() == 2.0 / PREVIEW_SHARE > h.worker.preview_interval
+    h.worker._rebuilt_at = 0.0
+    h.book.put_map("r2", V(2), tiny(3))
+    h.worker.step(now=h.worker.preview_gap() - 0.1)
+    assert h.globals == []
+    h.worker.step(now=20.0)
+    assert len(h.globals) == 1 and not h.globals[-1].settled
+    h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
+    h.worker.step(now=20.1)
+    assert len(h.globals) == 2 and h.globals[-1].settled
