@@ -16,7 +16,7 @@ milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where
 inconclusive.  A prediction under which the two maps share too few walls, or disagree once
 refined within the basin, is a decided rejection -- a search could only find a transform the
 chain contradicts -- but only for a pair a search already rejected in an earlier epoch, or
-whose robots the chain joins over links on cycles only (:func:`cycle_checked`): were the chain
+whose robots the chain joins over links on cycles only (:meth:`Chains.solved`): were the chain
 wrong on a bridge, a first search is what finds the true link that exposes it around a cycle.
 Searches go by waves (:func:`agent.links.open_keys`): neighbours on the circle of robots
 first, a pair further apart only once the nearer ones are decided, and by then most pairs are
@@ -42,7 +42,7 @@ from agent.globalmap import Component, FuseFn, build_components
 from agent.links import LinkKey, LinkRecord, due_keys, open_keys
 from agent.memory import release_free_memory
 from pgvd.grid import Grid
-from pgvd.posegraph import Solution, cycle_blocks, link_problem, solve
+from pgvd.posegraph import Solution, components, cycle_blocks, link_problem, solve
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
     from pgvd.merge import MergeParams
@@ -169,17 +169,35 @@ def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> So
     return solve(maps, _usable(maps, links))
 
 
-def cycle_checked(
-    maps: dict[str, tuple[int, Grid]], links: list[LinkRecord], sol: Solution
-) -> list[tuple[str, ...]]:
-    """Groups of robots placed relative to each other only through links on cycles.
+class Chains:
+    """What the accepted links say about the pairs still to decide, solved only if asked.
 
-    The 2-edge-connected components (:func:`pgvd.posegraph.cycle_blocks`) of the links
-    ``sol`` (:func:`placements` of ``maps`` and ``links``) kept: within one, a wrong link
-    would disagree with the rest of a cycle and the robust solution would have dropped it.
+    ``groups`` (connected components of the usable accepted links, before the robust
+    solution drops any) is cheap and tells which pairs a check may decide
+    (:func:`agent.links.open_keys`); the pose graph itself (:meth:`solved`, tens to
+    hundreds of milliseconds at 16 robots) is solved only for a pair being registered.
     """
-    kept = [ln.pair for ln, u in zip(_usable(maps, links), sol.used, strict=True) if u]
-    return cycle_blocks(maps, kept)
+
+    def __init__(self, maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> None:
+        self.maps = maps
+        self.usable = _usable(maps, links)
+        self.groups = components(maps, [ln.pair for ln in self.usable])
+        self._solved: tuple[Solution, list[tuple[str, ...]]] | None = None
+
+    def linked(self, a: str, b: str) -> bool:
+        """Whether accepted links join ``a`` and ``b`` (a prediction is likely)."""
+        return any(a in g and b in g for g in self.groups)
+
+    def solved(self) -> tuple[Solution, list[tuple[str, ...]]]:
+        """:func:`placements`, and the groups of robots placed relative to each other only
+        through links on cycles: the 2-edge-connected components
+        (:func:`pgvd.posegraph.cycle_blocks`) of the links kept.  Within one, a wrong link
+        would disagree with the rest of a cycle and the robust solution would drop it."""
+        if self._solved is None:
+            sol = solve(self.maps, self.usable)
+            kept = [ln.pair for ln, u in zip(self.usable, sol.used, strict=True) if u]
+            self._solved = (sol, cycle_blocks(self.maps, kept))
+        return self._solved
 
 
 def predict(sol: Solution, a: str, b: str) -> np.ndarray | None:
@@ -238,8 +256,8 @@ class FusionWorker:
         self.fuse = fuse
         self.check = check
         self.counters = counters or Counters()
-        #: The placements and their :func:`cycle_checked` groups, with the inputs' signature.
-        self._placements: tuple[object, Solution | None, list[tuple[str, ...]]] = (None, None, [])
+        #: :class:`Chains` of the links held, with the signature of what they depend on.
+        self._chains: tuple[object, Chains | None] = (None, None)
         #: When each needed key's turn came (:func:`agent.links.open_keys`).
         self._opened_at: dict[LinkKey, float] = {}
         self.merges = 0
@@ -288,13 +306,13 @@ class FusionWorker:
         now = time.monotonic() if now is None else now
         snap = self.book.snapshot(now)
         robots = sorted(snap.maps)
-        predicted = (
-            {k for k in snap.needed if self._predicted(snap, k[0], k[2]) is not None}
-            if self.check is not None
-            else set()
-        )
         # Without checks every pair is a search anyway: no wave to wait for.
-        opened = snap.needed if self.check is None else open_keys(snap.needed, predicted, robots)
+        linked: set[LinkKey] = set()
+        opened = snap.needed
+        if self.check is not None:
+            chains = self._chains_of(snap)
+            linked = {k for k in snap.needed if chains.linked(k[0], k[2])}
+            opened = open_keys(snap.needed, linked, robots)
         # A pair's turn (and the timeouts of the agents stepping in) counts from when its
         # wave opened, not from when it was first needed: else every agent of a late wave
         # would be past its timeout at once and search it too.
@@ -311,7 +329,7 @@ class FusionWorker:
         if due:
             # Checks first: they take tens of milliseconds, and each link they add may
             # turn a pair waiting for a full search into one more check.
-            due.sort(key=lambda k: k not in predicted)
+            due.sort(key=lambda k: k not in linked)
             self._register(snap, due[0])
             return True
         signature = (
@@ -397,7 +415,7 @@ class FusionWorker:
             res is not None
             and not res.accepted
             and not _rejected_before(snap.links, a, b)
-            and not any(a in g and b in g for g in self._placements[2])
+            and not any(a in g and b in g for g in self._chains_of(snap).solved()[1])
         ):
             # A first rejection needs a search unless the chain from a to b runs only
             # over links on cycles: were it wrong (a false link on a bridge), skipping the
@@ -408,17 +426,23 @@ class FusionWorker:
             self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
         return res
 
-    def _predicted(self, snap: Snapshot, a: str, b: str) -> np.ndarray | None:
-        """:func:`predict` from :func:`placements`, solved once per set of maps and links."""
+    def _chains_of(self, snap: Snapshot) -> Chains:
+        """:class:`Chains` of ``snap``, made anew only when the robots or the accepted links
+        changed: rejections and new minor versions leave the placements as they were."""
         signature = (
-            tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
-            tuple(_identity(ln) for ln in snap.links),
+            tuple(sorted(snap.maps)),
+            tuple(_identity(ln) for ln in snap.links if ln.accepted),
         )
-        if self._placements[0] != signature:
-            sol = placements(snap.maps, snap.links)
-            self._placements = (signature, sol, cycle_checked(snap.maps, snap.links, sol))
-        sol = self._placements[1]
-        return None if sol is None else predict(sol, a, b)
+        held = self._chains
+        if held[0] != signature or held[1] is None:
+            held = self._chains = (signature, Chains(snap.maps, snap.links))
+        return held[1]
+
+    def _predicted(self, snap: Snapshot, a: str, b: str) -> np.ndarray | None:
+        """:func:`predict` from the placements of :meth:`_chains_of`, solved once per set of
+        robots and accepted links; None at once when no accepted link joins them."""
+        chains = self._chains_of(snap)
+        return predict(chains.solved()[0], a, b) if chains.linked(a, b) else None
 
     def _rebuild(self, snap: Snapshot) -> None:
         components = build_components(snap.maps, snap.links, self.fuse)
