@@ -20,7 +20,8 @@ whose robots the chain joins over links on cycles only (:meth:`Chains.solved`): 
 wrong on a bridge, a first search is what finds the true link that exposes it around a cycle.
 Searches go by waves (:func:`agent.links.open_keys`): neighbours on the circle of robots
 first, a pair further apart only once the nearer ones are decided, and by then most pairs are
-checks.  So full searches grow with the robots (each joins its component once, plus the pairs
+checks.  A search that a new epoch of either map superseded while it ran is checked on the new
+maps (:meth:`FusionWorker._carry_forward`) rather than searched again.  So full searches grow with the robots (each joins its component once, plus the pairs
 whose chain is off), not with the pairs.  Which way a link was decided does not enter the
 global map, which stays a function of the maps and the links (fleet invariant 2).
 """
@@ -39,7 +40,7 @@ import numpy as np
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, build_components
-from agent.links import LinkKey, LinkRecord, due_keys, open_keys
+from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys
 from agent.memory import release_free_memory
 from pgvd.grid import Grid
 from pgvd.posegraph import Solution, components, cycle_blocks, link_problem, solve
@@ -393,6 +394,14 @@ class FusionWorker:
             res = Registration(False, *_REJECTED, 0.0)
         self.merges += 1
         self.merge_seconds += time.monotonic() - t0
+        self._record(a, va, b, vb, res, how, t0)
+        if how == "searched" and res.accepted:
+            self._carry_forward(a, va, b, vb, res.matrix)
+
+    def _record(
+        self, a: str, va: int, b: str, vb: int, res: Registration, how: str, t0: float
+    ) -> None:
+        """Log the decision, cache it and publish it if it is the link of its epochs."""
         rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)
         log.info(
             "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s)",
@@ -401,6 +410,35 @@ class FusionWorker:
         )  # fmt: skip
         if self.book.add_link(rec):
             self.on_link(rec)
+
+    def _carry_forward(self, a: str, va: int, b: str, vb: int, matrix: np.ndarray) -> None:
+        """Check a search's transform on the maps that superseded its inputs meanwhile.
+
+        While robots map, a search (seconds on a loaded machine) often ends after either
+        map started a new epoch: its link is of no use any more, and the pair would be
+        searched again from scratch.  The robots' pixel frames stay the same within a
+        source's canvas, so the transform found is a prediction for the new maps as good
+        as a chain's, and a check (tens of milliseconds) may confirm it.  Only a
+        confirmation is taken; anything else leaves the pair to its next turn.
+        """
+        held_a, held_b = self.book.map_of(a), self.book.map_of(b)
+        if self.check is None or held_a is None or held_b is None:
+            return
+        (na, grid_a), (nb, grid_b) = held_a, held_b
+        key = (a, epoch_of(na), b, epoch_of(nb))
+        if key == (a, epoch_of(va), b, epoch_of(vb)) or key not in self.book.snapshot().needed:
+            return  # not superseded, or decided already
+        t0 = time.monotonic()
+        self.counters.add("checks")
+        try:
+            res = self.check(grid_a, grid_b, matrix)
+        except Exception as exc:  # as in _register: the pair's next turn will search it
+            log.warning("check of %s v%d / %s v%d failed: %s", a, na, b, nb, exc)
+            return
+        if res is None or not res.accepted:
+            return
+        self.counters.add("checks_confirmed")
+        self._record(a, na, b, nb, res, "carried forward", t0)
 
     def _checked(self, snap: Snapshot, a: str, b: str) -> Registration | None:
         """The check of the links' prediction for ``(a, b)``, or None: search instead."""

@@ -339,3 +339,30 @@ def test_slow_rebuilds_space_previews_out() -> None:
     h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
     h.worker.step(now=20.1)
     assert len(h.globals) == 2 and h.globals[-1].settled
+
+
+class Superseding(Checking):
+    """r2 starts a new epoch while the search of r1-r2 runs."""
+
+    def register(self, a: Grid, b: Grid) -> Registration:
+        self.book.put_map("r2", V(2), tiny(3))
+        return super().register(a, b)
+
+
+@pytest.mark.parametrize("confirms", [True, False])
+def test_a_search_superseded_meanwhile_is_checked_on_the_new_maps(confirms: bool) -> None:
+    verdict = Registration(True, rigid_matrix(0.0, 1.5, 2.0), np.eye(3) * 0.1, 0.97)
+    h = Superseding("r1", verdict if confirms else None)
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    assert h.worker.step(now=0.0)
+    assert len(h.calls) == 1
+    np.testing.assert_array_equal(h.checked[0], rigid_matrix(0.0, 1.0, 2.0))  # the search's
+    if confirms:
+        assert [ln.key for ln in h.links] == [("r1", 1, "r2", 2)]
+        np.testing.assert_array_equal(h.links[0].matrix, verdict.matrix)
+        assert h.book.snapshot().needed == []
+    else:
+        assert h.links == [] and h.book.snapshot().needed == [("r1", 1, "r2", 2)]
+    counts = h.worker.counters.snapshot()["counts"]
+    assert counts == {"searches": 1, "checks": 1, **({"checks_confirmed": 1} if confirms else {})}
