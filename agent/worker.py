@@ -21,9 +21,10 @@ wrong on a bridge, a first search is what finds the true link that exposes it ar
 Searches go by waves (:func:`agent.links.open_keys`): neighbours on the circle of robots
 first, a pair further apart only once the nearer ones are decided, and by then most pairs are
 checks.  A search that a new epoch of either map superseded while it ran is checked on the new
-maps (:meth:`FusionWorker._carry_forward`) rather than searched again.  So full searches grow with the robots (each joins its component once, plus the pairs
-whose chain is off), not with the pairs.  Which way a link was decided does not enter the
-global map, which stays a function of the maps and the links (fleet invariant 2).
+maps (:meth:`FusionWorker._carry_forward`) rather than searched again.  So full searches grow
+with the robots (each joins its component once, plus the pairs whose chain is off), not with
+the pairs.  Which way a link was decided does not enter the global map, which stays a
+function of the maps and the links (fleet invariant 2).
 """
 
 from __future__ import annotations
