@@ -220,15 +220,16 @@ def open_keys(
 ) -> list[LinkKey]:
     """Of the needed ``keys``, those whose turn it is fleet-wide, the same rule on every agent.
 
-    A key of ``predicted`` (its robots already placed in one component by accepted links)
-    is open: a check decides it.  The others need a full search, and go by *waves*: wave
-    ``d`` is the pairs ``d`` steps apart on the circle of robots (:func:`ring_distance`), n
-    pairs per wave of which every agent is :func:`first_registrar` of one.  Only the lowest
-    wave still holding a key to search is open: the links it adds join components, and the
-    pairs of a later wave whose robots they joined become checks instead of searches.  When
-    the first wave's pairs overlap, a fleet of n robots searches n pairs and checks the rest,
-    not n(n-1)/2 searches.  Every wave opens in turn while keys to search remain, so a pair
-    no link reaches is searched in the end.
+    A key of ``predicted`` (a check may decide it: accepted links join its robots, or both
+    their initial poses are known) is open at once.  The others need a full search, and go
+    by *waves*: wave ``d`` is the pairs ``d`` steps apart on the circle of robots
+    (:func:`ring_distance`), n pairs per wave of which every agent is
+    :func:`first_registrar` of one.  Only the lowest wave still holding a key to search is
+    open: the links it adds join components, and the pairs of a later wave whose robots
+    they joined become checks instead of searches.  When the first wave's pairs overlap, a
+    fleet of n robots searches n pairs and checks the rest, not n(n-1)/2 searches.  Every
+    wave opens in turn while keys to search remain, so a pair no link reaches is searched
+    in the end.
     """
     keys = list(keys)
     waves = {k: ring_distance(k[0], k[2], robots) for k in keys if k not in predicted}

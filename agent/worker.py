@@ -23,8 +23,14 @@ first, a pair further apart only once the nearer ones are decided, and by then m
 checks.  A search that a new epoch of either map superseded while it ran is checked on the new
 maps (:meth:`FusionWorker._carry_forward`) rather than searched again.  So full searches grow
 with the robots (each joins its component once, plus the pairs whose chain is off), not with
-the pairs.  Which way a link was decided does not enter the global map, which stays a
-function of the maps and the links (fleet invariant 2).
+the pairs.
+
+Known initial poses (``--known-pose``, :mod:`agent.priors`) are checked the same way, and
+before a chain's prediction: a pair whose two poses are known is checked at their prior
+transform, and the check can only confirm it.  A prior that fails the check decides nothing --
+a wrong prior is never accepted as it stands, nor does it reject the pair -- and the pair goes
+on to the chain's check or the full search.  Which way a link was decided does not enter the
+global map, which stays a function of the maps and the links (fleet invariant 2).
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -43,6 +49,7 @@ from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, build_components
 from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys
 from agent.memory import release_free_memory
+from agent.priors import Pose, pair_prior
 from pgvd.grid import Grid
 from pgvd.posegraph import Solution, components, cycle_blocks, link_problem, solve
 
@@ -233,8 +240,12 @@ class FusionWorker:
     fuse : fusion function for :func:`agent.globalmap.build_components`.
     check : checks a pair's predicted transform before a full search (:data:`CheckFn`);
         None always searches.
-    counters : where ``searches``, ``checks``, ``checks_confirmed`` and ``checks_rejected``
-        are counted (the status shows them).
+    counters : where ``searches``, ``checks``, ``checks_confirmed``, ``checks_rejected``,
+        ``prior_checks``, ``prior_confirmed`` and ``prior_failed`` are counted (the status
+        shows them).
+    poses : known initial poses, robot -> ``(x, y, yaw)`` of its map frame in the world frame
+        (:func:`agent.priors.parse_known_pose`); a pair with both is checked at their prior
+        first (with ``check``).
     """
 
     def __init__(
@@ -248,6 +259,7 @@ class FusionWorker:
         fuse: FuseFn | None = None,
         check: CheckFn | None = None,
         counters: Counters | None = None,
+        poses: Mapping[str, Pose] | None = None,
     ) -> None:
         self.me = me
         self.book = book
@@ -258,6 +270,7 @@ class FusionWorker:
         self.fuse = fuse
         self.check = check
         self.counters = counters or Counters()
+        self.poses = dict(poses or {})
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
         #: When each needed key's turn came (:func:`agent.links.open_keys`).
@@ -309,12 +322,12 @@ class FusionWorker:
         snap = self.book.snapshot(now)
         robots = sorted(snap.maps)
         # Without checks every pair is a search anyway: no wave to wait for.
-        linked: set[LinkKey] = set()
+        checkable: set[LinkKey] = set()
         opened = snap.needed
         if self.check is not None:
             chains = self._chains_of(snap)
-            linked = {k for k in snap.needed if chains.linked(k[0], k[2])}
-            opened = open_keys(snap.needed, linked, robots)
+            checkable = {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
+            opened = open_keys(snap.needed, checkable, robots)
         # A pair's turn (and the timeouts of the agents stepping in) counts from when its
         # wave opened, not from when it was first needed: else every agent of a late wave
         # would be past its timeout at once and search it too.
@@ -331,7 +344,7 @@ class FusionWorker:
         if due:
             # Checks first: they take tens of milliseconds, and each link they add may
             # turn a pair waiting for a full search into one more check.
-            due.sort(key=lambda k: k not in linked)
+            due.sort(key=lambda k: k not in checkable)
             self._register(snap, due[0])
             return True
         signature = (
@@ -382,14 +395,15 @@ class FusionWorker:
         a, _, b, _ = key  # epochs; the link records the versions it was computed on
         va, vb = snap.maps[a][0], snap.maps[b][0]
         t0 = time.monotonic()
-        how = "searched"
+        how = "prior"
         try:
-            res = self._checked(snap, a, b)
+            res = self._at_prior(snap, a, b)
             if res is None:
+                how, res = "checked", self._checked(snap, a, b)
+            if res is None:
+                how = "searched"
                 self.counters.add("searches")
                 res = self.register(snap.maps[a][1], snap.maps[b][1])
-            else:
-                how = "checked"
         except Exception as exc:  # bad maps are an outcome (rejected), not a crash
             log.warning("registration of %s v%d / %s v%d failed: %s", a, va, b, vb, exc)
             res = Registration(False, *_REJECTED, 0.0)
@@ -440,6 +454,32 @@ class FusionWorker:
             return
         self.counters.add("checks_confirmed")
         self._record(a, na, b, nb, res, "carried forward", t0)
+
+    def _checkable(self, chains: Chains, a: str, b: str) -> bool:
+        """Whether a check may decide ``(a, b)``: both poses known, or accepted links join
+        them (:class:`Chains`)."""
+        return (a in self.poses and b in self.poses) or chains.linked(a, b)
+
+    def _at_prior(self, snap: Snapshot, a: str, b: str) -> Registration | None:
+        """The link confirmed at the known poses' prior for ``(a, b)``, or None.
+
+        None when a pose is unknown, and when the check does not confirm the prior: it
+        neither accepts a wrong prior as it stands nor rejects the pair (the true link may be
+        far from a wrong prior), so the chain's check or the full search decides.
+        """
+        if self.check is None:
+            return None
+        (_, grid_a), (_, grid_b) = snap.maps[a], snap.maps[b]
+        prior = pair_prior(self.poses, a, grid_a, b, grid_b)
+        if prior is None:
+            return None
+        self.counters.add("prior_checks")
+        res = self.check(grid_a, grid_b, prior)
+        if res is None or not res.accepted:
+            self.counters.add("prior_failed")
+            return None
+        self.counters.add("prior_confirmed")
+        return res
 
     def _checked(self, snap: Snapshot, a: str, b: str) -> Registration | None:
         """The check of the links' prediction for ``(a, b)``, or None: search instead."""
