@@ -136,9 +136,10 @@ def table(rows: list[dict]) -> str:
         "| peak RSS / agent (MB, mean / max) | private (USS) / agent (MB, mean / max) "
         "| registrations / agent | mean registration (s) "
         "| agreement / mean registration | full searches / checks (all) "
-        "| epochs / robot | full searches / checks per epoch | machine load before / after |"
+        "| epochs / robot | full searches / checks per epoch | searches per epoch / N "
+        "| machine load before / after |"
     )
-    lines = [head, "|" + "---|" * 16]
+    lines = [head, "|" + "---|" * 17]
     for r in rows:
         lines.append(
             f"| {r['robots']} | {'yes' if r['agreed'] else 'NO'} | {r['agreement_s']} "
@@ -150,6 +151,7 @@ def table(rows: list[dict]) -> str:
             f"| {r['merge_s_mean']} | {r['agreement_in_registrations']} "
             f"| {r['searches']} / {r['checks']} | {r['epochs_per_robot']} "
             f"| {r['searches_per_epoch']} / {r['checks_per_epoch']} "
+            f"| {r['searches_per_epoch'] / r['robots']:.2f} "
             f"| {r['load_before_after'][0]} / {r['load_before_after'][1]} |"
         )
     return "\n".join(lines)
