@@ -74,6 +74,9 @@ RegisterFn = Callable[[Grid, Grid], Registration]
 #: (confirmed, or the maps do not overlap under it), None when a full search must decide.
 CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
 
+#: Seconds a solution of the pose graph keeps serving predictions once newer accepted links
+#: arrived (:meth:`FusionWorker._solved_for`).
+RESOLVE_AFTER = 2.0
 #: Largest share of the wall time an agent spends on previews (unsettled global maps).
 PREVIEW_SHARE = 0.1
 #: What a rejection records: its transform means nothing; finite for the wire.
@@ -273,6 +276,10 @@ class FusionWorker:
         self.poses = dict(poses or {})
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
+        #: The :class:`Chains` whose solution predicts, and the step time it was solved at.
+        self._solution: tuple[Chains | None, float] = (None, -np.inf)
+        #: The time of the current :meth:`step`.
+        self._now = 0.0
         #: When each needed key's turn came (:func:`agent.links.open_keys`).
         self._opened_at: dict[LinkKey, float] = {}
         self.merges = 0
@@ -319,6 +326,7 @@ class FusionWorker:
     def step(self, now: float | None = None) -> bool:
         """Do one job; True if there may be more to do right away."""
         now = time.monotonic() if now is None else now
+        self._now = now
         snap = self.book.snapshot(now)
         robots = sorted(snap.maps)
         # Without checks every pair is a search anyway: no wave to wait for.
@@ -485,8 +493,9 @@ class FusionWorker:
         """The check of the links' prediction for ``(a, b)``, or None: search instead."""
         if self.check is None:
             return None
-        predicted = self._predicted(snap, a, b)
-        if predicted is None:
+        solved = self._solved_for(snap, a, b)
+        predicted = None if solved is None else predict(solved[0], a, b)
+        if solved is None or predicted is None:
             return None
         self.counters.add("checks")
         res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
@@ -494,7 +503,7 @@ class FusionWorker:
             res is not None
             and not res.accepted
             and not _rejected_before(snap.links, a, b)
-            and not any(a in g and b in g for g in self._chains_of(snap).solved()[1])
+            and not any(a in g and b in g for g in solved[1])
         ):
             # A first rejection needs a search unless the chain from a to b runs only
             # over links on cycles: were it wrong (a false link on a bridge), skipping the
@@ -517,11 +526,29 @@ class FusionWorker:
             held = self._chains = (signature, Chains(snap.maps, snap.links))
         return held[1]
 
-    def _predicted(self, snap: Snapshot, a: str, b: str) -> np.ndarray | None:
-        """:func:`predict` from the placements of :meth:`_chains_of`, solved once per set of
-        robots and accepted links; None at once when no accepted link joins them."""
+    def _solved_for(
+        self, snap: Snapshot, a: str, b: str
+    ) -> tuple[Solution, list[tuple[str, ...]]] | None:
+        """Placements that join ``a`` and ``b``, and their cycle groups (:meth:`Chains.solved`);
+        None at once when no accepted link joins them.
+
+        In a round of checks nearly every registration adds an accepted link, and solving
+        the pose graph anew for each (~0.1 s at 16 robots) cost as much as the checks.  The
+        last solution serves for :data:`RESOLVE_AFTER` seconds while it joins the pair: a
+        prediction is only where a check starts, and a link that arrived meanwhile enters
+        the next solution.
+        """
         chains = self._chains_of(snap)
-        return predict(chains.solved()[0], a, b) if chains.linked(a, b) else None
+        if not chains.linked(a, b):
+            return None
+        used, at = self._solution
+        if used is not None and used is not chains and self._now - at < RESOLVE_AFTER:
+            held = used.solved()
+            if predict(held[0], a, b) is not None:
+                return held
+        if used is not chains:
+            self._solution = (chains, self._now)
+        return chains.solved()
 
     def _rebuild(self, snap: Snapshot) -> None:
         components = build_components(snap.maps, snap.links, self.fuse)

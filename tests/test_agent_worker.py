@@ -13,6 +13,7 @@ from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import (
     PREVIEW_SHARE,
+    RESOLVE_AFTER,
     FusionWorker,
     GlobalState,
     Registration,
@@ -448,3 +449,36 @@ def test_a_wrong_known_pose_is_not_taken_and_the_search_finds_the_true_link(inte
     assert np.abs(rec.matrix - truth)[:2, 2].max() < 2.0
     counts = s.worker.counters.snapshot()["counts"]
     assert counts == {"prior_checks": 1, "prior_failed": 1, "searches": 1}
+
+
+def test_a_recent_solution_keeps_predicting_while_it_joins_the_pair(monkeypatch) -> None:
+    """Links r1-r2-r3-r4: r1-r3 solves the pose graph; r4-r5 arrives, and r1-r4 (still joined
+    by that solution) reuses it; r1-r5 (not joined) solves anew, as does anything after
+    RESOLVE_AFTER seconds."""
+    import agent.worker as worker
+
+    solves: list[int] = []
+    solve = worker.solve
+
+    def counting(maps, links, *args):
+        solves.append(len(links))  # the accepted links solved over
+        return solve(maps, links, *args)
+
+    monkeypatch.setattr(worker, "solve", counting)
+    h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    for i in range(1, 6):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in [("r1", "r2"), ("r2", "r3"), ("r3", "r4")]:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    h.worker.link_timeout = 0.0
+    assert h.worker.step(now=0.0) and h.links[-1].pair == ("r1", "r3")
+    assert solves == [3]
+    h.book.add_link(_link("r4", "r5", np.eye(3)))
+    assert h.worker.step(now=0.5) and h.links[-1].pair == ("r1", "r4")
+    assert solves == [3]  # the solution of 0 s still joins r1 and r4
+    assert h.worker.step(now=1.0) and h.links[-1].pair == ("r1", "r5")
+    assert solves == [3, 6]  # it does not join r5: solved with r4-r5 and the checks' links
+    h.book.add_link(_link("r3", "r5", np.eye(3)))
+    assert h.worker.step(now=1.0 + RESOLVE_AFTER) and h.links[-1].pair == ("r2", "r4")
+    assert solves == [3, 6, 8]  # too old: solved anew
+    assert h.calls == [] and len(h.checked) == 4
