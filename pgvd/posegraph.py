@@ -164,16 +164,43 @@ def cycle_blocks(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list
     Two nodes of one block are joined by two paths without a common edge, so a link on the
     way from one to the other lies on a cycle; a wrong link there disagrees with the rest of
     its cycle, where the robust solution (GNC-TLS) can reject it.  Between blocks runs a
-    bridge, which no cycle checks.  Components of the edges that are not bridges (an edge is
-    a bridge when its ends fall apart without it), sorted as :func:`components`.
+    bridge, which no cycle checks.  Components of the edges that are not bridges, sorted as
+    :func:`components`; bridges by Tarjan's low-link depth-first search, linear in the graph
+    (a fleet of n robots may hold n(n-1)/2 links).
     """
-    nodes, edges = list(nodes), list(edges)
-    kept = []
+    nodes = sorted(set(nodes))
+    adjacent: dict[str, list[tuple[str, int]]] = {n: [] for n in nodes}
+    edges = list(edges)
     for i, (a, b) in enumerate(edges):
-        rest = components(nodes, edges[:i] + edges[i + 1 :])
-        if any(a in c and b in c for c in rest):
-            kept.append((a, b))
-    return components(nodes, kept)
+        adjacent[a].append((b, i))
+        adjacent[b].append((a, i))
+    order: dict[str, int] = {}
+    low: dict[str, int] = {}
+    bridges: set[int] = set()
+    for root in nodes:
+        if root in order:
+            continue
+        order[root] = low[root] = len(order)
+        # (node, the edge it was reached by, its neighbours still to visit)
+        stack = [(root, -1, iter(adjacent[root]))]
+        while stack:
+            node, via, todo = stack[-1]
+            step = next(((n, i) for n, i in todo if i != via), None)
+            if step is None:
+                stack.pop()
+                if stack:
+                    parent = stack[-1][0]
+                    low[parent] = min(low[parent], low[node])
+                    if low[node] > order[parent]:
+                        bridges.add(via)
+                continue
+            nxt, i = step
+            if nxt in order:
+                low[node] = min(low[node], order[nxt])
+            else:
+                order[nxt] = low[nxt] = len(order)
+                stack.append((nxt, i, iter(adjacent[nxt])))
+    return components(nodes, [e for i, e in enumerate(edges) if i not in bridges])
 
 
 def compose_transforms(
