@@ -269,17 +269,21 @@ def wait_before_computing(
 def due_keys(
     me: str,
     keys: Iterable[LinkKey],
-    first_needed: Mapping[LinkKey, float],
+    opened_at: Mapping[LinkKey, float],
     now: float,
     timeout: float,
     robots: Sequence[str] = (),
     alive: Collection[str] | None = None,
 ) -> list[LinkKey]:
-    """Of ``keys``, those this agent should register now, own pairs first, then by key."""
+    """Of ``keys``, those this agent should register now, own pairs first, then by key.
+
+    ``opened_at`` says since when each key has been open (:func:`open_keys`): the waits of
+    :func:`wait_before_computing` count from then.
+    """
     due = [
         k
         for k in keys
-        if now - first_needed.get(k, now) >= wait_before_computing(me, k, timeout, robots, alive)
+        if now - opened_at.get(k, now) >= wait_before_computing(me, k, timeout, robots, alive)
     ]
     return sorted(due, key=lambda k: (me not in (k[0], k[2]), k))
 

@@ -327,7 +327,7 @@ class FusionWorker:
         """Do one job; True if there may be more to do right away."""
         now = time.monotonic() if now is None else now
         self._now = now
-        snap = self.book.snapshot(now)
+        snap = self.book.snapshot()
         robots = sorted(snap.maps)
         # Without checks every pair is a search anyway: no wave to wait for.
         checkable: set[LinkKey] = set()
