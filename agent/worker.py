@@ -16,14 +16,14 @@ milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where
 inconclusive.  A prediction under which the two maps share too few walls, or disagree once
 refined within the basin, is a decided rejection -- a search could only find a transform the
 chain contradicts -- but only for a pair a search already rejected in an earlier epoch, or
-whose robots the chain joins over links on cycles only (:meth:`Chains.solved`): were the chain
-wrong on a bridge, a first search is what finds the true link that exposes it around a cycle.
-Searches go by waves (:func:`agent.links.open_keys`): neighbours on the circle of robots
-first, a pair further apart only once the nearer ones are decided, and by then most pairs are
-checks.  A search that a new epoch of either map superseded while it ran is checked on the new
-maps (:meth:`FusionWorker._carry_forward`) rather than searched again.  So full searches grow
-with the robots (each joins its component once, plus the pairs whose chain is off), not with
-the pairs.
+whose robots the chain joins over links on triangles only (:meth:`Chains.solved`): were the
+chain wrong on a bridge or a long lone cycle, a first search is what finds the true link that
+exposes it around a short cycle.  Searches go by waves (:func:`agent.links.open_keys`):
+neighbours on the circle of robots first, a pair further apart only once the nearer ones are
+decided, and by then most pairs are checks.  A search that a new epoch of either map
+superseded while it ran is checked on the new maps (:meth:`FusionWorker._carry_forward`)
+rather than searched again.  So full searches grow with the robots (each joins its component
+once, plus the pairs whose chain is off), not with the pairs.
 
 Known initial poses (``--known-pose``, :mod:`agent.priors`) are checked the same way, and
 before a chain's prediction: a pair whose two poses are known is checked at their prior
@@ -51,7 +51,7 @@ from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
 from pgvd.grid import Grid
-from pgvd.posegraph import Solution, components, cycle_blocks, link_problem, solve
+from pgvd.posegraph import Solution, components, link_problem, solve, triangle_groups
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
     from pgvd.merge import MergeParams
@@ -202,13 +202,13 @@ class Chains:
 
     def solved(self) -> tuple[Solution, list[tuple[str, ...]]]:
         """:func:`placements`, and the groups of robots placed relative to each other only
-        through links on cycles: the 2-edge-connected components
-        (:func:`pgvd.posegraph.cycle_blocks`) of the links kept.  Within one, a wrong link
-        would disagree with the rest of a cycle and the robust solution would drop it."""
+        through links that each lie on a triangle of the links kept
+        (:func:`pgvd.posegraph.triangle_groups`).  Within one, a wrong link would disagree
+        with the two others of a three-link cycle and the robust solution would drop one."""
         if self._solved is None:
             sol = solve(self.maps, self.usable)
             kept = [ln.pair for ln, u in zip(self.usable, sol.used, strict=True) if u]
-            self._solved = (sol, cycle_blocks(self.maps, kept))
+            self._solved = (sol, triangle_groups(self.maps, kept))
         return self._solved
 
 
@@ -506,9 +506,10 @@ class FusionWorker:
             and not any(a in g and b in g for g in solved[1])
         ):
             # A first rejection needs a search unless the chain from a to b runs only
-            # over links on cycles: were it wrong (a false link on a bridge), skipping the
-            # search would lose the true link that closes a cycle around the false one
-            # and lets the pose graph reject it.
+            # over links on triangles: were it wrong (a false link on a bridge, or on a
+            # long cycle alone, where its error spreads thin), skipping the search would
+            # lose the true link that closes a short cycle around the false one and lets
+            # the pose graph reject it.
             res = None
         if res is not None:
             self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
@@ -529,8 +530,8 @@ class FusionWorker:
     def _solved_for(
         self, snap: Snapshot, a: str, b: str
     ) -> tuple[Solution, list[tuple[str, ...]]] | None:
-        """Placements that join ``a`` and ``b``, and their cycle groups (:meth:`Chains.solved`);
-        None at once when no accepted link joins them.
+        """Placements that join ``a`` and ``b`` and their triangle groups
+        (:meth:`Chains.solved`); None at once when no accepted link joins them.
 
         In a round of checks nearly every registration adds an accepted link, and solving
         the pose graph anew for each (~0.1 s at 16 robots) cost as much as the checks.  The

@@ -158,49 +158,26 @@ def components(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list[t
     return [tuple(groups[r]) for r in sorted(groups)]
 
 
-def cycle_blocks(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list[tuple[str, ...]]:
-    """The 2-edge-connected components: nodes that no single edge's removal separates.
+def triangle_groups(
+    nodes: Iterable[str], edges: Iterable[tuple[str, str]]
+) -> list[tuple[str, ...]]:
+    """Nodes joined through edges that each lie on a triangle of ``edges``.
 
-    Two nodes of one block are joined by two paths without a common edge, so a link on the
-    way from one to the other lies on a cycle; a wrong link there disagrees with the rest of
-    its cycle, where the robust solution (GNC-TLS) can reject it.  Between blocks runs a
-    bridge, which no cycle checks.  Components of the edges that are not bridges, sorted as
-    :func:`components`; bridges by Tarjan's low-link depth-first search, linear in the graph
-    (a fleet of n robots may hold n(n-1)/2 links).
+    A wrong link on a triangle disagrees with the two others of a three-link cycle, where
+    the accumulated uncertainty is smallest and the robust solution (GNC-TLS) drops a link
+    of a broken cycle.  On a longer cycle alone the error spreads over many links and may
+    pass the chi-square test, and a bridge lies on no cycle at all.  Components of the
+    edges on a triangle, sorted as :func:`components`; each lies within one 2-edge-connected
+    component (no edge on a triangle is a bridge).
     """
-    nodes = sorted(set(nodes))
-    adjacent: dict[str, list[tuple[str, int]]] = {n: [] for n in nodes}
+    nodes = list(nodes)
     edges = list(edges)
-    for i, (a, b) in enumerate(edges):
-        adjacent[a].append((b, i))
-        adjacent[b].append((a, i))
-    order: dict[str, int] = {}
-    low: dict[str, int] = {}
-    bridges: set[int] = set()
-    for root in nodes:
-        if root in order:
-            continue
-        order[root] = low[root] = len(order)
-        # (node, the edge it was reached by, its neighbours still to visit)
-        stack = [(root, -1, iter(adjacent[root]))]
-        while stack:
-            node, via, todo = stack[-1]
-            step = next(((n, i) for n, i in todo if i != via), None)
-            if step is None:
-                stack.pop()
-                if stack:
-                    parent = stack[-1][0]
-                    low[parent] = min(low[parent], low[node])
-                    if low[node] > order[parent]:
-                        bridges.add(via)
-                continue
-            nxt, i = step
-            if nxt in order:
-                low[node] = min(low[node], order[nxt])
-            else:
-                order[nxt] = low[nxt] = len(order)
-                stack.append((nxt, i, iter(adjacent[nxt])))
-    return components(nodes, [e for i, e in enumerate(edges) if i not in bridges])
+    adjacent: dict[str, set[str]] = {n: set() for n in nodes}
+    for a, b in edges:
+        adjacent[a].add(b)
+        adjacent[b].add(a)
+    on_triangle = [(a, b) for a, b in edges if (adjacent[a] & adjacent[b]) - {a, b}]
+    return components(nodes, on_triangle)
 
 
 def compose_transforms(

@@ -338,13 +338,15 @@ def test_a_later_wave_waits_for_the_first_and_becomes_a_check() -> None:
     assert len(h.calls) == 1 and len(h.checked) == 1  # checked, not searched
 
 
-def test_a_disjoint_verdict_over_a_chain_on_cycles_rejects_without_search() -> None:
-    """r1-r2-r3-r4-r1 all linked consistently: r2-r4's chain runs over a cycle, so the
-    check's rejection stands; over the bridge r4-r5, r2-r5 is still searched."""
+def test_a_disjoint_verdict_over_a_chain_on_triangles_rejects_without_search() -> None:
+    """r1-r2-r3 and r1-r3-r4 linked consistently: r2-r4's chain runs over links on
+    triangles, so the check's rejection stands; over the bridge r4-r5, r2-r5 is still
+    searched."""
     h = Checking("r2", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
     for i in range(1, 6):
         h.book.put_map(f"r{i}", V(1), tiny(i))
-    for a, b in [("r1", "r2"), ("r2", "r3"), ("r3", "r4"), ("r1", "r4"), ("r4", "r5")]:
+    links = [("r1", "r2"), ("r2", "r3"), ("r1", "r3"), ("r3", "r4"), ("r1", "r4"), ("r4", "r5")]
+    for a, b in links:
         h.book.add_link(_link(a, b, np.eye(3)))
     h.worker.link_timeout = 0.0
     # r2's own pairs go first: r2-r4, then r2-r5 (once past any timeout)
@@ -482,3 +484,15 @@ def test_a_recent_solution_keeps_predicting_while_it_joins_the_pair(monkeypatch)
     assert h.worker.step(now=1.0 + RESOLVE_AFTER) and h.links[-1].pair == ("r2", "r4")
     assert solves == [3, 6, 8]  # too old: solved anew
     assert h.calls == [] and len(h.checked) == 4
+
+
+def test_a_disjoint_verdict_over_a_lone_long_cycle_is_searched() -> None:
+    """r1-r2-r3-r4-r5-r1, a lone cycle with no triangle: a wrong link on it would spread its
+    error thin, so r1-r3's first rejection by a check still needs a search."""
+    h = Checking("r1", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    for i in range(1, 6):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in [("r1", "r2"), ("r2", "r3"), ("r3", "r4"), ("r4", "r5"), ("r1", "r5")]:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    assert h.worker.step(now=0.0)
+    assert h.links[0].pair == ("r1", "r3") and len(h.checked) == 1 and len(h.calls) == 1

@@ -17,8 +17,8 @@ from pgvd.posegraph import (
     Solution,
     components,
     compose_transforms,
-    cycle_blocks,
     solve,
+    triangle_groups,
 )
 
 #: A link's own (overconfident) covariance, as the merge reports them: ~0.1 px, 0.01 deg.
@@ -225,27 +225,36 @@ def test_bad_links_are_refused(edge: Edge, match: str) -> None:
         solve(["r0", "r1"], [edge])
 
 
-def test_cycle_blocks_split_at_bridges() -> None:
-    """A triangle r0-r1-r2, a bridge r2-r3, a square r3-r4-r5-r6, a lone r7."""
+def test_triangle_groups_need_three_link_cycles() -> None:
+    """A triangle r0-r1-r2 with a bridge r2-r3 to a square r3-r4-r5-r6 and a lone r7: only
+    the triangle is a group; a chord r3-r5 makes the square two triangles."""
     edges = [("r0", "r1"), ("r1", "r2"), ("r0", "r2"), ("r2", "r3")]
     edges += [("r3", "r4"), ("r4", "r5"), ("r5", "r6"), ("r3", "r6")]
     nodes = [f"r{i}" for i in range(8)]
-    assert cycle_blocks(nodes, edges) == [
+    alone = [("r3",), ("r4",), ("r5",), ("r6",), ("r7",)]
+    assert triangle_groups(nodes, edges) == [("r0", "r1", "r2"), *alone]
+    assert triangle_groups(nodes, [*edges, ("r3", "r5")]) == [
         ("r0", "r1", "r2"), ("r3", "r4", "r5", "r6"), ("r7",),
     ]  # fmt: skip
-    assert cycle_blocks(nodes[:4], edges[1:2] + edges[3:4]) == [("r0",), ("r1",), ("r2",), ("r3",)]
 
 
 @given(st.integers(1, 9), st.data())
-def test_cycle_blocks_are_the_components_without_bridges(n: int, data: st.DataObject) -> None:
-    """Against the definition: an edge is a bridge when its ends fall apart without it; the
-    blocks are the components of the other edges (a link given twice is no bridge)."""
+def test_triangle_groups_hold_triangles_and_no_bridge(n: int, data: st.DataObject) -> None:
+    """Every triangle of the edges lies in one group, and every group within one component of
+    the edges that are not bridges (an edge whose ends fall apart without it)."""
     nodes = [f"r{i}" for i in range(n)]
     pairs = [(a, b) for i, a in enumerate(nodes) for b in nodes[i + 1 :]]
     edges = data.draw(st.lists(st.sampled_from(pairs))) if pairs else []
+    groups = triangle_groups(nodes, edges)
+    assert sorted(r for g in groups for r in g) == nodes
+    held = set(edges)
+    for a, b, c in itertools.combinations(nodes, 3):
+        if {(a, b), (a, c), (b, c)} <= held:
+            assert any({a, b, c} <= set(g) for g in groups)
     kept = [
         (a, b)
         for i, (a, b) in enumerate(edges)
         if any(a in c and b in c for c in components(nodes, edges[:i] + edges[i + 1 :]))
     ]
-    assert cycle_blocks(nodes, edges) == components(nodes, kept)
+    blocks = components(nodes, kept)
+    assert all(any(set(g) <= set(blk) for blk in blocks) for g in groups)
