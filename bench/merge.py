@@ -30,7 +30,9 @@ Run from the project root::
     python3 -m bench.merge --quick                # a few pairs per source and set, pgvd only
     python3 -m bench.merge                        # full: ~300 pairs, pgvd, m-explore, hough
 
-Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``).
+Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``), and
+with pgvd among the methods the margin report of :mod:`bench.acceptance`
+(``acceptance.md``, ``acceptance.png``).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import report
+from bench import acceptance, report
 from bench.capture import SearchedHeadings, result_json, to_json
 from bench.pairs import MapPair, make_pair
 from bench.sets import (
@@ -327,6 +329,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     (args.out / "merge.json").write_text(json.dumps(to_json(doc), indent=1) + "\n")
     report.chart(summary, records, scaling, args.out / "merge.png")
+    if "pgvd" in table:
+        acceptance.write(records, args.out, "merge.json")
     _log(text)
     _log(f"wrote {args.out / 'merge.md'}, merge.json, merge.png")
     return 0
