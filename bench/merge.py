@@ -14,6 +14,10 @@ Methods, all in this one process:
 ``pgvd``        this project's merge (:func:`pgvd.merge.merge`);
 ``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD):
                 ``MergeParams(probabilistic=False)``;
+``pgvd-no-rho``, ``pgvd-no-gamma``, ``pgvd-no-blur``, ``pgvd-rigid``
+                ablations: without the rho veto (32), without Gamma's ranking (27),
+                without the heading blur (8), hypotheses scored on the rigid overlay
+                instead of the drift-tolerant one (``MergeParams.drift_shift = 0``);
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -106,7 +110,15 @@ def _baseline(module: str, **kwargs) -> Method:
     return run
 
 
-METHOD_NAMES = ("pgvd", "pgvd-det", "m-explore", "hough", "exhaustive")
+#: Ablations of pgvd: MergeParams overrides.
+ABLATIONS = {
+    "pgvd-det": {"probabilistic": False},
+    "pgvd-no-rho": {"rho_veto": False},
+    "pgvd-no-gamma": {"gamma_ranking": False},
+    "pgvd-no-blur": {"heading_blur": False},
+    "pgvd-rigid": {"drift_shift": 0.0},
+}
+METHOD_NAMES = ("pgvd", *ABLATIONS, "m-explore", "hough", "exhaustive")
 
 
 def methods(
@@ -115,7 +127,7 @@ def methods(
     """The methods of the table, in column order (those of ``names`` that exist)."""
     makers: dict[str, Callable[[], Method]] = {
         "pgvd": _pgvd,
-        "pgvd-det": lambda: _pgvd(probabilistic=False),
+        **{name: (lambda kw=kw: _pgvd(**kw)) for name, kw in ABLATIONS.items()},
         "m-explore": lambda: _baseline("mexplore"),
         "hough": lambda: _baseline("hough"),
         "exhaustive": lambda: _baseline(

@@ -525,9 +525,11 @@ def _block_shifts(
     d = np.zeros((n_groups, 2))
     count = np.bincount(group, minlength=n_groups)
     ridge = 0.1 * np.maximum(count, 1)
-    for _ in range(iterations):
+    for it in range(iterations):
         pts = moved + d[group]
-        dist, idx = a.tree.query(pts, distance_upper_bound=max_shift + 2.0)
+        # the first pass reaches as far as the shift may go; later ones only refine it
+        reach = max_shift + 2.0 if it == 0 else 3.0
+        dist, idx = a.tree.query(pts, distance_upper_bound=reach)
         ok = np.isfinite(dist)
         if not ok.any():
             break

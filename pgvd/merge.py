@@ -109,9 +109,9 @@ class MergeParams:
     min_margin : the winner's overlay evidence beyond its best rival's, per overlapping wall
         cell (:mod:`pgvd.decision`), at least this.  Set on the development negatives of the
         merge bench (``python -m bench.merge``, ``bench/results/acceptance.md``): the
-        largest margin of a false hypothesis there (uos_avz, a building alike under a
-        mirror and across its halves) was 0.68, and no wrong pose of an overlapping pair
-        came above 0.5.
+        largest margin of a winner on a negative pair there was 0.68 (uos_avz, a
+        building alike under a mirror and across its halves), of a wrong pose on an
+        overlapping pair 0.75 (a drifted pair 2.4 degrees off).
     min_agreement : optional floor on agreement / (agreement + disagreement) of the final
         overlay (0: the margin decides alone; ``pgvd agent --min-agreement`` sets it).
     min_overlap : minimum length (m) of agreeing walls; small, so that a short but crisp
@@ -156,7 +156,7 @@ class MergeParams:
     max_hypotheses: int = 40
     search_radius: float = 2.4
     min_pairs: int = 1
-    min_margin: float = 0.7
+    min_margin: float = 0.76
     min_agreement: float = 0.0
     min_overlap: float = 3.0
     rival_distance: float = 1.0
