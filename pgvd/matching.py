@@ -587,7 +587,14 @@ def local_agreement(
     -------
     Agreement
         Counts summed over both directions.
+
+    Raises
+    ------
+    ValueError
+        If ``block`` is not positive or ``max_shift`` is negative.
     """
+    if not block > 0 or not max_shift >= 0:
+        raise ValueError(f"block must be > 0 and max_shift >= 0, got {block} and {max_shift}")
     wb, wa = b.walls, a.walls
     if max_points > 0:
         wb, wa = subsample(wb, max_points), subsample(wa, max_points)

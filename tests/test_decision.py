@@ -131,3 +131,13 @@ def test_a_contradicted_rival_counts_for_the_winner(intel):
     assert decide([win, far], WEIGHT, centre).margin > alone
     close = Scored(_moved(truth, 200.0), Agreement(450, 0))
     assert decide([win, close], WEIGHT, centre).margin == pytest.approx(0.05)
+
+
+def test_local_agreement_refuses_bad_squares(intel):
+    fine_a, fine_b, truth = intel
+    for block, shift in ((0.0, 10.0), (-5.0, 10.0), (100.0, -1.0), (float("nan"), 1.0)):
+        with pytest.raises(ValueError, match="block must be"):
+            local_agreement(fine_a, fine_b, truth, block, shift)
+    # no shift at all is the rigid count
+    rigid = map_agreement(fine_a, fine_b, truth, max_points=1500)
+    assert local_agreement(fine_a, fine_b, truth, 100.0, 0.0, max_points=1500) == rigid
