@@ -37,9 +37,10 @@ from bench.report import NEGATIVE, OVERLAP_SETS
 RESULTS = Path(__file__).resolve().parent / "results"
 CLASSES = ("right", "wrong", "negative")
 #: Thresholds of the table, beside the merge's own.
-THRESHOLDS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
-#: Margins are drawn clipped to this range (a winner can score far below 0).
-CLIP = (-1.5, 1.0)
+THRESHOLDS = (0.0, 0.2, 0.4, 0.5, 0.6, 0.65, 0.7, 0.8, 0.9)
+#: Margins are drawn clipped to this range (far below 0 for a contradicted winner, above 1
+#: when its rivals are contradicted).
+CLIP = (-1.5, 2.0)
 
 
 def hypothesis_class(record: dict) -> str | None:
@@ -135,7 +136,7 @@ def chart(classes: dict[str, list[tuple[dict, float]]], threshold: float, path: 
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 4.2))
-    bins = np.linspace(*CLIP, 51)
+    bins = np.linspace(*CLIP, 71)
     labels = {
         "right": "right-pose winners",
         "wrong": "wrong-pose winners",
