@@ -168,9 +168,32 @@ def _identity(ln: LinkRecord) -> tuple[object, ...]:
     return (ln.key, ln.decided_by, ln.version_a, ln.version_b)
 
 
-def _usable(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> list[LinkRecord]:
-    """The accepted links the pose graph can take (as :func:`agent.globalmap.build_components`)."""
-    return [ln for ln in links if ln.accepted and link_problem(ln, maps) is None]
+#: ``{id(record): (record, sound)}``: whether a link record is a rigid transform with a
+#: covariance (:func:`pgvd.posegraph.link_problem` on its own two robots).  The record is held
+#: so that its id cannot be reused while the entry lives.
+Soundness = dict[int, tuple[LinkRecord, bool]]
+
+
+def _usable(
+    maps: dict[str, tuple[int, Grid]], links: list[LinkRecord], sound: Soundness | None = None
+) -> list[LinkRecord]:
+    """The accepted links the pose graph can take (as :func:`agent.globalmap.build_components`).
+
+    ``sound`` remembers each record's verdict across calls: records never change, and the
+    checks (a rigid matrix, a positive semi-definite covariance) cost as much as a
+    registration's check once a fleet of 16 holds 120 links and asks after every link.
+    """
+    memo: Soundness = {} if sound is None else sound
+    out = []
+    for ln in links:
+        if not ln.accepted or ln.a not in maps or ln.b not in maps:
+            continue
+        held = memo.get(id(ln))
+        if held is None or held[0] is not ln:
+            held = memo[id(ln)] = (ln, link_problem(ln, (ln.a, ln.b)) is None)
+        if held[1]:
+            out.append(ln)
+    return out
 
 
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
@@ -190,9 +213,14 @@ class Chains:
     hundreds of milliseconds at 16 robots) is solved only for a pair being registered.
     """
 
-    def __init__(self, maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> None:
+    def __init__(
+        self,
+        maps: dict[str, tuple[int, Grid]],
+        links: list[LinkRecord],
+        sound: Soundness | None = None,
+    ) -> None:
         self.maps = maps
-        self.usable = _usable(maps, links)
+        self.usable = _usable(maps, links, sound)
         self.groups = components(maps, [ln.pair for ln in self.usable])
         self._solved: tuple[Solution, list[tuple[str, ...]]] | None = None
 
@@ -276,6 +304,8 @@ class FusionWorker:
         self.poses = dict(poses or {})
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
+        #: Which link records held are sound (:data:`Soundness`).
+        self._sound: Soundness = {}
         #: The :class:`Chains` whose solution predicts, and the step time it was solved at.
         self._solution: tuple[Chains | None, float] = (None, -np.inf)
         #: The time of the current :meth:`step`.
@@ -524,7 +554,10 @@ class FusionWorker:
         )
         held = self._chains
         if held[0] != signature or held[1] is None:
-            held = self._chains = (signature, Chains(snap.maps, snap.links))
+            # only the records held now: the memo does not grow with every link ever seen
+            held_now = {id(ln) for ln in snap.links}
+            self._sound = {k: v for k, v in self._sound.items() if k in held_now}
+            held = self._chains = (signature, Chains(snap.maps, snap.links, self._sound))
         return held[1]
 
     def _solved_for(

@@ -496,3 +496,23 @@ def test_a_disjoint_verdict_over_a_lone_long_cycle_is_searched() -> None:
         h.book.add_link(_link(a, b, np.eye(3)))
     assert h.worker.step(now=0.0)
     assert h.links[0].pair == ("r1", "r3") and len(h.checked) == 1 and len(h.calls) == 1
+
+
+def test_a_link_records_soundness_is_judged_once(monkeypatch) -> None:
+    """The pose graph's input checks run once per link record held, not once per step."""
+    import agent.worker as worker
+
+    judged: list[tuple[str, str]] = []
+    problem = worker.link_problem
+
+    def counting(ln, nodes):
+        judged.append(ln.pair)
+        return problem(ln, nodes)
+
+    monkeypatch.setattr(worker, "link_problem", counting)
+    h = Checking("r3", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    _chain(h)  # r1-r2, r2-r3 linked: r1-r3 is checked
+    assert h.worker.step(now=0.0)
+    assert sorted(judged) == [("r1", "r2"), ("r2", "r3")]
+    assert not h.worker.step(now=0.1)  # r1-r3 added: a new Chains, only it judged
+    assert sorted(judged) == [("r1", "r2"), ("r1", "r3"), ("r2", "r3")]
