@@ -430,6 +430,28 @@ def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ m[:2, :2].T + m[:2, 2]
 
 
+class WallTree(cKDTree):
+    """A k-d tree of wall cells ``(x, y)`` that keeps each cell's wall normal once computed.
+
+    The point-to-line stages ask for the normals at the nearest wall cells
+    over and over (every Gauss-Newton step, the residual distortion, the
+    covariance); a normal depends on its cell alone, so each is computed once.
+    """
+
+    def __init__(self, walls: np.ndarray) -> None:
+        # the sliding-midpoint tree builds in half the time and answers these
+        # nearest-wall queries faster than the median-split default
+        super().__init__(walls, balanced_tree=False, compact_nodes=False)
+        self._normal = np.full((self.n, 2), np.nan)
+
+    def normals(self, idx: np.ndarray) -> np.ndarray:
+        """Unit wall normals at the cells ``idx`` of the tree (see :func:`_normals`)."""
+        missing = np.unique(idx[np.isnan(self._normal[idx, 0])])
+        if missing.size:
+            self._normal[missing] = _normals(self, self.data[missing])
+        return self._normal[idx]
+
+
 class WallMap:
     """A full-resolution map for overlay checks: its probabilities and a k-d tree of its walls."""
 
@@ -437,9 +459,7 @@ class WallMap:
         self.free = np.asarray(prob) < free
         r, c = np.nonzero(np.asarray(prob) > occupied)
         self.walls = np.column_stack([c, r]).astype(float)
-        # the sliding-midpoint tree builds in half the time and answers these
-        # nearest-wall queries faster than the median-split default
-        self.tree = cKDTree(self.walls, balanced_tree=False, compact_nodes=False)
+        self.tree = WallTree(self.walls)
 
     def count(self, points: np.ndarray, tolerance: float) -> tuple[int, int]:
         """(agree, disagree) of another map's wall points ``(N, 2)`` (x, y) in this frame.
@@ -457,7 +477,12 @@ class WallMap:
 
 
 def map_agreement(
-    a: WallMap, b: WallMap, matrix: np.ndarray, tolerance: float = 2.0, max_points: int = 0
+    a: WallMap,
+    b: WallMap,
+    matrix: np.ndarray,
+    tolerance: float = 2.0,
+    max_points: int = 0,
+    scaled: bool = False,
 ) -> Agreement:
     """Overlay B on A with the B->A pixel ``matrix`` and count agreement both ways.
 
@@ -475,6 +500,9 @@ def map_agreement(
     max_points : int, optional
         When > 0, an even subsample of each map's walls of about this size
         is evaluated (a quick estimate).
+    scaled : bool, optional
+        Count each subsampled wall cell for the cells between it and the next,
+        so that the counts estimate those of all walls.
 
     Returns
     -------
@@ -486,7 +514,10 @@ def map_agreement(
         wb, wa = subsample(wb, max_points), subsample(wa, max_points)
     ag1, dis1 = a.count(_apply(matrix, wb), tolerance)
     ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), wa), tolerance)
-    return Agreement(ag1 + ag2, dis1 + dis2)
+    if not scaled:
+        return Agreement(ag1 + ag2, dis1 + dis2)
+    sb, sa = len(b.walls) / max(1, len(wb)), len(a.walls) / max(1, len(wa))
+    return Agreement(round(ag1 * sb + ag2 * sa), round(dis1 * sb + dis2 * sa))
 
 
 def _fit_rigid(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -574,7 +605,7 @@ def _point_to_line(
     dist, idx = walls_a.query(moved, distance_upper_bound=radius)
     ok = np.isfinite(dist)
     x, y = pts[ok], walls_a.data[idx[ok]]
-    n = _normals(walls_a, y) if ok.any() else np.zeros((0, 2))
+    n = _wall_normals(walls_a, idx[ok]) if ok.any() else np.zeros((0, 2))
     psi = heading(matrix)
     c, s = np.cos(psi), np.sin(psi)
     dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
@@ -648,6 +679,7 @@ def residual_distortion(
     block: float = 100.0,
     radius: float = 10.0,
     min_points: int = 60,
+    max_points: int = 20000,
 ) -> float:
     """Largest local misfit (pixels) of B's walls on A's after the rigid ``matrix``.
 
@@ -673,6 +705,9 @@ def residual_distortion(
         B's walls farther than this from A's are not part of the overlap.
     min_points : int, optional
         Fewest wall cells of a square that is fitted.
+    max_points : int, optional
+        An even subsample of at most this many of B's walls is used, each kept
+        cell counting for the cells between it and the next (``min_points``).
 
     Returns
     -------
@@ -683,25 +718,32 @@ def residual_distortion(
         odometry drift (median 4.0), so it flags drift, it does not measure
         it exactly.
     """
-    fit = _point_to_line(walls_a, walls_b, matrix, radius)
-    if len(fit.res) < min_points:
+    pts = subsample(walls_b, max_points)
+    stride = len(walls_b) / max(1, len(pts))
+    fit = _point_to_line(walls_a, pts, matrix, radius)
+    if len(fit.res) * stride < min_points:
         return 0.0
     n, r = fit.jac[:, :2], -fit.res
     keys = np.floor(fit.moved / block).astype(np.int64)
-    _, group = np.unique(keys, axis=0, return_inverse=True)
-    worst = 0.0
-    for g in range(int(group.max()) + 1):
-        sel = group.ravel() == g
-        if sel.sum() < min_points:
-            continue
-        ng = n[sel]
-        info = ng.T @ ng
-        lo, hi = np.linalg.eigvalsh(info)
-        if lo < 0.1 * hi:
-            continue
-        d = np.linalg.solve(info, ng.T @ r[sel])
-        worst = max(worst, float(np.hypot(*d)))
-    return worst
+    keys -= keys.min(axis=0)
+    _, group, counts = np.unique(
+        keys[:, 0] * (keys[:, 1].max() + 1) + keys[:, 1], return_inverse=True, return_counts=True
+    )
+    # per square: the normal equations sum n n^T d = sum n r, summed by bincount
+    terms = (n[:, 0] ** 2, n[:, 0] * n[:, 1], n[:, 1] ** 2, n[:, 0] * r, n[:, 1] * r)
+    sxx, sxy, syy, bx, by = (np.bincount(group, t, counts.size) for t in terms)
+    info = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
+    lo, hi = np.linalg.eigvalsh(info).T
+    fitted = (counts * stride >= min_points) & (lo >= 0.1 * hi)
+    if not fitted.any():
+        return 0.0
+    d = np.linalg.solve(info[fitted], np.column_stack([bx, by])[fitted][..., None])[..., 0]
+    return float(np.hypot(d[:, 0], d[:, 1]).max())
+
+
+def _wall_normals(tree: cKDTree, idx: np.ndarray) -> np.ndarray:
+    """Unit wall normals at the cells ``idx`` of ``tree``, from its cache when it keeps one."""
+    return tree.normals(idx) if isinstance(tree, WallTree) else _normals(tree, tree.data[idx])
 
 
 def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
