@@ -81,14 +81,15 @@ def angle_spectrum(p: np.ndarray, n_angles: int = 360, max_points: int = 3000) -
     .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
        using probabilistic generalized Voronoi diagrams", IROS 2012, eq. (10).
     """
-    p = np.asarray(p, dtype=np.float64)
+    p = np.asarray(p)
     if p.ndim != 2:
         raise ValueError(f"angle_spectrum needs a 2-D grid, got shape {p.shape}")
     rows, cols = np.nonzero(p > OCCUPIED)
     if rows.size == 0:
         raise ValueError("angle_spectrum: the map has no occupied cells")
     rows, cols = subsample(rows, max_points), subsample(cols, max_points)
-    w = p[rows, cols]
+    # only the kept cells are widened to float64, not the whole map
+    w = p[rows, cols].astype(np.float64)
     theta = np.arange(n_angles) * (np.pi / n_angles)
     reach = int(np.ceil(np.hypot(*p.shape))) + 1
     n_bins = 2 * reach + 1
