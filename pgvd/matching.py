@@ -137,28 +137,35 @@ class EdgeCorrelator:
         if na == 0 or nb == 0:
             return Similarity(gamma, shift)
         mats_b = [e.matrix for e in edges_b]
-        org_a = self.origins
-        org_b = np.array([e.origin for e in edges_b], dtype=float)
-        for kb, ib in _groups(mats_b).items():
+        groups_b = _groups(mats_b)
+        # Peaks are written in size-class order, where every block is a plain
+        # slice, and put back in edge order once at the end.
+        peak, u, v = np.zeros((na, nb)), np.zeros((na, nb)), np.zeros((na, nb))
+        b0 = 0
+        for kb, ib in groups_b.items():
             stack_b = _stack(mats_b, ib, kb)
+            cols = slice(b0, b0 + len(ib))
+            a0 = 0
             for ka, ia in self.groups.items():
                 size = (ka[0] + kb[0], ka[1] + kb[1])
                 fb = np.conj(sfft.rfft2(stack_b, s=size))
                 fa_all = self._spectrum(ka, size)
                 chunk = max(1, _BLOCK_CELLS // (len(ib) * size[0] * (size[1] // 2 + 1)))
                 for start in range(0, len(ia), chunk):
-                    sub = ia[start : start + chunk]
                     corr = sfft.irfft2(fa_all[start : start + chunk, None] * fb[None], s=size)
-                    flat = corr.reshape(len(sub), len(ib), -1)
-                    arg = flat.argmax(axis=2)
-                    peak = np.take_along_axis(flat, arg[..., None], axis=2)[..., 0]
-                    u, v = np.divmod(arg, size[1])
-                    u = np.where(u < ka[0], u, u - size[0])
-                    v = np.where(v < ka[1], v, v - size[1])
-                    rows, cols = np.ix_(sub, ib)
-                    gamma[rows, cols] = peak
-                    shift[rows, cols, 0] = org_a[sub, 1][:, None] - org_b[ib, 1][None] + v
-                    shift[rows, cols, 1] = org_a[sub, 0][:, None] - org_b[ib, 0][None] + u
+                    flat = corr.reshape(corr.shape[0], len(ib), -1)
+                    rows = slice(a0 + start, a0 + start + corr.shape[0])
+                    peak[rows, cols] = flat.max(axis=2)
+                    du, dv = np.divmod(flat.argmax(axis=2), size[1])
+                    u[rows, cols] = np.where(du < ka[0], du, du - size[0])
+                    v[rows, cols] = np.where(dv < ka[1], dv, dv - size[1])
+                a0 += len(ia)
+            b0 += len(ib)
+        order = np.ix_(*(np.concatenate(list(g.values())) for g in (self.groups, groups_b)))
+        gamma[order], shift[..., 0][order], shift[..., 1][order] = peak, v, u
+        org_b = np.array([e.origin for e in edges_b], dtype=float)
+        shift[..., 0] += self.origins[:, 1][:, None] - org_b[:, 1][None]
+        shift[..., 1] += self.origins[:, 0][:, None] - org_b[:, 0][None]
         return Similarity(gamma, shift)
 
 
