@@ -99,16 +99,23 @@ def speed_table(scaling: list[dict], ours: str = "pgvd") -> list[str]:
 
     A ratio below 1 is ``ours`` faster.  The methods were timed in turn on the
     same pair at each size (:func:`bench.merge.run_scaling`), so a ratio holds
-    when the machine's speed drifts; absolute seconds do not.
+    when the machine's speed drifts; absolute seconds do not.  Ratios are given
+    in wall-clock and in CPU time (``cpu_seconds``, when recorded): on a busy
+    machine the wall clock also counts the time other processes took.
     """
     methods = list(dict.fromkeys(r["method"] for r in scaling))
     peers = [m for m in methods if m != ours]
     head = ["cells", *(f"{m} s" for m in methods), *(f"{ours} / {m}" for m in peers)]
+    head += [f"{ours} / {m} (cpu)" for m in peers]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for c in sorted({r["cells"] for r in scaling}):
-        t = {r["method"]: r["seconds"] for r in scaling if r["cells"] == c}
-        row = [f"{c}^2", *(_fmt(t.get(m)) for m in methods)]
-        row += [_fmt(t[ours] / t[m]) if ours in t and t.get(m) else "-" for m in peers]
+        at = {r["method"]: r for r in scaling if r["cells"] == c}
+        row = [f"{c}^2", *(_fmt(at[m]["seconds"]) if m in at else "-" for m in methods)]
+        for key in ("seconds", "cpu_seconds"):
+            mine = at.get(ours, {}).get(key)
+            for m in peers:
+                theirs = at.get(m, {}).get(key)
+                row.append(_fmt(mine / theirs) if mine and theirs else "-")
         lines.append("| " + " | ".join(row) + " |")
     return lines
 
