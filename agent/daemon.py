@@ -31,6 +31,7 @@ from agent.globalmap import Component, FuseFn
 from agent.inbox import MAX_BYTES, Inbox, offer_or_drop
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
+from agent.priors import Pose
 from agent.ros2_io import RosMapSubscription
 from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap
@@ -66,6 +67,7 @@ class AgentOptions:
     forget_after: float = NodeOptions.forget_after
     inbox_bytes: int = MAX_BYTES
     outputs: OutputOptions = field(default_factory=OutputOptions)
+    known_poses: tuple[tuple[str, Pose], ...] = ()
 
     def node_options(self) -> NodeOptions:
         """The core's part; tiles on a session of their own go out packed for datagrams."""
@@ -143,6 +145,7 @@ class Agent:
             # an injected registration (tests) decides alone; the real one verifies first
             check=verify_check(opts.min_agreement) if register is None else None,
             counters=self.counters,
+            poses=dict(opts.known_poses),
         )
 
     def _load_state(self) -> StoredMap | None:

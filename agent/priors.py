@@ -4,18 +4,21 @@
 frame, in metres and radians (REP 103), as m-explore's ``init_pose_x/_y/_yaw``. For two robots
 with known poses, the prior of their maps' B-pixel -> A-pixel transform follows from the poses
 and the grids' origins. The fusion worker checks a pair at its prior first (a local refinement
-and the merge's overlay acceptance, :func:`pgvd.verify.verify`) and runs the full search only
-where the prior fails the check, so a wrong prior is never accepted as it stands.
+and the merge's overlay acceptance, :func:`pgvd.verify.verify`, as in the merge of Saeedi et
+al., IROS 2012, Sec. IV) and takes the link only if the check confirms it; otherwise the pair is
+decided as if no pose were known (a chain's check or the full search), so a wrong prior is
+never accepted as it stands, nor does it keep the true link from being found.
 """
 
 from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
+from agent.keys import check_name
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
 from pgvd.integrate import se2
 
@@ -33,10 +36,22 @@ def parse_known_pose(text: str) -> tuple[str, Pose]:
             f"known pose must be ROBOT=x,y,yaw (metres, radians), e.g. r2=4.0,-1.5,0.3; "
             f"got {text!r}"
         )
+    robot = check_name(m["robot"], "robot id of a known pose")
     pose = (float(m["x"]), float(m["y"]), float(m["yaw"]))
     if not all(math.isfinite(v) for v in pose):
-        raise ValueError(f"known pose of {m['robot']} is not finite: {text!r}")
-    return m["robot"], pose
+        raise ValueError(f"known pose of {robot} is not finite: {text!r}")
+    return robot, pose
+
+
+def parse_known_poses(texts: Iterable[str]) -> dict[str, Pose]:
+    """Each ``--known-pose`` by robot; ``ValueError`` (one line) for a bad one or a robot twice."""
+    poses: dict[str, Pose] = {}
+    for text in texts:
+        robot, pose = parse_known_pose(text)
+        if robot in poses:
+            raise ValueError(f"known pose of {robot} given twice")
+        poses[robot] = pose
+    return poses
 
 
 def prior_matrix(a: Grid, pose_a: Pose, b: Grid, pose_b: Pose) -> np.ndarray:

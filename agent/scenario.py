@@ -7,6 +7,7 @@ the robots' maps overlap pairwise but no two share a frame.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -54,3 +55,21 @@ def random_frames(n: int, seed: int) -> list[tuple[float, float, float]]:
         (float(rng.uniform(-20, 20)), float(rng.uniform(-20, 20)), float(rng.uniform(0, 360)))
         for _ in range(n)
     ]
+
+
+def known_pose(frame: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The pose of a robot's map frame in the log's world frame, for ``--known-pose``.
+
+    Parameters
+    ----------
+    frame : ``(x m, y m, theta deg)``, a robot's frame as :func:`random_frames` draws it (the
+        rigid transform from the log's world frame to the robot's map frame).
+
+    Returns
+    -------
+    ``(x m, y m, yaw rad)``: the inverse transform, m-explore's ``init_pose_x/_y/_yaw``.
+    """
+    x, y, deg = frame
+    yaw = math.radians(deg)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return -(c * x + s * y), s * x - c * y, -yaw

@@ -18,8 +18,14 @@ refined within the basin, is a decided rejection -- a search could only find a t
 chain contradicts -- but only for a pair a search already rejected in an earlier epoch: were
 the chain wrong, a first search is what finds the true link that exposes it around a cycle.
 So full searches grow with the robots (each joins its component once, plus the pairs whose
-chain is off), not with the pairs.  Which way a link was decided does not enter the global
-map, which stays a function of the maps and the links (fleet invariant 2).
+chain is off), not with the pairs.
+
+Known initial poses (``--known-pose``, :mod:`agent.priors`) are checked the same way, and
+before a chain's prediction: a pair whose two poses are known is checked at their prior
+transform, and the check can only confirm it.  A prior that fails the check decides nothing --
+a wrong prior is never accepted as it stands, nor does it reject the pair -- and the pair goes
+on to the chain's check or the full search.  Which way a link was decided does not enter the
+global map, which stays a function of the maps and the links (fleet invariant 2).
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -38,6 +44,7 @@ from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, build_components
 from agent.links import LinkKey, LinkRecord, due_keys
 from agent.memory import release_free_memory
+from agent.priors import Pose, pair_prior
 from pgvd.grid import Grid
 from pgvd.posegraph import Solution, link_problem, solve
 
@@ -190,8 +197,12 @@ class FusionWorker:
     fuse : fusion function for :func:`agent.globalmap.build_components`.
     check : checks a pair's predicted transform before a full search (:data:`CheckFn`);
         None always searches.
-    counters : where ``searches``, ``checks``, ``checks_confirmed`` and ``checks_rejected``
-        are counted (the status shows them).
+    counters : where ``searches``, ``checks``, ``checks_confirmed``, ``checks_rejected``,
+        ``prior_checks``, ``prior_confirmed`` and ``prior_failed`` are counted (the status
+        shows them).
+    poses : known initial poses, robot -> ``(x, y, yaw)`` of its map frame in the world frame
+        (:func:`agent.priors.parse_known_pose`); a pair with both is checked at their prior
+        first (with ``check``).
     """
 
     def __init__(
@@ -205,6 +216,7 @@ class FusionWorker:
         fuse: FuseFn | None = None,
         check: CheckFn | None = None,
         counters: Counters | None = None,
+        poses: Mapping[str, Pose] | None = None,
     ) -> None:
         self.me = me
         self.book = book
@@ -215,6 +227,7 @@ class FusionWorker:
         self.fuse = fuse
         self.check = check
         self.counters = counters or Counters()
+        self.poses = dict(poses or {})
         self._placements: tuple[object, Solution | None] = (None, None)
         self.merges = 0
         self.merge_seconds = 0.0
@@ -272,7 +285,7 @@ class FusionWorker:
             # Checks first: they take tens of milliseconds, and each link they add may
             # turn a pair waiting for a full search into one more check.
             if self.check is not None:
-                due.sort(key=lambda k: self._predicted(snap, k[0], k[2]) is None)
+                due.sort(key=lambda k: not self._checkable(snap, k[0], k[2]))
             self._register(snap, due[0])
             return True
         signature = (
@@ -308,14 +321,15 @@ class FusionWorker:
         a, _, b, _ = key  # epochs; the link records the versions it was computed on
         va, vb = snap.maps[a][0], snap.maps[b][0]
         t0 = time.monotonic()
-        how = "searched"
+        how = "prior"
         try:
-            res = self._checked(snap, a, b)
+            res = self._at_prior(snap, a, b)
             if res is None:
+                how, res = "checked", self._checked(snap, a, b)
+            if res is None:
+                how = "searched"
                 self.counters.add("searches")
                 res = self.register(snap.maps[a][1], snap.maps[b][1])
-            else:
-                how = "checked"
         except Exception as exc:  # bad maps are an outcome (rejected), not a crash
             log.warning("registration of %s v%d / %s v%d failed: %s", a, va, b, vb, exc)
             res = Registration(False, *_REJECTED, 0.0)
@@ -329,6 +343,32 @@ class FusionWorker:
         )  # fmt: skip
         if self.book.add_link(rec):
             self.on_link(rec)
+
+    def _checkable(self, snap: Snapshot, a: str, b: str) -> bool:
+        """Whether a check may decide ``(a, b)``: both poses known, or a chain predicts it."""
+        both_known = a in self.poses and b in self.poses
+        return both_known or self._predicted(snap, a, b) is not None
+
+    def _at_prior(self, snap: Snapshot, a: str, b: str) -> Registration | None:
+        """The link confirmed at the known poses' prior for ``(a, b)``, or None.
+
+        None when a pose is unknown, and when the check does not confirm the prior: it
+        neither accepts a wrong prior as it stands nor rejects the pair (the true link may be
+        far from a wrong prior), so the chain's check or the full search decides.
+        """
+        if self.check is None:
+            return None
+        (_, grid_a), (_, grid_b) = snap.maps[a], snap.maps[b]
+        prior = pair_prior(self.poses, a, grid_a, b, grid_b)
+        if prior is None:
+            return None
+        self.counters.add("prior_checks")
+        res = self.check(grid_a, grid_b, prior)
+        if res is None or not res.accepted:
+            self.counters.add("prior_failed")
+            return None
+        self.counters.add("prior_confirmed")
+        return res
 
     def _checked(self, snap: Snapshot, a: str, b: str) -> Registration | None:
         """The check of the links' prediction for ``(a, b)``, or None: search instead."""

@@ -7,6 +7,10 @@ Written from ros2/rmw_zenoh ``docs/design.md`` and its attachment and liveliness
 - a 33-byte attachment ``<q sequence><q timestamp ns><B 16><16-byte GID>`` on every sample;
 - a latched (transient-local) publisher is an advanced publisher with a one-sample cache;
 - liveliness tokens ``@ros2_lv/<domain>/<zid>/<nid>/<eid>/<MP|MS>/<enclave>/<ns>/<node>/...``.
+
+:class:`BridgeRoute` is the other way a ROS 2 topic reaches Zenoh: a DDS robot's latched topic
+as eclipse-zenoh/zenoh-plugin-ros2dds (zenoh-bridge-ros2dds) routes it, written from the
+plugin's ``route_publisher.rs`` and ``ros2_name_to_key_expr``.
 """
 
 from __future__ import annotations
@@ -101,3 +105,27 @@ def latched_subscriber(s: zenoh.Session, data_key: str, callback) -> zenoh.ext.A
         s, data_key, callback,
         history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
     )
+
+
+class BridgeRoute:
+    """zenoh-bridge-ros2dds routing a DDS robot's transient-local topic to Zenoh.
+
+    The key is the bare topic name (``/robot1/map`` -> ``robot1/map``, with no namespace
+    configured); the publisher is an advanced one with a cache (the DDS reader's history depth
+    times ``transient_local_cache_multiplier``, 10 by default) and publisher detection, so a
+    late subscriber's history query gets the latched sample; each DDS sample is put as its
+    CDR bytes, header included, with no attachment.
+    """
+
+    def __init__(self, s: zenoh.Session, topic: str, depth: int = 1) -> None:
+        self.key = topic.lstrip("/")
+        self.pub = zenoh.ext.declare_advanced_publisher(
+            s, self.key, cache=zenoh.ext.CacheConfig(max_samples=depth * 10),
+            publisher_detection=True,
+        )
+
+    def put(self, cdr: bytes) -> None:
+        self.pub.put(cdr)
+
+    def close(self) -> None:
+        self.pub.undeclare()

@@ -36,6 +36,9 @@ def agent(tmp_path: Path, *extra: str) -> list[str]:
         (["--ros-domain", "300"], "domain id"),
         (["--ros-rate", "0"], "--ros-rate must be > 0"),
         (["--foxglove", "8765"], "HOST:PORT"),
+        (["--known-pose", "r2=1,2"], "ROBOT=x,y,yaw"),
+        (["--known-pose", "r/2=1,2,0.5"], "robot id"),
+        (["--known-pose", "r2=1,2,0", "--known-pose", "r2=0,0,0"], "known pose of r2 given twice"),
     ],
 )
 def test_bad_arguments(tmp_path: Path, capsys, extra: list[str], message: str) -> None:
@@ -52,3 +55,12 @@ def test_taken_listen_port_is_one_line(tmp_path: Path, capsys) -> None:
         assert main(agent(tmp_path, "--listen", f"tcp/127.0.0.1:{port}")) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot open the Zenoh session" in err
+
+
+def test_known_poses_reach_the_agent_options(tmp_path: Path) -> None:
+    from agent.cli.agent import options_from_args
+    from agent.cli.dispatch import build_parser
+
+    argv = agent(tmp_path, "--known-pose", "r1=0,0,0", "--known-pose", "r2=4.0,-1.5,0.3")
+    opts = options_from_args(build_parser(["agent"]).parse_args(argv))
+    assert dict(opts.known_poses) == {"r1": (0.0, 0.0, 0.0), "r2": (4.0, -1.5, 0.3)}

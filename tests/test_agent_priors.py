@@ -9,8 +9,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agent.priors import pair_prior, parse_known_pose, prior_matrix
+from agent.priors import pair_prior, parse_known_pose, parse_known_poses, prior_matrix
 from pgvd.grid import Grid, relative_matrix
+from pgvd.integrate import se2
 from pgvd.io import read_map
 
 
@@ -66,3 +67,47 @@ def test_known_poses_parse() -> None:
 def test_bad_known_poses_get_one_line(text: str) -> None:
     with pytest.raises(ValueError, match="ROBOT=x,y,yaw"):
         parse_known_pose(text)
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@given(st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_-]{0,11}", fullmatch=True), finite, finite, finite)
+def test_known_poses_round_trip(robot: str, x: float, y: float, yaw: float) -> None:
+    assert parse_known_pose(f"{robot}={x!r},{y!r},{yaw!r}") == (robot, (x, y, yaw))
+
+
+@given(st.text(max_size=40))
+def test_any_text_parses_or_gets_one_line(text: str) -> None:
+    try:
+        robot, pose = parse_known_pose(text)
+    except ValueError as exc:
+        assert "\n" not in str(exc)
+    else:
+        assert "=" not in robot and all(math.isfinite(v) for v in pose)
+
+
+def test_a_robot_known_twice_is_refused() -> None:
+    assert parse_known_poses(["r1=0,0,0", "r2=1,2,3"]) == {"r1": (0, 0, 0), "r2": (1, 2, 3)}
+    with pytest.raises(ValueError, match="known pose of r1 given twice"):
+        parse_known_poses(["r1=0,0,0", "r1=1,2,3"])
+
+
+@pytest.mark.parametrize("text", ["r/1=1,2,3", "r 1=1,2,3"])
+def test_a_known_pose_needs_a_robot_id(text: str) -> None:
+    with pytest.raises(ValueError, match="robot id"):
+        parse_known_pose(text)
+
+
+def test_a_huge_known_pose_is_not_finite() -> None:
+    with pytest.raises(ValueError, match="not finite"):
+        parse_known_pose("r1=1e999,0,0")
+
+
+@given(st.floats(-20, 20), st.floats(-20, 20), st.floats(0, 360))
+def test_a_replay_frame_gives_the_pose_of_its_map_frame(x: float, y: float, deg: float) -> None:
+    """:func:`agent.scenario.known_pose` inverts the world -> map transform a replay uses."""
+    from agent.scenario import known_pose
+
+    world_to_map = se2(x, y, math.radians(deg))
+    np.testing.assert_allclose(se2(*known_pose((x, y, deg))) @ world_to_map, np.eye(3), atol=1e-9)

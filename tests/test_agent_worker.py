@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -14,11 +15,12 @@ from agent.worker import (
     FusionWorker,
     GlobalState,
     Registration,
+    merge_registration,
     placements,
     predict,
     verify_check,
 )
-from pgvd.grid import Grid, rigid_matrix
+from pgvd.grid import Grid, rigid_matrix, world_pose_to_pixel_matrix
 from pgvd.io import read_map
 
 
@@ -204,13 +206,16 @@ def test_a_disjoint_verdict_is_searched_the_first_time() -> None:
     assert h.worker.counters.snapshot()["counts"] == {"checks": 1, "searches": 1}
 
 
+def _rejected_in_epoch_0(h: Harness, a: str, b: str) -> None:
+    """``a`` and ``b`` held at epoch 0, whose search rejected the pair."""
+    h.book.put_map(a, V(0), tiny(int(a[1])))
+    h.book.put_map(b, V(0), tiny(int(b[1])))
+    h.book.add_link(LinkRecord(a, V(0), b, V(0), False, np.eye(3), np.zeros((3, 3)), 0.1, b))
+
+
 def test_a_disjoint_verdict_on_a_pair_rejected_before_rejects_without_search() -> None:
     h = Checking("r3", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
-    h.book.put_map("r1", V(0), tiny(1))
-    h.book.put_map("r3", V(0), tiny(3))
-    h.book.add_link(
-        LinkRecord("r1", V(0), "r3", V(0), False, np.eye(3), np.zeros((3, 3)), 0.1, "r3")
-    )
+    _rejected_in_epoch_0(h, "r1", "r3")
     _chain(h)  # epoch 1 of every map: r1-r3 needs a link again
     assert h.worker.step(now=0.0)
     assert h.calls == [] and [ln.accepted for ln in h.links] == [False]
@@ -224,6 +229,32 @@ def test_a_pair_no_chain_reaches_is_searched_unchecked() -> None:
     assert h.worker.step(now=0.0)
     assert h.checked == [] and len(h.calls) == 1
     assert h.worker.counters.snapshot()["counts"] == {"searches": 1}
+
+
+def test_a_prior_goes_before_the_chain_and_confirms_alone() -> None:
+    confirmed = Registration(True, rigid_matrix(0.1, 1.0, 1.0), np.eye(3) * 0.2, 0.97)
+    h = Checking("r3", confirmed)
+    _chain(h)
+    h.worker.poses = {"r1": (0.0, 0.0, 0.0), "r3": (0.5, 0.0, 0.0)}  # 0.5 m = 5 px apart
+    assert h.worker.step(now=0.0)
+    (at_prior,) = h.checked  # the chain's prediction (10 px, then 90 deg) is not needed
+    np.testing.assert_allclose(at_prior, rigid_matrix(0.0, 5.0, 0.0), atol=1e-9)
+    assert h.calls == [] and [ln.accepted for ln in h.links] == [True]
+    assert h.worker.counters.snapshot()["counts"] == {"prior_checks": 1, "prior_confirmed": 1}
+
+
+def test_a_prior_the_check_rejects_is_searched_even_for_a_pair_rejected_before() -> None:
+    """A chain's rejection of a pair rejected before stands; a prior's never does."""
+    h = Checking("r1", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    _rejected_in_epoch_0(h, "r1", "r2")
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    h.worker.poses = {"r1": (0.0, 0.0, 0.0), "r2": (1.0, 2.0, 0.3)}
+    assert h.worker.step(now=0.0)
+    assert len(h.checked) == 1 and len(h.calls) == 1
+    assert [ln.accepted for ln in h.links] == [True]  # the search's (Harness.register)
+    counts = h.worker.counters.snapshot()["counts"]
+    assert counts == {"prior_checks": 1, "prior_failed": 1, "searches": 1}
 
 
 def test_a_link_inconsistent_around_cycles_does_not_enter_the_prediction() -> None:
@@ -286,3 +317,54 @@ def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
     assert verdict is not None and not verdict.accepted
     monkeypatch.setattr("pgvd.verify.BASIN_M", 1e-3)  # any correction leaves the basin
     assert verify_check()(a, b, off) is None
+
+
+def _known_pose_of_b(a: Grid, b: Grid, truth: np.ndarray) -> tuple[float, float, float]:
+    """B's map-frame pose in A's map frame (the world here): the pose the truth implies."""
+    m = np.linalg.inv(world_pose_to_pixel_matrix(a)) @ truth @ world_pose_to_pixel_matrix(b)
+    return float(m[0, 2]), float(m[1, 2]), math.atan2(m[1, 0], m[0, 0])
+
+
+class Searching:
+    """The worker with the real check and the real full search, which it counts."""
+
+    def __init__(self, a: Grid, b: Grid, pose_b: tuple[float, float, float]) -> None:
+        self.book = FleetBook()
+        self.book.put_map("r1", V(1), a)
+        self.book.put_map("r2", V(1), b)
+        self.links: list[LinkRecord] = []
+        self.searches = 0
+        search = merge_registration()
+
+        def register(a: Grid, b: Grid) -> Registration:
+            self.searches += 1
+            return search(a, b)
+
+        self.worker = FusionWorker(
+            "r1", self.book, register, self.links.append, lambda _: None, 4.0,
+            check=verify_check(), poses={"r1": (0.0, 0.0, 0.0), "r2": pose_b},
+        )  # fmt: skip
+
+
+def test_a_right_known_pose_links_real_maps_with_the_check_alone(intel_pair) -> None:
+    a, b, truth = intel_pair
+    s = Searching(a, b, _known_pose_of_b(a, b, truth))
+    assert s.worker.step(now=0.0)
+    (rec,) = s.links
+    assert rec.accepted and s.searches == 0
+    assert np.abs(rec.matrix - truth)[:2, 2].max() < 2.0  # pixels
+    counts = s.worker.counters.snapshot()["counts"]
+    assert counts == {"prior_checks": 1, "prior_confirmed": 1}
+
+
+def test_a_wrong_known_pose_is_not_taken_and_the_search_finds_the_true_link(intel_pair) -> None:
+    """B's known pose 3 m and 20 degrees off: the check fails it, the full search decides."""
+    a, b, truth = intel_pair
+    x, y, yaw = _known_pose_of_b(a, b, truth)
+    s = Searching(a, b, (x + 3.0, y, yaw + math.radians(20.0)))
+    assert s.worker.step(now=0.0)
+    (rec,) = s.links
+    assert rec.accepted and s.searches == 1
+    assert np.abs(rec.matrix - truth)[:2, 2].max() < 2.0
+    counts = s.worker.counters.snapshot()["counts"]
+    assert counts == {"prior_checks": 1, "prior_failed": 1, "searches": 1}

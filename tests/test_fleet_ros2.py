@@ -7,6 +7,8 @@ its own (agent/scenario.py), as latched ``nav_msgs/msg/OccupancyGrid`` on ``/r1/
 and r1 publishes the merged map on ``/map_merged`` with ``/tf``. Then every kind of bad ROS
 message is sent to r2's topic. A second fleet replays a rosbag2 written from the Intel log
 beside a CARMEN-source peer.
+A DDS robot's map reaches an agent through zenoh-bridge-ros2dds's key form (``--ros-keys
+bridge``).
 """
 
 from __future__ import annotations
@@ -247,3 +249,34 @@ def test_a_replayed_rosbag_merges_with_a_carmen_peer(bag_fleet: dict) -> None:
     truth = true_matrix(w2p[ln["a"]], w2p[ln["b"]])
     deg, cells = link_error(ln["matrix"], truth, bag_fleet["shapes"][ln["b"]])
     assert deg <= 2.0 and cells <= 3.0, (deg, cells)
+
+
+def test_a_dds_robot_behind_zenoh_bridge_ros2dds_is_followed(tmp_path) -> None:
+    """An Intel map latched on ``/robot1/map`` as the bridge routes it, before the agent runs."""
+    grid = read_map(ROOT / "examples" / "intel_a.yaml")
+    prob = grid.probability()
+    cells = np.full(prob.shape, -1, dtype=np.int8)
+    cells[prob > 0.65], cells[prob < 0.196] = 100, 0
+    h, w = prob.shape
+    cdr = ros2_peer.grid_cdr(np.flipud(cells).ravel(), w, h, grid.resolution, grid.origin[:2],
+                             frame_id="robot1/map")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    dds_side = ros2_peer.session(listen=endpoint)
+    route = ros2_peer.BridgeRoute(dds_side, "/robot1/map")
+    try:
+        route.put(cdr)  # only the route's cache holds it when the agent starts
+        with LocalFleet("bridge", tmp_path, ["--connect", endpoint]) as fleet:
+            agent = fleet.add("robot1", "ros2:/robot1/map", ["--ros-keys", "bridge"])
+            assert wait_for(lambda: (agent.status() or {}).get("own_version") is not None, 60)
+            status = agent.status()
+            stored = StateDir(agent.state_dir).load_maps()[0]["robot1"].grid
+    finally:
+        route.close()
+        dds_side.close()
+    assert status["source"]["frame_id"] == "robot1/map" and status["drops"] == {}
+    assert stored.shape == (h, w)
+    assert stored.resolution == pytest.approx(grid.resolution, rel=1e-7)  # float32 on the wire
+    np.testing.assert_allclose(stored.origin[:2], grid.origin[:2], atol=1e-9)
+    p = stored.probability()
+    np.testing.assert_array_equal(p > 0.5, cells == 100)
+    np.testing.assert_array_equal(p < 0.5, cells == 0)

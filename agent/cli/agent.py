@@ -17,6 +17,7 @@ from agent.failpoints import check_armed
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
 from agent.outputs import OutputOptions
+from agent.priors import parse_known_poses
 from agent.ros2_io import RosOptions
 from agent.sources import parse_frame, parse_source
 from agent.view import parse_endpoint
@@ -103,6 +104,15 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="overlay agreement a link needs (default: the merge's own threshold)",
     )
     p.add_argument(
+        "--known-pose",
+        action="append",
+        default=[],
+        metavar="ROBOT=X,Y,YAW",
+        help="a robot's map frame in the merged frame (m, rad; m-explore's init_pose_x/y/yaw); "
+        "a pair of robots with known poses is checked there first and searched only if the "
+        "check fails (repeat for each robot; give every agent the same poses)",
+    )
+    p.add_argument(
         "--inbox-mib",
         type=int,
         default=MAX_BYTES >> 20,
@@ -145,6 +155,7 @@ def options_from_args(args: argparse.Namespace):
         fleet = check_name(args.fleet, "fleet name")
         source = parse_source(args.source)
         frame = parse_frame(args.frame) if args.frame else None
+        known_poses = parse_known_poses(args.known_pose)
         outputs = _output_options(args)
         check_armed()  # a misspelt failpoint must not let a crash test pass without a crash
     except ValueError as exc:
@@ -206,6 +217,7 @@ def options_from_args(args: argparse.Namespace):
         forget_after=args.forget_after,
         inbox_bytes=args.inbox_mib << 20,
         outputs=outputs,
+        known_poses=tuple(known_poses.items()),
     )
 
 

@@ -31,7 +31,7 @@ from agent.cli import outdir
 from agent.cli.common import EXIT_FAILED, EXIT_OK, CliError
 from agent.evaluate import link_error, true_matrix, true_overlap
 from agent.launcher import LocalFleet, agreement, sources_done
-from agent.scenario import LOG, random_frames, segments
+from agent.scenario import LOG, known_pose, random_frames, segments
 from agent.state import StateDir
 
 
@@ -52,6 +52,12 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-cells", type=float, default=3.0, help="largest translation error")
     p.add_argument(
         "--min-overlap", type=float, default=0.3, help="true overlap that must be linked"
+    )
+    p.add_argument(
+        "--known-poses",
+        action="store_true",
+        help="give every agent each robot's true initial pose (--known-pose): pairs are "
+        "checked there first and searched only where the check fails",
     )
     p.add_argument("--log", type=Path, default=LOG, help=argparse.SUPPRESS)
     p.set_defaults(func=run)
@@ -79,8 +85,12 @@ def _run_fleet(args: argparse.Namespace, out: Path) -> dict:
     robots = [f"r{i + 1}" for i in range(args.robots)]
     frames = random_frames(args.robots, args.seed)
     print(f"pgvd demo: {args.robots} agents, peer to peer on localhost, log {args.log.name}")
+    common = ["--speed", str(args.speed)]
+    if args.known_poses:
+        for robot, frame in zip(robots, frames, strict=True):
+            common.append("--known-pose=" + robot + "=" + ",".join(map(repr, known_pose(frame))))
     t_start = time.time()
-    with LocalFleet("demo", out, ["--speed", str(args.speed)]) as fleet:
+    with LocalFleet("demo", out, common) as fleet:
         for robot, seg, frame in zip(robots, segments(args.robots), frames, strict=True):
             spec = f"carmen:{args.log}@{seg[0]}-{seg[1]}"
             fleet.add(robot, spec, ["--frame=" + ",".join(f"{v:.4f}" for v in frame)])
@@ -197,6 +207,10 @@ def evaluate(
             "bytes_sent": s.get("bytes_sent"),
             "bytes_received": s.get("bytes_received"),
             "merges": s.get("merges"),
+            "registrations": {
+                k: s.get("counts", {}).get(k, 0)
+                for k in ("searches", "checks", "prior_checks", "prior_confirmed", "prior_failed")
+            },
             "drops": s.get("drops"),
             "converged_s_after_last_update": None
             if settled_at is None or last_update is None
