@@ -21,7 +21,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import fft as sfft
@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
 from pgvd.grid import heading, rigid_matrix
-from pgvd.morphology import grow
+from pgvd.morphology import grow, grow_max
 from pgvd.sampling import subsample
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
@@ -66,7 +66,7 @@ def _dilated(edge: Edge, tolerance: int) -> tuple[np.ndarray, tuple[int, int]]:
     if tolerance <= 0:
         return edge.matrix, edge.origin
     padded = np.pad(edge.matrix, tolerance)
-    m = (1.0 - _TIE_BREAK) * ndi.grey_dilation(padded, size=2 * tolerance + 1)
+    m = (1.0 - _TIE_BREAK) * grow_max(padded, tolerance)
     m += _TIE_BREAK * padded
     return m, (edge.origin[0] - tolerance, edge.origin[1] - tolerance)
 
@@ -345,6 +345,15 @@ class Overlay:
     disagree: np.ndarray
     shape_a: tuple[int, int]
     shape_b: tuple[int, int]
+    _evidence: dict[float, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
+
+    def evidence(self, disagreement_weight: float = 1.0) -> np.ndarray:
+        """``agree - disagreement_weight * disagree`` for every translation (kept per weight)."""
+        if disagreement_weight not in self._evidence:
+            ev = self.agree - disagreement_weight * self.disagree
+            ev.setflags(write=False)
+            self._evidence[disagreement_weight] = ev
+        return self._evidence[disagreement_weight]
 
     def at(self, t: tuple[int, int]) -> Agreement:
         """Counts at the translation ``t = (tx, ty)``."""
@@ -353,7 +362,7 @@ class Overlay:
 
     def best_evidence(self, disagreement_weight: float = 1.0) -> float:
         """Largest ``agree - disagreement_weight * disagree`` over all translations."""
-        return float(np.max(self.agree - disagreement_weight * self.disagree))
+        return float(np.max(self.evidence(disagreement_weight)))
 
     def peaks(self, n: int, radius: int, disagreement_weight: float = 1.0) -> list[tuple[int, int]]:
         """Translations of the largest overlay evidence that are local maxima.
@@ -374,7 +383,7 @@ class Overlay:
         """
         if n <= 0:
             return []
-        ev = self.agree - disagreement_weight * self.disagree
+        ev = self.evidence(disagreement_weight)
         top = ndi.maximum_filter(ev, size=2 * radius + 1, mode="wrap")
         rows, cols = np.nonzero((ev == top) & (ev > 0))
         order = np.argsort(-ev[rows, cols], kind="stable")[:n]
@@ -396,8 +405,9 @@ class Overlay:
         tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
         if ty.size == 0 or tx.size == 0:
             return t
-        rows, cols = np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])
-        window = self.agree[rows, cols] - disagreement_weight * self.disagree[rows, cols]
+        window = self.evidence(disagreement_weight)[
+            np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])
+        ]
         i, j = np.unravel_index(int(np.argmax(window)), window.shape)
         return int(tx[j]), int(ty[i])
 
