@@ -128,7 +128,8 @@ class MergeParams:
         even subsample beyond it, each kept cell counting for those it stands for.  The
         development maps (0.05 m) have at most about 15 500, so there every cell counts; on
         finer maps these stages' time stops growing with the cell count (on the intel
-        scaling pair at 4x the cells, the pose moved by 0.03 cells of the base map).
+        scaling pair at 2x and 4x the cells, the pose moved by at most 0.08 cells of the
+        base map).
     occupied, free : probability thresholds of walls and free space.
     probabilistic : False matches the plain GVD (every GVD cell certain), the paper's
         deterministic comparison Gamma_det of (41) (ablation: without PGVD weighting).
