@@ -14,6 +14,10 @@ Methods, all in this one process:
 ``pgvd``        this project's merge (:func:`pgvd.merge.merge`);
 ``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD):
                 ``MergeParams(probabilistic=False)``;
+``pgvd-no-rho``, ``pgvd-no-gamma``, ``pgvd-no-blur``, ``pgvd-rigid``
+                ablations: without the rho veto (32), without Gamma's ranking (27),
+                without the heading blur (8), hypotheses scored on the rigid overlay
+                instead of the drift-tolerant one (``MergeParams.drift_shift = 0``);
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -30,7 +34,9 @@ Run from the project root::
     python3 -m bench.merge --quick                # a few pairs per source and set, pgvd only
     python3 -m bench.merge                        # full: ~300 pairs, pgvd, m-explore, hough
 
-Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``).
+Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``), and
+with pgvd among the methods the margin report of :mod:`bench.acceptance`
+(``acceptance.md``, ``acceptance.png``).
 """
 
 from __future__ import annotations
@@ -45,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import report
+from bench import acceptance, report
 from bench.capture import SearchedHeadings, result_json, to_json
 from bench.pairs import MapPair, make_pair
 from bench.sets import (
@@ -104,7 +110,15 @@ def _baseline(module: str, **kwargs) -> Method:
     return run
 
 
-METHOD_NAMES = ("pgvd", "pgvd-det", "m-explore", "hough", "exhaustive")
+#: Ablations of pgvd: MergeParams overrides.
+ABLATIONS = {
+    "pgvd-det": {"probabilistic": False},
+    "pgvd-no-rho": {"rho_veto": False},
+    "pgvd-no-gamma": {"gamma_ranking": False},
+    "pgvd-no-blur": {"heading_blur": False},
+    "pgvd-rigid": {"drift_shift": 0.0},
+}
+METHOD_NAMES = ("pgvd", *ABLATIONS, "m-explore", "hough", "exhaustive")
 
 
 def methods(
@@ -113,7 +127,7 @@ def methods(
     """The methods of the table, in column order (those of ``names`` that exist)."""
     makers: dict[str, Callable[[], Method]] = {
         "pgvd": _pgvd,
-        "pgvd-det": lambda: _pgvd(probabilistic=False),
+        **{name: (lambda kw=kw: _pgvd(**kw)) for name, kw in ABLATIONS.items()},
         "m-explore": lambda: _baseline("mexplore"),
         "hough": lambda: _baseline("hough"),
         "exhaustive": lambda: _baseline(
@@ -336,6 +350,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     (args.out / "merge.json").write_text(json.dumps(to_json(doc), indent=1) + "\n")
     report.chart(summary, records, scaling, args.out / "merge.png")
+    if "pgvd" in table:
+        acceptance.write(records, args.out, "merge.json")
     _log(text)
     _log(f"wrote {args.out / 'merge.md'}, merge.json, merge.png")
     return 0
