@@ -264,15 +264,20 @@ def run_scaling(table: dict[str, Method], seed: int, repeats: int) -> list[dict]
     for factor in (1, 2, 4):
         pair = upsample(base, factor)
         cells = int(np.sqrt(pair.a.logodds.size))
-        for name, method in table.items():
-            times = []
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                accepted, matrix, _ = method(pair.a, pair.b)
-                times.append(time.perf_counter() - t0)
+        times: dict[str, list[tuple[float, float]]] = {name: [] for name in table}
+        results = {}
+        # the methods in turn, repeat after repeat, so that a drift of the
+        # machine's speed falls on all of them and their ratios hold
+        for _ in range(repeats):
+            for name, method in table.items():
+                t0, c0 = time.perf_counter(), time.process_time()
+                results[name] = method(pair.a, pair.b)
+                times[name].append((time.perf_counter() - t0, time.process_time() - c0))
+        for name, (accepted, matrix, _) in results.items():
             # Success judged in cells of the ~500^2 base map: upsampling scales pixel errors.
             rec = evaluate(pair, accepted, matrix, cell_scale=factor)
-            rec.update(method=name, cells=cells, seconds=float(np.median(times)))
+            wall, cpu = np.median(times[name], axis=0)
+            rec.update(method=name, cells=cells, seconds=float(wall), cpu_seconds=float(cpu))
             records.append(rec)
             _log(f"[scale] {cells}^2 {name}: {rec['seconds']:.2f} s success={rec['success']}")
     return records
@@ -294,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--exhaustive-step", type=float, default=1.0, help="degrees")
     parser.add_argument("--exhaustive-coarse", type=int, default=4, help="pooling factor")
     parser.add_argument("--no-scaling", action="store_true", help="skip the map-size run")
-    parser.add_argument("--repeats", type=int, default=1, help="timing repeats per size")
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats per size")
     parser.add_argument("--cache", type=Path, default=CACHE, help="generated runs and pairs")
     parser.add_argument("--no-cache", action="store_true")
     parser.add_argument("--out", type=Path, default=RESULTS)
@@ -328,7 +333,11 @@ def main(argv: list[str] | None = None) -> int:
     if scaling:
         notes.append(
             f"Scaling: one intel pair at {SCALE_RESOLUTION} m (~500^2), upsampled x2 and x4 "
-            "(nearest: same content, more cells); success there in cells of the base map."
+            "(nearest: same content, more cells); success there in cells of the base map. "
+            f"Seconds: median of {args.repeats} runs, the methods in turn at each repeat; "
+            "the speed table gives pgvd's time over each peer's, from the same run, in wall "
+            "clock and in CPU time (all threads of this process: the one to read on a busy "
+            "machine)."
         )
     args.out.mkdir(parents=True, exist_ok=True)
     text = report.markdown(summary, scaling, command.strip(), notes)

@@ -134,6 +134,13 @@ class MergeParams:
         must not outrank a smaller, consistent one.
     finalists : best coarse hypotheses refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
+    fine_points : wall cells per map, at most, of the winner's full-resolution stages (its
+        last point-to-point refinement, the overlay score, the residual distortion): an
+        even subsample beyond it, each kept cell counting for those it stands for.  The
+        development maps (0.05 m) have at most about 15 500, so there every cell counts; on
+        finer maps these stages' time stops growing with the cell count (on the intel
+        scaling pair at 2x and 4x the cells, the pose moved by at most 0.08 cells of the
+        base map).
     occupied, free : probability thresholds of walls and free space.
     probabilistic : False matches the plain GVD (every GVD cell certain), the paper's
         deterministic comparison Gamma_det of (41) (ablation: without PGVD weighting).
@@ -168,6 +175,7 @@ class MergeParams:
     overlay_peaks: int = 5
     finalists: int = 8
     refine_points: int = 1500
+    fine_points: int = 20000
     occupied: float = OCCUPIED
     free: float = 0.3
     probabilistic: bool = True
@@ -277,9 +285,12 @@ def coarsen(p: np.ndarray, k: int, occupied: float = OCCUPIED) -> np.ndarray:
     hp, wp = -(-h // k) * k, -(-w // k) * k
     padded = np.full((hp, wp), 0.5, dtype=np.float32)
     padded[:h, :w] = p
-    blocks = padded.reshape(hp // k, k, wp // k, k)
-    top = blocks.max(axis=(1, 3))
-    return np.where(top > occupied, top, blocks.mean(axis=(1, 3))).astype(np.float32)
+    # each block's k*k cells made contiguous: one copy, then both reductions run
+    # over a contiguous last axis instead of k-long strided pieces (3x faster)
+    blocks = padded.reshape(hp // k, k, wp // k, k).transpose(0, 2, 1, 3)
+    blocks = np.ascontiguousarray(blocks).reshape(hp // k, wp // k, k * k)
+    top = blocks.max(axis=2)
+    return np.where(top > occupied, top, blocks.mean(axis=2)).astype(np.float32)
 
 
 def _scale(k: int) -> np.ndarray:
@@ -573,13 +584,14 @@ def _decide(
     scored = [score_hypothesis(m, fine_a, fine_b, params, res) for m in refined]
     decision = weigh(scored, fine_a, fine_b, params, res)
     best = finalists[next(i for i, s in enumerate(scored) if s is decision.winner)]
+    sub_fine = subsample(fine_b.walls, params.fine_points)
     return (
         best,
         decision,
         refine_point_to_line(
             fine_a.tree,
             fine_b.walls,
-            refine(fine_a.tree, fine_b.walls, decision.winner.matrix, radii=(3.0, 2.0)),
+            refine(fine_a.tree, sub_fine, decision.winner.matrix, radii=(3.0, 2.0)),
         ),
     )
 
@@ -792,10 +804,14 @@ def merge(
     finalists = _finalists(good, params.finalists)
     best, decision, matrix = _decide(finalists, fine_a, fine_b, to_fine, k, params, a.resolution)
     clock.lap("refine")
-    agreement = map_agreement(fine_a, fine_b, matrix)
+    agreement = map_agreement(fine_a, fine_b, matrix, max_points=params.fine_points, scaled=True)
     overlap_m = 0.5 * agreement.agree * a.resolution
     distortion = residual_distortion(
-        fine_a.tree, fine_b.walls, matrix, block=params.distortion_block / a.resolution
+        fine_a.tree,
+        fine_b.walls,
+        matrix,
+        block=params.distortion_block / a.resolution,
+        max_points=params.fine_points,
     )
     clock.lap("verify")
     extra = {"margin": decision.margin, "distortion_px": distortion, "headings_deg": searched}
