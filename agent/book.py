@@ -8,7 +8,6 @@ the worker (:meth:`agent.worker.FusionWorker.wake`, on the core's ``Register`` a
 from __future__ import annotations
 
 import threading
-import time
 from dataclasses import dataclass
 
 from agent.links import (
@@ -48,7 +47,6 @@ class Snapshot:
     links: list[LinkRecord]
     settled: bool
     needed: list[LinkKey]
-    first_needed: dict[LinkKey, float]
     alive: frozenset[str] | None
 
 
@@ -59,7 +57,6 @@ class FleetBook:
         self._lock = threading.Lock()
         self._maps: dict[str, tuple[int, Grid]] = {}
         self._links = LinkCache()
-        self._first_needed: dict[LinkKey, float] = {}
         self._alive: frozenset[str] | None = None
 
     def set_alive(self, robots: set[str]) -> None:
@@ -95,9 +92,6 @@ class FleetBook:
         with self._lock:
             held = self._maps.pop(robot, None)
             self._links.forget(robot)
-            self._first_needed = {
-                k: t for k, t in self._first_needed.items() if robot not in (k[0], k[2])
-            }
         return held is not None
 
     def add_link(self, rec: LinkRecord) -> bool:
@@ -117,13 +111,11 @@ class FleetBook:
         with self._lock:
             return self._links.records()
 
-    def snapshot(self, now: float | None = None) -> Snapshot:
+    def snapshot(self) -> Snapshot:
         """The maps, chosen links and the pairs still lacking a link of the latest versions."""
-        now = time.monotonic() if now is None else now
         with self._lock:
             maps = dict(self._maps)
             versions = {r: v for r, (v, _) in maps.items()}
             chosen, settled = select_links(versions, self._links)
             needed = needed_keys(versions, self._links)
-            self._first_needed = {k: self._first_needed.get(k, now) for k in needed}
-            return Snapshot(maps, chosen, settled, needed, dict(self._first_needed), self._alive)
+            return Snapshot(maps, chosen, settled, needed, self._alive)

@@ -208,6 +208,35 @@ def first_registrar(a: str, b: str, robots: Sequence[str]) -> str:
     return a if 2 * d < n else b
 
 
+def ring_distance(a: str, b: str, robots: Sequence[str]) -> int:
+    """Steps between ``a`` and ``b`` on the circle of :func:`first_registrar`: 1 .. n // 2."""
+    ring = sorted(set(robots) | {a, b})
+    d = (ring.index(b) - ring.index(a)) % len(ring)
+    return min(d, len(ring) - d)
+
+
+def open_keys(
+    keys: Iterable[LinkKey], predicted: Collection[LinkKey], robots: Sequence[str]
+) -> list[LinkKey]:
+    """Of the needed ``keys``, those whose turn it is fleet-wide, the same rule on every agent.
+
+    A key of ``predicted`` (a check may decide it: accepted links join its robots, or both
+    their initial poses are known) is open at once.  The others need a full search, and go
+    by *waves*: wave ``d`` is the pairs ``d`` steps apart on the circle of robots
+    (:func:`ring_distance`), n pairs per wave of which every agent is
+    :func:`first_registrar` of one.  Only the lowest wave still holding a key to search is
+    open: the links it adds join components, and the pairs of a later wave whose robots
+    they joined become checks instead of searches.  When the first wave's pairs overlap, a
+    fleet of n robots searches n pairs and checks the rest, not n(n-1)/2 searches.  Every
+    wave opens in turn while keys to search remain, so a pair no link reaches is searched
+    in the end.
+    """
+    keys = list(keys)
+    waves = {k: ring_distance(k[0], k[2], robots) for k in keys if k not in predicted}
+    first = min(waves.values(), default=None)
+    return [k for k in keys if k in predicted or waves[k] == first]
+
+
 def wait_before_computing(
     me: str,
     key: LinkKey,
@@ -240,17 +269,21 @@ def wait_before_computing(
 def due_keys(
     me: str,
     keys: Iterable[LinkKey],
-    first_needed: Mapping[LinkKey, float],
+    opened_at: Mapping[LinkKey, float],
     now: float,
     timeout: float,
     robots: Sequence[str] = (),
     alive: Collection[str] | None = None,
 ) -> list[LinkKey]:
-    """Of ``keys``, those this agent should register now, own pairs first, then by key."""
+    """Of ``keys``, those this agent should register now, own pairs first, then by key.
+
+    ``opened_at`` says since when each key has been open (:func:`open_keys`): the waits of
+    :func:`wait_before_computing` count from then.
+    """
     due = [
         k
         for k in keys
-        if now - first_needed.get(k, now) >= wait_before_computing(me, k, timeout, robots, alive)
+        if now - opened_at.get(k, now) >= wait_before_computing(me, k, timeout, robots, alive)
     ]
     return sorted(due, key=lambda k: (me not in (k[0], k[2]), k))
 

@@ -15,10 +15,15 @@ first (:func:`verify_check`: a local refinement and the overlay acceptance, tens
 milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where the check is
 inconclusive.  A prediction under which the two maps share too few walls, or disagree once
 refined within the basin, is a decided rejection -- a search could only find a transform the
-chain contradicts -- but only for a pair a search already rejected in an earlier epoch: were
-the chain wrong, a first search is what finds the true link that exposes it around a cycle.
-So full searches grow with the robots (each joins its component once, plus the pairs whose
-chain is off), not with the pairs.
+chain contradicts -- but only for a pair a search already rejected in an earlier epoch, or
+whose robots the chain joins over links on triangles only (:meth:`Chains.solved`): were the
+chain wrong on a bridge or a long lone cycle, a first search is what finds the true link that
+exposes it around a short cycle.  Searches go by waves (:func:`agent.links.open_keys`):
+neighbours on the circle of robots first, a pair further apart only once the nearer ones are
+decided, and by then most pairs are checks.  A search that a new epoch of either map
+superseded while it ran is checked on the new maps (:meth:`FusionWorker._carry_forward`)
+rather than searched again.  So full searches grow with the robots (each joins its component
+once, plus the pairs whose chain is off), not with the pairs.
 
 Known initial poses (``--known-pose``, :mod:`agent.priors`) are checked the same way, and
 before a chain's prediction: a pair whose two poses are known is checked at their prior
@@ -42,11 +47,11 @@ import numpy as np
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, build_components
-from agent.links import LinkKey, LinkRecord, due_keys
+from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
 from pgvd.grid import Grid
-from pgvd.posegraph import Solution, link_problem, solve
+from pgvd.posegraph import Solution, components, link_problem, solve, triangle_groups
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
     from pgvd.merge import MergeParams
@@ -69,6 +74,11 @@ RegisterFn = Callable[[Grid, Grid], Registration]
 #: (confirmed, or the maps do not overlap under it), None when a full search must decide.
 CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
 
+#: Seconds a solution of the pose graph keeps serving predictions once newer accepted links
+#: arrived (:meth:`FusionWorker._solved_for`).
+RESOLVE_AFTER = 2.0
+#: Largest share of the wall time an agent spends on previews (unsettled global maps).
+PREVIEW_SHARE = 0.1
 #: What a rejection records: its transform means nothing; finite for the wire.
 _REJECTED = (np.eye(3), np.zeros((3, 3)))
 
@@ -114,13 +124,14 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
 def verify_check(min_agreement: float | None = None) -> CheckFn:
     """:func:`pgvd.verify.verify` as a :data:`CheckFn`, with the merge's thresholds.
 
-    Confirmed: the refined transform is the link.  Rejected (a verdict the worker takes
-    only for a pair a search rejected before) when, at the place the chain puts the maps,
-    they cannot pass the merge's tests: fewer than ``min_overlap`` metres of walls of either
-    map on the other's known space (agreeing or not) at the *predicted* transform, or the
-    overlay refined within the basin (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still
-    disagrees.  A search there could only find a transform the chain contradicts.  A
-    correction beyond the basin is inconclusive: the chain may be off, the search decides.
+    Confirmed: the refined transform is the link.  Rejected (a verdict the worker takes only
+    for a pair a search rejected before, or joined by a chain over cycles) when, at the place
+    the chain puts the maps, they cannot pass the merge's tests: fewer than ``min_overlap``
+    metres of walls of either map on the other's known space (agreeing or not) at the
+    *predicted* transform, or the overlay refined within the basin
+    (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still disagrees.  A search there could
+    only find a transform the chain contradicts.  A correction beyond the basin is
+    inconclusive: the chain may be off, the search decides.
     """
     from pgvd.matching import WallMap, map_agreement
     from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, verify
@@ -157,13 +168,76 @@ def _identity(ln: LinkRecord) -> tuple[object, ...]:
     return (ln.key, ln.decided_by, ln.version_a, ln.version_b)
 
 
+#: ``{id(record): (record, sound)}``: whether a link record is a rigid transform with a
+#: covariance (:func:`pgvd.posegraph.link_problem` on its own two robots).  The record is held
+#: so that its id cannot be reused while the entry lives.
+Soundness = dict[int, tuple[LinkRecord, bool]]
+
+
+def _usable(
+    maps: dict[str, tuple[int, Grid]], links: list[LinkRecord], sound: Soundness | None = None
+) -> list[LinkRecord]:
+    """The accepted links the pose graph can take (as :func:`agent.globalmap.build_components`).
+
+    ``sound`` remembers each record's verdict across calls: records never change, and the
+    checks (a rigid matrix, a positive semi-definite covariance) cost as much as a
+    registration's check once a fleet of 16 holds 120 links and asks after every link.
+    """
+    memo: Soundness = {} if sound is None else sound
+    out = []
+    for ln in links:
+        if not ln.accepted or ln.a not in maps or ln.b not in maps:
+            continue
+        held = memo.get(id(ln))
+        if held is None or held[0] is not ln:
+            held = memo[id(ln)] = (ln, link_problem(ln, (ln.a, ln.b)) is None)
+        if held[1]:
+            out.append(ln)
+    return out
+
+
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
     """The robust pose graph (:func:`pgvd.posegraph.solve`, GNC-TLS) of the accepted links.
 
     A link inconsistent around a cycle is not kept, so it does not enter a prediction.
     """
-    usable = [ln for ln in links if ln.accepted and link_problem(ln, maps) is None]
-    return solve(maps, usable)
+    return solve(maps, _usable(maps, links))
+
+
+class Chains:
+    """What the accepted links say about the pairs still to decide, solved only if asked.
+
+    ``groups`` (connected components of the usable accepted links, before the robust
+    solution drops any) is cheap and tells which pairs a check may decide
+    (:func:`agent.links.open_keys`); the pose graph itself (:meth:`solved`, tens to
+    hundreds of milliseconds at 16 robots) is solved only for a pair being registered.
+    """
+
+    def __init__(
+        self,
+        maps: dict[str, tuple[int, Grid]],
+        links: list[LinkRecord],
+        sound: Soundness | None = None,
+    ) -> None:
+        self.maps = maps
+        self.usable = _usable(maps, links, sound)
+        self.groups = components(maps, [ln.pair for ln in self.usable])
+        self._solved: tuple[Solution, list[tuple[str, ...]]] | None = None
+
+    def linked(self, a: str, b: str) -> bool:
+        """Whether accepted links join ``a`` and ``b`` (a prediction is likely)."""
+        return any(a in g and b in g for g in self.groups)
+
+    def solved(self) -> tuple[Solution, list[tuple[str, ...]]]:
+        """:func:`placements`, and the groups of robots placed relative to each other only
+        through links that each lie on a triangle of the links kept
+        (:func:`pgvd.posegraph.triangle_groups`).  Within one, a wrong link would disagree
+        with the two others of a three-link cycle and the robust solution would drop one."""
+        if self._solved is None:
+            sol = solve(self.maps, self.usable)
+            kept = [ln.pair for ln, u in zip(self.usable, sol.used, strict=True) if u]
+            self._solved = (sol, triangle_groups(self.maps, kept))
+        return self._solved
 
 
 def predict(sol: Solution, a: str, b: str) -> np.ndarray | None:
@@ -228,15 +302,26 @@ class FusionWorker:
         self.check = check
         self.counters = counters or Counters()
         self.poses = dict(poses or {})
-        self._placements: tuple[object, Solution | None] = (None, None)
+        #: :class:`Chains` of the links held, with the signature of what they depend on.
+        self._chains: tuple[object, Chains | None] = (None, None)
+        #: Which link records held are sound (:data:`Soundness`).
+        self._sound: Soundness = {}
+        #: The :class:`Chains` whose solution predicts, and the step time it was solved at.
+        self._solution: tuple[Chains | None, float] = (None, -np.inf)
+        #: The time of the current :meth:`step`.
+        self._now = 0.0
+        #: When each needed key's turn came (:func:`agent.links.open_keys`).
+        self._opened_at: dict[LinkKey, float] = {}
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._built: tuple[object, ...] | None = None
         self._rebuilt_at = -np.inf
-        #: Seconds between rebuilds of a global map still waiting for links.
+        #: Seconds between rebuilds of a global map still waiting for links, at least.
         self.preview_interval = 3.0
+        #: Wall seconds the last rebuild took (:meth:`preview_gap`).
+        self._rebuild_seconds = 0.0
         self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
 
     def start(self) -> None:
@@ -271,21 +356,33 @@ class FusionWorker:
     def step(self, now: float | None = None) -> bool:
         """Do one job; True if there may be more to do right away."""
         now = time.monotonic() if now is None else now
-        snap = self.book.snapshot(now)
+        self._now = now
+        snap = self.book.snapshot()
+        robots = sorted(snap.maps)
+        # Without checks every pair is a search anyway: no wave to wait for.
+        checkable: set[LinkKey] = set()
+        opened = snap.needed
+        if self.check is not None:
+            chains = self._chains_of(snap)
+            checkable = {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
+            opened = open_keys(snap.needed, checkable, robots)
+        # A pair's turn (and the timeouts of the agents stepping in) counts from when its
+        # wave opened, not from when it was first needed: else every agent of a late wave
+        # would be past its timeout at once and search it too.
+        self._opened_at = {k: self._opened_at.get(k, now) for k in opened}
         due = due_keys(
             self.me,
-            snap.needed,
-            snap.first_needed,
+            opened,
+            self._opened_at,
             now,
             self.effective_timeout(len(snap.maps)),
-            sorted(snap.maps),
+            robots,
             snap.alive,
         )
         if due:
             # Checks first: they take tens of milliseconds, and each link they add may
             # turn a pair waiting for a full search into one more check.
-            if self.check is not None:
-                due.sort(key=lambda k: not self._checkable(snap, k[0], k[2]))
+            due.sort(key=lambda k: k not in checkable)
             self._register(snap, due[0])
             return True
         signature = (
@@ -299,12 +396,27 @@ class FusionWorker:
         if (
             snap.maps
             and signature != self._built
-            and (snap.settled or now - self._rebuilt_at >= self.preview_interval)
+            and (snap.settled or now - self._rebuilt_at >= self.preview_gap())
         ):
             self._built = signature  # a failing rebuild is not retried until inputs change
             self._rebuilt_at = now
-            self._rebuild(snap)
+            t0 = time.monotonic()
+            try:
+                self._rebuild(snap)
+            finally:
+                self._rebuild_seconds = time.monotonic() - t0
         return False
+
+    def preview_gap(self) -> float:
+        """Seconds between two previews: ``preview_interval``, or more if rebuilds are slow.
+
+        A preview may take at most :data:`PREVIEW_SHARE` of the wall time.  A rebuild fuses
+        every map (33)-(37); at 16 robots on 2 cores it took ~0.6 s of CPU and, with every
+        agent previewing every 3 s, the previews alone asked for more than the 2 cores: the
+        registrations the settled map waits for starved.  Wall time grows with the load, so
+        on a crowded machine previews thin out by themselves.
+        """
+        return max(self.preview_interval, self._rebuild_seconds / PREVIEW_SHARE)
 
     def effective_timeout(self, n_robots: int) -> float:
         """``link_timeout`` plus the time a peer needs for its share of a round of pairs.
@@ -335,6 +447,14 @@ class FusionWorker:
             res = Registration(False, *_REJECTED, 0.0)
         self.merges += 1
         self.merge_seconds += time.monotonic() - t0
+        self._record(a, va, b, vb, res, how, t0)
+        if how == "searched" and res.accepted:
+            self._carry_forward(a, va, b, vb, res.matrix)
+
+    def _record(
+        self, a: str, va: int, b: str, vb: int, res: Registration, how: str, t0: float
+    ) -> None:
+        """Log the decision, cache it and publish it if it is the link of its epochs."""
         rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)
         log.info(
             "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s)",
@@ -344,10 +464,39 @@ class FusionWorker:
         if self.book.add_link(rec):
             self.on_link(rec)
 
-    def _checkable(self, snap: Snapshot, a: str, b: str) -> bool:
-        """Whether a check may decide ``(a, b)``: both poses known, or a chain predicts it."""
-        both_known = a in self.poses and b in self.poses
-        return both_known or self._predicted(snap, a, b) is not None
+    def _carry_forward(self, a: str, va: int, b: str, vb: int, matrix: np.ndarray) -> None:
+        """Check a search's transform on the maps that superseded its inputs meanwhile.
+
+        While robots map, a search (seconds on a loaded machine) often ends after either
+        map started a new epoch: its link is of no use any more, and the pair would be
+        searched again from scratch.  The robots' pixel frames stay the same within a
+        source's canvas, so the transform found is a prediction for the new maps as good
+        as a chain's, and a check (tens of milliseconds) may confirm it.  Only a
+        confirmation is taken; anything else leaves the pair to its next turn.
+        """
+        held_a, held_b = self.book.map_of(a), self.book.map_of(b)
+        if self.check is None or held_a is None or held_b is None:
+            return
+        (na, grid_a), (nb, grid_b) = held_a, held_b
+        key = (a, epoch_of(na), b, epoch_of(nb))
+        if key == (a, epoch_of(va), b, epoch_of(vb)) or key not in self.book.snapshot().needed:
+            return  # not superseded, or decided already
+        t0 = time.monotonic()
+        self.counters.add("checks")
+        try:
+            res = self.check(grid_a, grid_b, matrix)
+        except Exception as exc:  # as in _register: the pair's next turn will search it
+            log.warning("check of %s v%d / %s v%d failed: %s", a, na, b, nb, exc)
+            return
+        if res is None or not res.accepted:
+            return
+        self.counters.add("checks_confirmed")
+        self._record(a, na, b, nb, res, "carried forward", t0)
+
+    def _checkable(self, chains: Chains, a: str, b: str) -> bool:
+        """Whether a check may decide ``(a, b)``: both poses known, or accepted links join
+        them (:class:`Chains`)."""
+        return (a in self.poses and b in self.poses) or chains.linked(a, b)
 
     def _at_prior(self, snap: Snapshot, a: str, b: str) -> Registration | None:
         """The link confirmed at the known poses' prior for ``(a, b)``, or None.
@@ -374,30 +523,66 @@ class FusionWorker:
         """The check of the links' prediction for ``(a, b)``, or None: search instead."""
         if self.check is None:
             return None
-        predicted = self._predicted(snap, a, b)
-        if predicted is None:
+        solved = self._solved_for(snap, a, b)
+        predicted = None if solved is None else predict(solved[0], a, b)
+        if solved is None or predicted is None:
             return None
         self.counters.add("checks")
         res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
-        if res is not None and not res.accepted and not _rejected_before(snap.links, a, b):
-            # Only a search may reject a pair first: were the chain wrong (a false
-            # link on a bridge), skipping it would lose the true link that closes a cycle
-            # around the false one and lets the pose graph reject it.
+        if (
+            res is not None
+            and not res.accepted
+            and not _rejected_before(snap.links, a, b)
+            and not any(a in g and b in g for g in solved[1])
+        ):
+            # A first rejection needs a search unless the chain from a to b runs only
+            # over links on triangles: were it wrong (a false link on a bridge, or on a
+            # long cycle alone, where its error spreads thin), skipping the search would
+            # lose the true link that closes a short cycle around the false one and lets
+            # the pose graph reject it.
             res = None
         if res is not None:
             self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
         return res
 
-    def _predicted(self, snap: Snapshot, a: str, b: str) -> np.ndarray | None:
-        """:func:`predict` from :func:`placements`, solved once per set of maps and links."""
+    def _chains_of(self, snap: Snapshot) -> Chains:
+        """:class:`Chains` of ``snap``, made anew only when the robots or the accepted links
+        changed: rejections and new minor versions leave the placements as they were."""
         signature = (
-            tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
-            tuple(_identity(ln) for ln in snap.links),
+            tuple(sorted(snap.maps)),
+            tuple(_identity(ln) for ln in snap.links if ln.accepted),
         )
-        if self._placements[0] != signature:
-            self._placements = (signature, placements(snap.maps, snap.links))
-        sol = self._placements[1]
-        return None if sol is None else predict(sol, a, b)
+        held = self._chains
+        if held[0] != signature or held[1] is None:
+            # only the records held now: the memo does not grow with every link ever seen
+            held_now = {id(ln) for ln in snap.links}
+            self._sound = {k: v for k, v in self._sound.items() if k in held_now}
+            held = self._chains = (signature, Chains(snap.maps, snap.links, self._sound))
+        return held[1]
+
+    def _solved_for(
+        self, snap: Snapshot, a: str, b: str
+    ) -> tuple[Solution, list[tuple[str, ...]]] | None:
+        """Placements that join ``a`` and ``b`` and their triangle groups
+        (:meth:`Chains.solved`); None at once when no accepted link joins them.
+
+        In a round of checks nearly every registration adds an accepted link, and solving
+        the pose graph anew for each (~0.1 s at 16 robots) cost as much as the checks.  The
+        last solution serves for :data:`RESOLVE_AFTER` seconds while it joins the pair: a
+        prediction is only where a check starts, and a link that arrived meanwhile enters
+        the next solution.
+        """
+        chains = self._chains_of(snap)
+        if not chains.linked(a, b):
+            return None
+        used, at = self._solution
+        if used is not None and used is not chains and self._now - at < RESOLVE_AFTER:
+            held = used.solved()
+            if predict(held[0], a, b) is not None:
+                return held
+        if used is not chains:
+            self._solution = (chains, self._now)
+        return chains.solved()
 
     def _rebuild(self, snap: Snapshot) -> None:
         components = build_components(snap.maps, snap.links, self.fuse)

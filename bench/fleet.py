@@ -7,17 +7,17 @@ in random frames, and we measure:
   holds the same settled global map (status files polled every 0.1 s);
 - bytes sent and received per robot (agent counters);
 - CPU per agent: user+system seconds from /proc over the run, and as % of one core;
-- RSS per agent: peak resident memory (VmHWM) from /proc; it counts every page mapped,
-  Zenoh's shared-memory pools included (16 MB per peer on one host, shared by all agents),
-  so the private memory (USS: private pages, from ``smaps_rollup``, largest sample) is
-  reported beside it;
+- RSS per agent: peak resident memory (VmHWM) from /proc; it counts every page mapped:
+  shared libraries and, with ``--shm on``, Zenoh's shared-memory pools (16 MB per peer on
+  one host, mapped by all agents), so the private memory (USS: private pages, from
+  ``smaps_rollup``, largest sample) is reported beside it;
 - registrations per agent and their mean time (the unit of work being shared);
 - full searches and checks of predicted transforms (verify before you search,
   :mod:`agent.worker`), fleet-wide, and per fleet epoch: divided by the mean number of
   registration epochs the robots went through (each robot's map starts a new epoch when it
   changed enough, and every pair of it must be decided again).
 
-Run: ``python3 -m bench.fleet [--robots 2 4 8] [--speed 100]``; writes
+Run: ``python3 -m bench.fleet [--robots 2 4 8] [--speed 100] [--shm off|on]``; writes
 ``bench/results/fleet.md`` (and ``fleet.json``).
 """
 
@@ -53,13 +53,13 @@ def proc_sample(pid: int) -> tuple[float, int, int] | None:
         return None
 
 
-def run_fleet(n: int, speed: float, timeout: float, workdir: Path) -> dict:
+def run_fleet(n: int, speed: float, timeout: float, workdir: Path, shm: str = "off") -> dict:
     """One fleet of ``n`` agents until agreement; the measurements of :mod:`bench.fleet`."""
     samples: dict[str, tuple[float, int, int]] = {}
     load_before = os.getloadavg()[0]
     t0 = time.time()
     agreed_at = None
-    with LocalFleet(f"bench{n}", workdir, ["--speed", str(speed)]) as fleet:
+    with LocalFleet(f"bench{n}", workdir, ["--speed", str(speed), "--shm", shm]) as fleet:
         for i, (seg, frame) in enumerate(zip(segments(n), random_frames(n, 7), strict=True)):
             fleet.add(
                 f"r{i + 1}",
@@ -136,9 +136,10 @@ def table(rows: list[dict]) -> str:
         "| peak RSS / agent (MB, mean / max) | private (USS) / agent (MB, mean / max) "
         "| registrations / agent | mean registration (s) "
         "| agreement / mean registration | full searches / checks (all) "
-        "| epochs / robot | full searches / checks per epoch | machine load before / after |"
+        "| epochs / robot | full searches / checks per epoch | searches per epoch / N "
+        "| machine load before / after |"
     )
-    lines = [head, "|" + "---|" * 16]
+    lines = [head, "|" + "---|" * 17]
     for r in rows:
         lines.append(
             f"| {r['robots']} | {'yes' if r['agreed'] else 'NO'} | {r['agreement_s']} "
@@ -150,6 +151,7 @@ def table(rows: list[dict]) -> str:
             f"| {r['merge_s_mean']} | {r['agreement_in_registrations']} "
             f"| {r['searches']} / {r['checks']} | {r['epochs_per_robot']} "
             f"| {r['searches_per_epoch']} / {r['checks_per_epoch']} "
+            f"| {r['searches_per_epoch'] / r['robots']:.2f} "
             f"| {r['load_before_after'][0]} / {r['load_before_after'][1]} |"
         )
     return "\n".join(lines)
@@ -160,12 +162,13 @@ def main() -> None:
     ap.add_argument("--robots", type=int, nargs="+", default=[2, 4, 8])
     ap.add_argument("--speed", type=float, default=100.0)
     ap.add_argument("--timeout", type=float, default=240.0)
+    ap.add_argument("--shm", choices=("on", "off"), default="off", help="Zenoh shared memory")
     args = ap.parse_args()
     rows = []
     for n in args.robots:
         with tempfile.TemporaryDirectory(prefix=f"pgvd-fleet{n}-") as tmp:
             print(f"fleet of {n} agents ...", flush=True)
-            row = run_fleet(n, args.speed, args.timeout, Path(tmp))
+            row = run_fleet(n, args.speed, args.timeout, Path(tmp), args.shm)
             print(json.dumps(row), flush=True)
             rows.append(row)
     RESULTS.mkdir(parents=True, exist_ok=True)
@@ -173,15 +176,16 @@ def main() -> None:
     md = (
         "# Fleet benchmark\n\n"
         f"`python3 -m bench.fleet --robots {' '.join(map(str, args.robots))} "
-        f"--speed {args.speed:g}` on {os.cpu_count()} cores, {stamp}.\n"
+        f"--speed {args.speed:g} --shm {args.shm}` on {os.cpu_count()} cores, {stamp}.\n"
         "Agents replay overlapping segments of the Intel log (as `pgvd demo`), peer to peer on "
-        "localhost, no router, shared memory on (Zenoh default).\n\n"
+        f"localhost, no router, Zenoh shared memory {args.shm} (`--shm`).\n\n"
         + table(rows)
         + "\n\nAgreement: seconds from the last own-map update of any agent to every agent "
         "holding the same settled global map (polled every 0.1 s).  CPU and peak RSS are "
-        "read from /proc for each agent process over the whole run; RSS counts Zenoh's "
-        "shared-memory pools (16 MB per peer on this host, mapped by every agent), USS only "
-        "the agent's private pages (largest sample).  The machine load is the "
+        "read from /proc for each agent process over the whole run; RSS counts shared "
+        "libraries and, with shared memory on, Zenoh's pools (16 MB per peer on this host, "
+        "mapped by every agent), USS only the agent's private pages (largest sample).  "
+        "The machine load is the "
         "1-minute load average before and after each run: other jobs shared the 2 cores, and "
         "registration time (hence agreement time) grows with it.  Full searches are the merge's "
         "whole pipeline (Fig. 1); checks verify the transform the accepted links predict "

@@ -14,9 +14,13 @@ Methods, all in this one process:
 ``pgvd``        this project's merge (:func:`pgvd.merge.merge`);
 ``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD):
                 ``MergeParams(probabilistic=False)``;
-``pgvd-heading`` pgvd with the Radon candidates refined on the whole-map overlay:
-                ``MergeParams(heading_span=6)`` (off by default; :mod:`bench.recall`
-                ``--method pgvd-heading`` shows what it finds);
+``pgvd-no-rho``, ``pgvd-no-gamma``, ``pgvd-no-blur``, ``pgvd-rigid``
+                ablations: without the rho veto (32), without Gamma's ranking (27),
+                without the heading blur (8), hypotheses scored on the rigid overlay
+                instead of the drift-tolerant one (``MergeParams.drift_shift = 0``);
+``pgvd-heading`` an option that is off by default: the Radon candidates refined on
+                the whole-map overlay, ``MergeParams(heading_span=6)``
+                (``python -m bench.recall --method pgvd-heading`` shows what it finds);
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -34,7 +38,9 @@ Run from the project root::
     python3 -m bench.merge --quick                # a few pairs per source and set, pgvd only
     python3 -m bench.merge                        # full: ~300 pairs, pgvd, m-explore, hough
 
-Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``).
+Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``), and
+with pgvd among the methods the margin report of :mod:`bench.acceptance`
+(``acceptance.md``, ``acceptance.png``).
 """
 
 from __future__ import annotations
@@ -49,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import report
+from bench import acceptance, report
 from bench.capture import Finalists, SearchedHeadings, result_json, to_json
 from bench.pairs import MapPair, make_pair
 from bench.sets import (
@@ -113,7 +119,17 @@ def _baseline(module: str, **kwargs) -> Method:
     return run
 
 
-METHOD_NAMES = ("pgvd", "pgvd-det", "pgvd-heading", "m-explore", "hough", "exhaustive")
+#: Ablations of pgvd: MergeParams overrides.
+ABLATIONS = {
+    "pgvd-det": {"probabilistic": False},
+    "pgvd-no-rho": {"rho_veto": False},
+    "pgvd-no-gamma": {"gamma_ranking": False},
+    "pgvd-no-blur": {"heading_blur": False},
+    "pgvd-rigid": {"drift_shift": 0.0},
+}
+#: Options of pgvd that are off by default, measured beside it: MergeParams overrides.
+OPTIONS = {"pgvd-heading": {"heading_span": 6.0}}
+METHOD_NAMES = ("pgvd", *ABLATIONS, *OPTIONS, "m-explore", "hough", "exhaustive")
 
 
 def methods(
@@ -122,8 +138,7 @@ def methods(
     """The methods of the table, in column order (those of ``names`` that exist)."""
     makers: dict[str, Callable[[], Method]] = {
         "pgvd": _pgvd,
-        "pgvd-det": lambda: _pgvd(probabilistic=False),
-        "pgvd-heading": lambda: _pgvd(heading_span=6.0),
+        **{name: (lambda kw=kw: _pgvd(**kw)) for name, kw in (ABLATIONS | OPTIONS).items()},
         "m-explore": lambda: _baseline("mexplore"),
         "hough": lambda: _baseline("hough"),
         "exhaustive": lambda: _baseline(
@@ -265,15 +280,20 @@ def run_scaling(table: dict[str, Method], seed: int, repeats: int) -> list[dict]
     for factor in (1, 2, 4):
         pair = upsample(base, factor)
         cells = int(np.sqrt(pair.a.logodds.size))
-        for name, method in table.items():
-            times = []
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                accepted, matrix, _ = method(pair.a, pair.b)
-                times.append(time.perf_counter() - t0)
+        times: dict[str, list[tuple[float, float]]] = {name: [] for name in table}
+        results = {}
+        # the methods in turn, repeat after repeat, so that a drift of the
+        # machine's speed falls on all of them and their ratios hold
+        for _ in range(repeats):
+            for name, method in table.items():
+                t0, c0 = time.perf_counter(), time.process_time()
+                results[name] = method(pair.a, pair.b)
+                times[name].append((time.perf_counter() - t0, time.process_time() - c0))
+        for name, (accepted, matrix, _) in results.items():
             # Success judged in cells of the ~500^2 base map: upsampling scales pixel errors.
             rec = evaluate(pair, accepted, matrix, cell_scale=factor)
-            rec.update(method=name, cells=cells, seconds=float(np.median(times)))
+            wall, cpu = np.median(times[name], axis=0)
+            rec.update(method=name, cells=cells, seconds=float(wall), cpu_seconds=float(cpu))
             records.append(rec)
             _log(f"[scale] {cells}^2 {name}: {rec['seconds']:.2f} s success={rec['success']}")
     return records
@@ -295,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--exhaustive-step", type=float, default=1.0, help="degrees")
     parser.add_argument("--exhaustive-coarse", type=int, default=4, help="pooling factor")
     parser.add_argument("--no-scaling", action="store_true", help="skip the map-size run")
-    parser.add_argument("--repeats", type=int, default=1, help="timing repeats per size")
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats per size")
     parser.add_argument("--cache", type=Path, default=CACHE, help="generated runs and pairs")
     parser.add_argument("--no-cache", action="store_true")
     parser.add_argument("--out", type=Path, default=RESULTS)
@@ -329,7 +349,11 @@ def main(argv: list[str] | None = None) -> int:
     if scaling:
         notes.append(
             f"Scaling: one intel pair at {SCALE_RESOLUTION} m (~500^2), upsampled x2 and x4 "
-            "(nearest: same content, more cells); success there in cells of the base map."
+            "(nearest: same content, more cells); success there in cells of the base map. "
+            f"Seconds: median of {args.repeats} runs, the methods in turn at each repeat; "
+            "the speed table gives pgvd's time over each peer's, from the same run, in wall "
+            "clock and in CPU time (all threads of this process: the one to read on a busy "
+            "machine)."
         )
     args.out.mkdir(parents=True, exist_ok=True)
     text = report.markdown(summary, scaling, command.strip(), notes)
@@ -342,6 +366,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     (args.out / "merge.json").write_text(json.dumps(to_json(doc), indent=1) + "\n")
     report.chart(summary, records, scaling, args.out / "merge.png")
+    if "pgvd" in table:
+        acceptance.write(records, args.out, "merge.json")
     _log(text)
     _log(f"wrote {args.out / 'merge.md'}, merge.json, merge.png")
     return 0

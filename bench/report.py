@@ -94,6 +94,32 @@ def method_table(summary: dict, scaling: list[dict]) -> list[str]:
     return lines
 
 
+def speed_table(scaling: list[dict], ours: str = "pgvd") -> list[str]:
+    """Seconds per merge at each map size, and ``ours`` over every other method, same run.
+
+    A ratio below 1 is ``ours`` faster.  The methods were timed in turn on the
+    same pair at each size (:func:`bench.merge.run_scaling`), so a ratio holds
+    when the machine's speed drifts; absolute seconds do not.  Ratios are given
+    in wall-clock and in CPU time (``cpu_seconds``, when recorded): on a busy
+    machine the wall clock also counts the time other processes took.
+    """
+    methods = list(dict.fromkeys(r["method"] for r in scaling))
+    peers = [m for m in methods if m != ours]
+    head = ["cells", *(f"{m} s" for m in methods), *(f"{ours} / {m}" for m in peers)]
+    head += [f"{ours} / {m} (cpu)" for m in peers]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for c in sorted({r["cells"] for r in scaling}):
+        at = {r["method"]: r for r in scaling if r["cells"] == c}
+        row = [f"{c}^2", *(_fmt(at[m]["seconds"]) if m in at else "-" for m in methods)]
+        for key in ("seconds", "cpu_seconds"):
+            mine = at.get(ours, {}).get(key)
+            for m in peers:
+                theirs = at.get(m, {}).get(key)
+                row.append(_fmt(mine / theirs) if mine and theirs else "-")
+        lines.append("| " + " | ".join(row) + " |")
+    return lines
+
+
 def source_table(stats: dict) -> list[str]:
     """One row per source (building and where its maps come from) for one method."""
     head = ["source", "standard", "low overlap", "drifted", "wrong accepts"]
@@ -121,6 +147,8 @@ def markdown(summary: dict, scaling: list[dict], command: str, notes: list[str])
     """The whole report."""
     lines = ["# Merge benchmark", "", f"`{command}`", "", "## Every method", ""]
     lines += method_table(summary, scaling)
+    if scaling:
+        lines += ["", "## Speed against map size (one pair, upsampled)", "", *speed_table(scaling)]
     lines += ["", "## False accepts per kind of negative", "", *negative_table(summary)]
     for m, doc in summary.items():
         lines += ["", f"## {m}: a row per building and source", "", *source_table(doc)]

@@ -10,19 +10,26 @@ small overlap that is crisp but short.
 The decision here compares the winner with its rivals on the same pair.
 Every finalist hypothesis is refined and scored by the overlay evidence
 ``E = agree - w * disagree`` (walls on walls, walls on clear free space, both
-ways, on one subsample of wall cells).  The *rival* is the best of the
-finalists whose pose differs from the winner's (a look-alike corridor, the
-other side of a symmetric building, a quarter turn) and of the winner shifted
-by a few metres (a corridor that looks alike along its length).  The
+ways, on one subsample of wall cells, each few-metre square of the overlap
+re-aligned by a few cells first: :func:`pgvd.matching.local_agreement`).
+The *rival* is the best of the finalists whose pose differs from the
+winner's (a look-alike corridor, the other side of a symmetric building, a
+quarter turn) and of the winner shifted by a few metres (a corridor that
+looks alike along its length).  The
 statistic is the winner's evidence beyond the rival's, per wall cell of the
 overlap::
 
-    margin = (E_win - max(E_rival, 0)) / (agree_win + disagree_win)
+    margin = (E_win - E_rival) / (agree_win + disagree_win)
 
-With no rival it is ``(1 + w) ratio - w``, the overlay's own consistency; a
+It scales with the evidence of the pair itself, not with fixed floors: a
 rival that scores as well as the winner drives it to 0 whatever the size of
-the overlap, and a small overlap with no rival passes however short it is.
-The threshold is set on the development negatives (see the bench).
+the overlap (a look-alike corridor), while a small overlap whose every other
+pose is contradicted by the maps passes however short it is.  A rival with
+negative evidence (the maps contradict that pose) counts for the winner, so
+a noisy map whose true pose keeps some walls on free space (people, clutter)
+can still stand out; with no rival at all ``E_rival`` is 0, the empty
+overlay.  The threshold is set on the development negatives of the merge
+bench (``bench/results/acceptance.md``).
 """
 
 from __future__ import annotations
@@ -75,8 +82,8 @@ class Decision:
     rival : float
         Best evidence of a hypothesis with another pose (``-inf`` when there is none).
     margin : float
-        The statistic of the module docstring (<= 1; 0 or below when the winner
-        has no positive evidence, or without overlap).
+        The statistic of the module docstring (0 or below when a rival scores as
+        well as the winner, or without overlap).
     """
 
     winner: Scored
@@ -179,5 +186,6 @@ def decide(
     ]
     rival = max(rivals, default=-np.inf)
     points = win.agreement.agree + win.agreement.disagree
-    margin = (win.evidence(weight) - max(rival, 0.0)) / points if points else 0.0
+    against = rival if np.isfinite(rival) else 0.0
+    margin = (win.evidence(weight) - against) / points if points else 0.0
     return Decision(win, float(rival), float(margin))

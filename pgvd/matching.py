@@ -21,7 +21,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import fft as sfft
@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
 from pgvd.grid import heading, rigid_matrix
-from pgvd.morphology import grow
+from pgvd.morphology import grow, grow_max
 from pgvd.sampling import subsample
 
 #: Upper bound on complex cells of one batched correlation block (memory, not speed).
@@ -66,7 +66,7 @@ def _dilated(edge: Edge, tolerance: int) -> tuple[np.ndarray, tuple[int, int]]:
     if tolerance <= 0:
         return edge.matrix, edge.origin
     padded = np.pad(edge.matrix, tolerance)
-    m = (1.0 - _TIE_BREAK) * ndi.grey_dilation(padded, size=2 * tolerance + 1)
+    m = (1.0 - _TIE_BREAK) * grow_max(padded, tolerance)
     m += _TIE_BREAK * padded
     return m, (edge.origin[0] - tolerance, edge.origin[1] - tolerance)
 
@@ -137,28 +137,35 @@ class EdgeCorrelator:
         if na == 0 or nb == 0:
             return Similarity(gamma, shift)
         mats_b = [e.matrix for e in edges_b]
-        org_a = self.origins
-        org_b = np.array([e.origin for e in edges_b], dtype=float)
-        for kb, ib in _groups(mats_b).items():
+        groups_b = _groups(mats_b)
+        # Peaks are written in size-class order, where every block is a plain
+        # slice, and put back in edge order once at the end.
+        peak, u, v = np.zeros((na, nb)), np.zeros((na, nb)), np.zeros((na, nb))
+        b0 = 0
+        for kb, ib in groups_b.items():
             stack_b = _stack(mats_b, ib, kb)
+            cols = slice(b0, b0 + len(ib))
+            a0 = 0
             for ka, ia in self.groups.items():
                 size = (ka[0] + kb[0], ka[1] + kb[1])
                 fb = np.conj(sfft.rfft2(stack_b, s=size))
                 fa_all = self._spectrum(ka, size)
                 chunk = max(1, _BLOCK_CELLS // (len(ib) * size[0] * (size[1] // 2 + 1)))
                 for start in range(0, len(ia), chunk):
-                    sub = ia[start : start + chunk]
                     corr = sfft.irfft2(fa_all[start : start + chunk, None] * fb[None], s=size)
-                    flat = corr.reshape(len(sub), len(ib), -1)
-                    arg = flat.argmax(axis=2)
-                    peak = np.take_along_axis(flat, arg[..., None], axis=2)[..., 0]
-                    u, v = np.divmod(arg, size[1])
-                    u = np.where(u < ka[0], u, u - size[0])
-                    v = np.where(v < ka[1], v, v - size[1])
-                    rows, cols = np.ix_(sub, ib)
-                    gamma[rows, cols] = peak
-                    shift[rows, cols, 0] = org_a[sub, 1][:, None] - org_b[ib, 1][None] + v
-                    shift[rows, cols, 1] = org_a[sub, 0][:, None] - org_b[ib, 0][None] + u
+                    flat = corr.reshape(corr.shape[0], len(ib), -1)
+                    rows = slice(a0 + start, a0 + start + corr.shape[0])
+                    peak[rows, cols] = flat.max(axis=2)
+                    du, dv = np.divmod(flat.argmax(axis=2), size[1])
+                    u[rows, cols] = np.where(du < ka[0], du, du - size[0])
+                    v[rows, cols] = np.where(dv < ka[1], dv, dv - size[1])
+                a0 += len(ia)
+            b0 += len(ib)
+        order = np.ix_(*(np.concatenate(list(g.values())) for g in (self.groups, groups_b)))
+        gamma[order], shift[..., 0][order], shift[..., 1][order] = peak, v, u
+        org_b = np.array([e.origin for e in edges_b], dtype=float)
+        shift[..., 0] += self.origins[:, 1][:, None] - org_b[:, 1][None]
+        shift[..., 1] += self.origins[:, 0][:, None] - org_b[:, 0][None]
         return Similarity(gamma, shift)
 
 
@@ -338,6 +345,15 @@ class Overlay:
     disagree: np.ndarray
     shape_a: tuple[int, int]
     shape_b: tuple[int, int]
+    _evidence: dict[float, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
+
+    def evidence(self, disagreement_weight: float = 1.0) -> np.ndarray:
+        """``agree - disagreement_weight * disagree`` for every translation (kept per weight)."""
+        if disagreement_weight not in self._evidence:
+            ev = self.agree - disagreement_weight * self.disagree
+            ev.setflags(write=False)
+            self._evidence[disagreement_weight] = ev
+        return self._evidence[disagreement_weight]
 
     def at(self, t: tuple[int, int]) -> Agreement:
         """Counts at the translation ``t = (tx, ty)``."""
@@ -346,7 +362,7 @@ class Overlay:
 
     def best_evidence(self, disagreement_weight: float = 1.0) -> float:
         """Largest ``agree - disagreement_weight * disagree`` over all translations."""
-        return float(np.max(self.agree - disagreement_weight * self.disagree))
+        return float(np.max(self.evidence(disagreement_weight)))
 
     def peaks(self, n: int, radius: int, disagreement_weight: float = 1.0) -> list[tuple[int, int]]:
         """Translations of the largest overlay evidence that are local maxima.
@@ -367,7 +383,7 @@ class Overlay:
         """
         if n <= 0:
             return []
-        ev = self.agree - disagreement_weight * self.disagree
+        ev = self.evidence(disagreement_weight)
         top = ndi.maximum_filter(ev, size=2 * radius + 1, mode="wrap")
         rows, cols = np.nonzero((ev == top) & (ev > 0))
         order = np.argsort(-ev[rows, cols], kind="stable")[:n]
@@ -389,8 +405,9 @@ class Overlay:
         tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
         if ty.size == 0 or tx.size == 0:
             return t
-        rows, cols = np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])
-        window = self.agree[rows, cols] - disagreement_weight * self.disagree[rows, cols]
+        window = self.evidence(disagreement_weight)[
+            np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])
+        ]
         i, j = np.unravel_index(int(np.argmax(window)), window.shape)
         return int(tx[j]), int(ty[i])
 
@@ -430,6 +447,28 @@ def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ m[:2, :2].T + m[:2, 2]
 
 
+class WallTree(cKDTree):
+    """A k-d tree of wall cells ``(x, y)`` that keeps each cell's wall normal once computed.
+
+    The point-to-line stages ask for the normals at the nearest wall cells
+    over and over (every Gauss-Newton step, the residual distortion, the
+    covariance); a normal depends on its cell alone, so each is computed once.
+    """
+
+    def __init__(self, walls: np.ndarray) -> None:
+        # the sliding-midpoint tree builds in half the time and answers these
+        # nearest-wall queries faster than the median-split default
+        super().__init__(walls, balanced_tree=False, compact_nodes=False)
+        self._normal = np.full((self.n, 2), np.nan)
+
+    def normals(self, idx: np.ndarray) -> np.ndarray:
+        """Unit wall normals at the cells ``idx`` of the tree (see :func:`_normals`)."""
+        missing = np.unique(idx[np.isnan(self._normal[idx, 0])])
+        if missing.size:
+            self._normal[missing] = _normals(self, self.data[missing])
+        return self._normal[idx]
+
+
 class WallMap:
     """A full-resolution map for overlay checks: its probabilities and a k-d tree of its walls."""
 
@@ -437,9 +476,11 @@ class WallMap:
         self.free = np.asarray(prob) < free
         r, c = np.nonzero(np.asarray(prob) > occupied)
         self.walls = np.column_stack([c, r]).astype(float)
-        # the sliding-midpoint tree builds in half the time and answers these
-        # nearest-wall queries faster than the median-split default
-        self.tree = cKDTree(self.walls, balanced_tree=False, compact_nodes=False)
+        self.tree = WallTree(self.walls)
+
+    def normals(self, idx: np.ndarray) -> np.ndarray:
+        """Unit wall normals (:func:`_normals`) at the wall cells ``idx``, computed once each."""
+        return self.tree.normals(idx)
 
     def count(self, points: np.ndarray, tolerance: float) -> tuple[int, int]:
         """(agree, disagree) of another map's wall points ``(N, 2)`` (x, y) in this frame.
@@ -457,7 +498,12 @@ class WallMap:
 
 
 def map_agreement(
-    a: WallMap, b: WallMap, matrix: np.ndarray, tolerance: float = 2.0, max_points: int = 0
+    a: WallMap,
+    b: WallMap,
+    matrix: np.ndarray,
+    tolerance: float = 2.0,
+    max_points: int = 0,
+    scaled: bool = False,
 ) -> Agreement:
     """Overlay B on A with the B->A pixel ``matrix`` and count agreement both ways.
 
@@ -475,6 +521,9 @@ def map_agreement(
     max_points : int, optional
         When > 0, an even subsample of each map's walls of about this size
         is evaluated (a quick estimate).
+    scaled : bool, optional
+        Count each subsampled wall cell for the cells between it and the next,
+        so that the counts estimate those of all walls.
 
     Returns
     -------
@@ -486,6 +535,124 @@ def map_agreement(
         wb, wa = subsample(wb, max_points), subsample(wa, max_points)
     ag1, dis1 = a.count(_apply(matrix, wb), tolerance)
     ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), wa), tolerance)
+    if not scaled:
+        return Agreement(ag1 + ag2, dis1 + dis2)
+    sb, sa = len(b.walls) / max(1, len(wb)), len(a.walls) / max(1, len(wa))
+    return Agreement(round(ag1 * sb + ag2 * sa), round(dis1 * sb + dis2 * sa))
+
+
+def _cells(points: np.ndarray, block: float) -> np.ndarray:
+    """One int64 code per point for the ``block`` square it falls in."""
+    keys = np.floor(points / block).astype(np.int64)
+    return (keys[:, 0] << 32) + keys[:, 1]
+
+
+def _block_shifts(
+    a: WallMap, moved: np.ndarray, group: np.ndarray, max_shift: float, iterations: int = 2
+) -> np.ndarray:
+    """The translation of each square that re-aligns its points ``moved`` on A's walls.
+
+    Within each square (``group`` indexes the squares of the points) the
+    translation ``d`` minimises the point-to-line misfit
+    ``sum (n_i . (d - r_i))^2`` of the points within ``max_shift + 2`` of A's
+    walls (``n_i`` A's wall normal at the nearest wall cell, ``r_i`` the
+    offset to it), refitted once from the shifted points, as in
+    :func:`residual_distortion`.  A ridge keeps a square whose walls all run
+    one way from sliding along them; ``|d|`` is capped at ``max_shift``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n_squares, 2)``; 0 for a square with no point near A's walls.
+    """
+    n_groups = int(group.max()) + 1
+    d = np.zeros((n_groups, 2))
+    count = np.bincount(group, minlength=n_groups)
+    ridge = 0.1 * np.maximum(count, 1)
+    for it in range(iterations):
+        pts = moved + d[group]
+        # the first pass reaches as far as the shift may go; later ones only refine it
+        reach = max_shift + 2.0 if it == 0 else 3.0
+        dist, idx = a.tree.query(pts, distance_upper_bound=reach)
+        ok = np.isfinite(dist)
+        if not ok.any():
+            break
+        g, n = group[ok], a.normals(idx[ok])
+        r = np.sum(n * (a.walls[idx[ok]] - pts[ok]), axis=1)
+        sxx, sxy, syy, bx, by = (
+            np.bincount(g, v, minlength=n_groups)
+            for v in (n[:, 0] ** 2, n[:, 0] * n[:, 1], n[:, 1] ** 2, n[:, 0] * r, n[:, 1] * r)
+        )
+        sxx, syy = sxx + ridge, syy + ridge
+        det = sxx * syy - sxy**2
+        d += np.column_stack([syy * bx - sxy * by, sxx * by - sxy * bx]) / det[:, None]
+        norm = np.hypot(d[:, 0], d[:, 1])
+        d *= np.minimum(1.0, max_shift / np.maximum(norm, 1e-12))[:, None]
+    return d
+
+
+def local_agreement(
+    a: WallMap,
+    b: WallMap,
+    matrix: np.ndarray,
+    block: float,
+    max_shift: float,
+    tolerance: float = 2.0,
+    max_points: int = 0,
+) -> Agreement:
+    """:func:`map_agreement` after a small re-alignment of every ``block`` square of the overlap.
+
+    A drifted map has no single rigid fit: after the best rigid ``matrix``
+    its walls still run a few cells beside A's away from the overlap's
+    centre, and a plain count calls them walls on free space.  Here B's
+    walls, moved into A, are cut into squares of A's frame and each square
+    is shifted by its own translation (at most ``max_shift``, fitted
+    point-to-line, :func:`_block_shifts`) before counting; A's walls in a
+    square are moved back by the same shift before being mapped into B.  A
+    wall on clear free space farther than ``max_shift`` from every wall still
+    disagrees.
+
+    Parameters
+    ----------
+    a, b : WallMap
+        Wall cells and free space of the two maps.
+    matrix : numpy.ndarray
+        3x3 rigid transform (eqs. (1)-(2)), B pixel -> A pixel.
+    block : float
+        Side of the squares, pixels.
+    max_shift : float
+        Largest local shift, pixels.
+    tolerance : float, optional
+        As in :func:`map_agreement`.
+    max_points : int, optional
+        As in :func:`map_agreement`.
+
+    Returns
+    -------
+    Agreement
+        Counts summed over both directions.
+
+    Raises
+    ------
+    ValueError
+        If ``block`` is not positive or ``max_shift`` is negative.
+    """
+    if not block > 0 or not max_shift >= 0:
+        raise ValueError(f"block must be > 0 and max_shift >= 0, got {block} and {max_shift}")
+    wb, wa = b.walls, a.walls
+    if max_points > 0:
+        wb, wa = subsample(wb, max_points), subsample(wa, max_points)
+    if len(wb) == 0 or len(wa) == 0:
+        return map_agreement(a, b, matrix, tolerance, max_points)
+    moved = _apply(matrix, wb)
+    squares, group = np.unique(_cells(moved, block), return_inverse=True)
+    shift = _block_shifts(a, moved, group.ravel(), max_shift)
+    ag1, dis1 = a.count(moved + shift[group.ravel()], tolerance)
+    # A's walls take the shift of the square they fall in (fitted on B's walls there).
+    codes = _cells(wa, block)
+    at = np.minimum(np.searchsorted(squares, codes), len(squares) - 1)
+    back = np.where((squares[at] == codes)[:, None], shift[at], 0.0)
+    ag2, dis2 = b.count(_apply(np.linalg.inv(matrix), wa - back), tolerance)
     return Agreement(ag1 + ag2, dis1 + dis2)
 
 
@@ -574,7 +741,7 @@ def _point_to_line(
     dist, idx = walls_a.query(moved, distance_upper_bound=radius)
     ok = np.isfinite(dist)
     x, y = pts[ok], walls_a.data[idx[ok]]
-    n = _normals(walls_a, y) if ok.any() else np.zeros((0, 2))
+    n = _wall_normals(walls_a, idx[ok]) if ok.any() else np.zeros((0, 2))
     psi = heading(matrix)
     c, s = np.cos(psi), np.sin(psi)
     dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
@@ -648,6 +815,7 @@ def residual_distortion(
     block: float = 100.0,
     radius: float = 10.0,
     min_points: int = 60,
+    max_points: int = 20000,
 ) -> float:
     """Largest local misfit (pixels) of B's walls on A's after the rigid ``matrix``.
 
@@ -673,6 +841,9 @@ def residual_distortion(
         B's walls farther than this from A's are not part of the overlap.
     min_points : int, optional
         Fewest wall cells of a square that is fitted.
+    max_points : int, optional
+        An even subsample of at most this many of B's walls is used, each kept
+        cell counting for the cells between it and the next (``min_points``).
 
     Returns
     -------
@@ -683,25 +854,32 @@ def residual_distortion(
         odometry drift (median 4.0), so it flags drift, it does not measure
         it exactly.
     """
-    fit = _point_to_line(walls_a, walls_b, matrix, radius)
-    if len(fit.res) < min_points:
+    pts = subsample(walls_b, max_points)
+    stride = len(walls_b) / max(1, len(pts))
+    fit = _point_to_line(walls_a, pts, matrix, radius)
+    if len(fit.res) * stride < min_points:
         return 0.0
     n, r = fit.jac[:, :2], -fit.res
     keys = np.floor(fit.moved / block).astype(np.int64)
-    _, group = np.unique(keys, axis=0, return_inverse=True)
-    worst = 0.0
-    for g in range(int(group.max()) + 1):
-        sel = group.ravel() == g
-        if sel.sum() < min_points:
-            continue
-        ng = n[sel]
-        info = ng.T @ ng
-        lo, hi = np.linalg.eigvalsh(info)
-        if lo < 0.1 * hi:
-            continue
-        d = np.linalg.solve(info, ng.T @ r[sel])
-        worst = max(worst, float(np.hypot(*d)))
-    return worst
+    keys -= keys.min(axis=0)
+    _, group, counts = np.unique(
+        keys[:, 0] * (keys[:, 1].max() + 1) + keys[:, 1], return_inverse=True, return_counts=True
+    )
+    # per square: the normal equations sum n n^T d = sum n r, summed by bincount
+    terms = (n[:, 0] ** 2, n[:, 0] * n[:, 1], n[:, 1] ** 2, n[:, 0] * r, n[:, 1] * r)
+    sxx, sxy, syy, bx, by = (np.bincount(group, t, counts.size) for t in terms)
+    info = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
+    lo, hi = np.linalg.eigvalsh(info).T
+    fitted = (counts * stride >= min_points) & (lo >= 0.1 * hi)
+    if not fitted.any():
+        return 0.0
+    d = np.linalg.solve(info[fitted], np.column_stack([bx, by])[fitted][..., None])[..., 0]
+    return float(np.hypot(d[:, 0], d[:, 1]).max())
+
+
+def _wall_normals(tree: cKDTree, idx: np.ndarray) -> np.ndarray:
+    """Unit wall normals at the cells ``idx`` of ``tree``, from its cache when it keeps one."""
+    return tree.normals(idx) if isinstance(tree, WallTree) else _normals(tree, tree.data[idx])
 
 
 def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Binary morphology on small grids, cheaper than :mod:`scipy.ndimage` for square elements."""
+"""Binary and grey morphology on small grids, cheaper than scipy.ndimage for square elements."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import numpy as np
 def grow(mask: np.ndarray, cells: int = 1) -> np.ndarray:
     """Binary dilation of ``mask`` by a ``(2 cells + 1)``-square, cells beyond the edge False.
 
+    The bool case of :func:`grow_max` (the largest of booleans is their OR).
     The square is separable, so each step is an OR of shifted slices along the
     rows, then along the columns: the result equals
     ``scipy.ndimage.binary_dilation(mask, np.ones((3, 3)), iterations=cells)``
@@ -23,18 +24,39 @@ def grow(mask: np.ndarray, cells: int = 1) -> np.ndarray:
     -------
     (H, W) bool array (a new one).
     """
+    return grow_max(np.asarray(mask, dtype=bool), cells)
+
+
+def grow_max(values: np.ndarray, cells: int = 1) -> np.ndarray:
+    """Grey dilation of ``values`` by a ``(2 cells + 1)``-square: the largest value within it.
+
+    Cells beyond the edge do not count.  For non-negative values inside a
+    zero border at least ``cells`` wide, as the edge sub-matrices of
+    :func:`pgvd.matching.similarity` are, this equals
+    ``scipy.ndimage.grey_dilation(values, size=2 cells + 1)``, at a fraction
+    of its per-call cost on arrays of a few hundred cells.
+
+    Parameters
+    ----------
+    values : (H, W) array.
+    cells : half-width of the square, >= 0.
+
+    Returns
+    -------
+    (H, W) array of ``values``' dtype (a new one).
+    """
     if cells < 0:
         raise ValueError(f"cells must be >= 0, got {cells}")
-    out = np.array(mask, dtype=bool)
+    out = np.array(values)
     if out.ndim != 2:
-        raise ValueError(f"grow needs a 2-D mask, got shape {out.shape}")
+        raise ValueError(f"morphology needs a 2-D array, got shape {out.shape}")
     for _ in range(cells):
         rows = out.copy()
-        rows[1:] |= out[:-1]
-        rows[:-1] |= out[1:]
+        np.maximum(rows[1:], out[:-1], out=rows[1:])
+        np.maximum(rows[:-1], out[1:], out=rows[:-1])
         out = rows.copy()
-        out[:, 1:] |= rows[:, :-1]
-        out[:, :-1] |= rows[:, 1:]
+        np.maximum(out[:, 1:], rows[:, :-1], out=out[:, 1:])
+        np.maximum(out[:, :-1], rows[:, 1:], out=out[:, :-1])
     return out
 
 

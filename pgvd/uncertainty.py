@@ -181,7 +181,19 @@ def check_covariance(cov3: np.ndarray) -> np.ndarray:
     return c
 
 
-@lru_cache(maxsize=4)
+def release_caches() -> None:
+    """Drop the polar geometry :func:`rotation_blur` keeps for its next call.
+
+    One entry is kept (a merge blurs each candidate heading's map twice in a row, on the
+    same canvas, so that is where it pays); about a centre far outside the image (the
+    fusion's), it takes tens of MB until the next call on another canvas.  A long-running
+    process calls this once a job is done.
+    """
+    _polar_geometry.cache_clear()
+    _blurred_totals.cache_clear()
+
+
+@lru_cache(maxsize=1)
 def _polar_geometry(
     shape: tuple[int, int], center: tuple[float, float], n_theta: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -294,7 +306,7 @@ def rotation_blur(
     return np.einsum("ij,ij->i", polar[idx], wts).reshape(h, w)
 
 
-@lru_cache(maxsize=4)
+@lru_cache(maxsize=1)
 def _blurred_totals(
     shape: tuple[int, int], center: tuple[float, float], n_theta: int, sigma_bins: float
 ) -> np.ndarray:

@@ -14,7 +14,9 @@ the cost:
    from its start may have slid along a corridor to a look-alike place;
 3. ``verify``: the overlay acceptance of the merge (the check the paper leaves to future
    work, Sec. VI): agreement ratio >= ``min_agreement`` over at least ``min_overlap``
-   metres of agreeing walls (:func:`pgvd.matching.map_agreement`);
+   metres of agreeing walls (:func:`pgvd.matching.map_agreement`), and the merge's own
+   test (:mod:`pgvd.decision`): the refined pose must stand out from itself shifted by a
+   few metres by ``min_margin`` (:func:`pgvd.merge.weigh`, the same drift-tolerant evidence);
 4. ``covariance``: as the merge computes it (:func:`pgvd.matching.alignment_covariance`).
 
 A rejected result carries the refined matrix for diagnosis only; a prediction is never
@@ -29,14 +31,14 @@ import numpy as np
 
 from pgvd.grid import Grid, matrix_to_pose
 from pgvd.matching import WallMap, alignment_covariance, map_agreement, refine
-from pgvd.merge import MergeParams, MergeResult
+from pgvd.merge import MergeParams, MergeResult, score_hypothesis, weigh
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
 BASIN_M = 1.0
-#: A prediction has no rival hypotheses to be measured against (the merge's margin test,
-#: :mod:`pgvd.decision`), so it must meet absolute floors: the overlay agreement and agreeing
-#: wall length on which the merge was accepted before that test (true merges >= 0.94 on the
-#: development pairs, the best false overlays <= 0.89).
+#: A prediction has no finalists of a search to be measured against, only itself shifted
+#: (the merge's margin test, :mod:`pgvd.decision`), so it must also meet absolute floors:
+#: the overlay agreement and agreeing wall length on which the merge was accepted before
+#: that test (true merges >= 0.94 on the development pairs, the best false overlays <= 0.89).
 MIN_AGREEMENT = 0.92
 MIN_OVERLAP_M = 15.0
 #: Largest change of heading (degrees) by the refinement for the prediction to count.
@@ -118,13 +120,19 @@ def verify(
         last = now
 
     def result(
-        accepted: bool, reason: str, m: np.ndarray, score: float, cov: np.ndarray
+        accepted: bool,
+        reason: str,
+        m: np.ndarray,
+        score: float,
+        cov: np.ndarray,
+        margin: float = float("nan"),
     ) -> MergeResult:
         psi, tx, ty = matrix_to_pose(m)
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         return MergeResult(
-            accepted, m, float(np.degrees(psi)), (tx, ty), cov, score, timings, reason
-        )
+            accepted, m, float(np.degrees(psi)), (tx, ty), cov, score, timings, reason,
+            margin=margin,
+        )  # fmt: skip
 
     nan = np.full((3, 3), np.nan)
     fine_a = WallMap(a.probability(), params.occupied, params.free)
@@ -153,7 +161,18 @@ def verify(
     if overlap_m < min_overlap:
         why = f"overlap too small: {overlap_m:.1f} m of agreeing walls < {min_overlap} m"
         return result(False, why, matrix, agreement.ratio, nan)
+    res = a.resolution
+    decision = weigh(
+        [score_hypothesis(matrix, fine_a, fine_b, params, res)], fine_a, fine_b, params, res
+    )
+    lap("verify")
+    if decision.margin < params.min_margin:
+        why = (
+            f"the predicted pose does not stand out: margin {decision.margin:.2f} < "
+            f"{params.min_margin} (best shifted pose {decision.rival:.0f})"
+        )
+        return result(False, why, matrix, agreement.ratio, nan, decision.margin)
     k = max(1, round(params.coarse_resolution / a.resolution))
     cov = alignment_covariance(fine_a.tree, fine_b.walls, matrix, correlation_length=k)
     lap("covariance")
-    return result(True, "accepted", matrix, agreement.ratio, cov)
+    return result(True, "accepted", matrix, agreement.ratio, cov, decision.margin)

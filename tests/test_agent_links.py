@@ -20,6 +20,8 @@ from agent.links import (
     first_registrar,
     loads,
     needed_keys,
+    open_keys,
+    ring_distance,
     select_links,
     wait_before_computing,
 )
@@ -166,3 +168,39 @@ def test_a_robot_that_left_hands_its_turn_on_at_once() -> None:
     assert wait_before_computing(second, key, 6.0, ring, everyone - {first}) == 0.0
     assert wait_before_computing("r3", key, 6.0, ring, everyone) == 12.0
     assert wait_before_computing("r3", key, 6.0, ring, {"r3"}) == 6.0
+
+
+def test_ring_distance_is_the_shorter_way_round() -> None:
+    ring = ["r1", "r2", "r3", "r4", "r5"]
+    assert [ring_distance("r1", b, ring) for b in ring[1:]] == [1, 2, 2, 1]
+    assert ring_distance("r4", "r2", ring) == ring_distance("r2", "r4", ring) == 2
+
+
+def test_searches_go_by_waves_checks_are_always_open() -> None:
+    """Nothing linked: only neighbours on the circle; a pair a chain reaches, at any time."""
+    ring = ["r1", "r2", "r3", "r4", "r5"]
+    keys = [(a, 1, b, 1) for i, a in enumerate(ring) for b in ring[i + 1 :]]
+    first = open_keys(keys, set(), ring)
+    assert sorted((k[0], k[2]) for k in first) == [
+        ("r1", "r2"), ("r1", "r5"), ("r2", "r3"), ("r3", "r4"), ("r4", "r5"),
+    ]  # fmt: skip
+    # every first-wave pair decided, r1-r3 predicted by a chain: the second wave opens
+    rest = [k for k in keys if k not in first]
+    chained = {("r1", 1, "r3", 1)}
+    assert sorted(open_keys(rest, chained, ring)) == sorted(rest)
+    # a first-wave pair still to search holds the second wave back, not the check
+    held = [("r1", 1, "r2", 1), ("r1", 1, "r3", 1), ("r2", 1, "r4", 1)]
+    assert open_keys(held, chained, ring) == held[:2]
+
+
+@given(st.integers(2, 12), st.data())
+def test_open_keys_always_leave_something_to_do(n: int, data: st.DataObject) -> None:
+    """Whatever is needed and predicted, some key is open: no wave waits forever."""
+    ring = [f"r{i:02d}" for i in range(n)]
+    pairs = [(a, 1, b, 1) for i, a in enumerate(ring) for b in ring[i + 1 :]]
+    keys = data.draw(st.lists(st.sampled_from(pairs), min_size=1, unique=True))
+    predicted = set(data.draw(st.lists(st.sampled_from(keys), unique=True)))
+    opened = open_keys(keys, predicted, ring)
+    assert opened and predicted <= set(opened) and set(opened) <= set(keys)
+    waves = {ring_distance(k[0], k[2], ring) for k in opened if k not in predicted}
+    assert len(waves) <= 1

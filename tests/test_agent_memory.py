@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from agent.memory import release_free_memory
@@ -40,3 +41,16 @@ def test_freed_heap_arrays_are_returned_to_the_os() -> None:
     before, after, done = out.stdout.split()
     assert done == "True"
     assert int(before) - int(after) > 50, (before, after)  # of the ~100 MB freed
+
+
+def test_the_blurs_polar_geometry_is_dropped_after_a_job() -> None:
+    """The blur of a fusion (pgvd.uncertainty.rotation_blur) about a centre far off the map
+    caches polar bins over the whole circle; release_free_memory drops them."""
+    from pgvd.uncertainty import _blurred_totals, _polar_geometry, rotation_blur
+
+    image = np.zeros((300, 300), np.float32)
+    image[100:200, 150] = 1.0
+    rotation_blur(image, 0.01, center=(-400.0, -300.0))
+    assert _polar_geometry.cache_info().currsize == _blurred_totals.cache_info().currsize == 1
+    release_free_memory()
+    assert _polar_geometry.cache_info().currsize == _blurred_totals.cache_info().currsize == 0

@@ -303,9 +303,9 @@ def test_membership_moves_the_book_and_ignores_this_robots_own_token() -> None:
     r1 = node("r1")
     assert r1.on_alive("r1", True, at(0.0)) == []
     assert r1.on_alive("r2", True, at(0.0))[:2] == [Register(), Fetch("pgvd/lab/latest/r2/**")]
-    assert r1.book.snapshot(0.0).alive == {"r1", "r2"}
+    assert r1.book.snapshot().alive == {"r1", "r2"}
     assert r1.on_alive("r2", False, at(1.0)) == [Register()]  # gone: nothing to fetch
-    assert r1.book.snapshot(1.0).alive == {"r1"}
+    assert r1.book.snapshot().alive == {"r1"}
     robots = r1.status(at(1.0), HOST)["robots"]
     assert robots == {"r2": {"version": None, "alive": False}}
 

@@ -12,6 +12,8 @@ import pytest
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import (
+    PREVIEW_SHARE,
+    RESOLVE_AFTER,
     FusionWorker,
     GlobalState,
     Registration,
@@ -319,6 +321,87 @@ def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
     assert verify_check()(a, b, off) is None
 
 
+def test_a_later_wave_waits_for_the_first_and_becomes_a_check() -> None:
+    """r1 searches its neighbour r2 at once, but its opposite r3 only once the first wave is
+    decided, and then as a check: the links r2-r3-r4 placed r3 beside r1."""
+    h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    assert h.worker.step(now=0.0)
+    assert [ln.pair for ln in h.links] == [("r1", "r2")] and len(h.calls) == 1
+    # r1-r3 is r1's turn, but r2-r3, r3-r4 and r1-r4 of the first wave are still to search
+    assert not h.worker.step(now=0.1) and len(h.links) == 1
+    h.book.add_link(_link("r2", "r3", np.eye(3)))
+    h.book.add_link(_link("r3", "r4", np.eye(3)))
+    assert h.worker.step(now=0.2)
+    assert [ln.pair for ln in h.links] == [("r1", "r2"), ("r1", "r3")]
+    assert len(h.calls) == 1 and len(h.checked) == 1  # checked, not searched
+
+
+def test_a_disjoint_verdict_over_a_chain_on_triangles_rejects_without_search() -> None:
+    """r1-r2-r3 and r1-r3-r4 linked consistently: r2-r4's chain runs over links on
+    triangles, so the check's rejection stands; over the bridge r4-r5, r2-r5 is still
+    searched."""
+    h = Checking("r2", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    for i in range(1, 6):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    links = [("r1", "r2"), ("r2", "r3"), ("r1", "r3"), ("r3", "r4"), ("r1", "r4"), ("r4", "r5")]
+    for a, b in links:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    h.worker.link_timeout = 0.0
+    # r2's own pairs go first: r2-r4, then r2-r5 (once past any timeout)
+    assert h.worker.step(now=0.0) and h.worker.step(now=100.0)
+    assert [(ln.pair, ln.accepted) for ln in h.links[:2]] == [
+        (("r2", "r4"), False), (("r2", "r5"), True),
+    ]  # fmt: skip
+    assert len(h.calls) == 1  # r2-r5 searched (the harness's search accepts), r2-r4 not
+
+
+def test_slow_rebuilds_space_previews_out() -> None:
+    """A preview that took 2 s waits 2 / PREVIEW_SHARE s for the next; a settled map not."""
+    h = Harness("r3")
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    h.worker._rebuild_seconds = 2.0  # as measured by the last rebuild
+    assert h.worker.preview_gap() == 2.0 / PREVIEW_SHARE > h.worker.preview_interval
+    h.worker._rebuilt_at = 0.0
+    h.book.put_map("r2", V(2), tiny(3))
+    h.worker.step(now=h.worker.preview_gap() - 0.1)
+    assert h.globals == []
+    h.worker.step(now=20.0)
+    assert len(h.globals) == 1 and not h.globals[-1].settled
+    h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
+    h.worker.step(now=20.1)
+    assert len(h.globals) == 2 and h.globals[-1].settled
+
+
+class Superseding(Checking):
+    """r2 starts a new epoch while the search of r1-r2 runs."""
+
+    def register(self, a: Grid, b: Grid) -> Registration:
+        self.book.put_map("r2", V(2), tiny(3))
+        return super().register(a, b)
+
+
+@pytest.mark.parametrize("confirms", [True, False])
+def test_a_search_superseded_meanwhile_is_checked_on_the_new_maps(confirms: bool) -> None:
+    verdict = Registration(True, rigid_matrix(0.0, 1.5, 2.0), np.eye(3) * 0.1, 0.97)
+    h = Superseding("r1", verdict if confirms else None)
+    h.book.put_map("r1", V(1), tiny(1))
+    h.book.put_map("r2", V(1), tiny(2))
+    assert h.worker.step(now=0.0)
+    assert len(h.calls) == 1
+    np.testing.assert_array_equal(h.checked[0], rigid_matrix(0.0, 1.0, 2.0))  # the search's
+    if confirms:
+        assert [ln.key for ln in h.links] == [("r1", 1, "r2", 2)]
+        np.testing.assert_array_equal(h.links[0].matrix, verdict.matrix)
+        assert h.book.snapshot().needed == []
+    else:
+        assert h.links == [] and h.book.snapshot().needed == [("r1", 1, "r2", 2)]
+    counts = h.worker.counters.snapshot()["counts"]
+    assert counts == {"searches": 1, "checks": 1, **({"checks_confirmed": 1} if confirms else {})}
+
+
 def _known_pose_of_b(a: Grid, b: Grid, truth: np.ndarray) -> tuple[float, float, float]:
     """B's map-frame pose in A's map frame (the world here): the pose the truth implies."""
     m = np.linalg.inv(world_pose_to_pixel_matrix(a)) @ truth @ world_pose_to_pixel_matrix(b)
@@ -368,3 +451,68 @@ def test_a_wrong_known_pose_is_not_taken_and_the_search_finds_the_true_link(inte
     assert np.abs(rec.matrix - truth)[:2, 2].max() < 2.0
     counts = s.worker.counters.snapshot()["counts"]
     assert counts == {"prior_checks": 1, "prior_failed": 1, "searches": 1}
+
+
+def test_a_recent_solution_keeps_predicting_while_it_joins_the_pair(monkeypatch) -> None:
+    """Links r1-r2-r3-r4: r1-r3 solves the pose graph; r4-r5 arrives, and r1-r4 (still joined
+    by that solution) reuses it; r1-r5 (not joined) solves anew, as does anything after
+    RESOLVE_AFTER seconds."""
+    import agent.worker as worker
+
+    solves: list[int] = []
+    solve = worker.solve
+
+    def counting(maps, links, *args):
+        solves.append(len(links))  # the accepted links solved over
+        return solve(maps, links, *args)
+
+    monkeypatch.setattr(worker, "solve", counting)
+    h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    for i in range(1, 6):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in [("r1", "r2"), ("r2", "r3"), ("r3", "r4")]:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    h.worker.link_timeout = 0.0
+    assert h.worker.step(now=0.0) and h.links[-1].pair == ("r1", "r3")
+    assert solves == [3]
+    h.book.add_link(_link("r4", "r5", np.eye(3)))
+    assert h.worker.step(now=0.5) and h.links[-1].pair == ("r1", "r4")
+    assert solves == [3]  # the solution of 0 s still joins r1 and r4
+    assert h.worker.step(now=1.0) and h.links[-1].pair == ("r1", "r5")
+    assert solves == [3, 6]  # it does not join r5: solved with r4-r5 and the checks' links
+    h.book.add_link(_link("r3", "r5", np.eye(3)))
+    assert h.worker.step(now=1.0 + RESOLVE_AFTER) and h.links[-1].pair == ("r2", "r4")
+    assert solves == [3, 6, 8]  # too old: solved anew
+    assert h.calls == [] and len(h.checked) == 4
+
+
+def test_a_disjoint_verdict_over_a_lone_long_cycle_is_searched() -> None:
+    """r1-r2-r3-r4-r5-r1, a lone cycle with no triangle: a wrong link on it would spread its
+    error thin, so r1-r3's first rejection by a check still needs a search."""
+    h = Checking("r1", Registration(False, np.eye(3), np.zeros((3, 3)), 0.0))
+    for i in range(1, 6):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in [("r1", "r2"), ("r2", "r3"), ("r3", "r4"), ("r4", "r5"), ("r1", "r5")]:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    assert h.worker.step(now=0.0)
+    assert h.links[0].pair == ("r1", "r3") and len(h.checked) == 1 and len(h.calls) == 1
+
+
+def test_a_link_records_soundness_is_judged_once(monkeypatch) -> None:
+    """The pose graph's input checks run once per link record held, not once per step."""
+    import agent.worker as worker
+
+    judged: list[tuple[str, str]] = []
+    problem = worker.link_problem
+
+    def counting(ln, nodes):
+        judged.append(ln.pair)
+        return problem(ln, nodes)
+
+    monkeypatch.setattr(worker, "link_problem", counting)
+    h = Checking("r3", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    _chain(h)  # r1-r2, r2-r3 linked: r1-r3 is checked
+    assert h.worker.step(now=0.0)
+    assert sorted(judged) == [("r1", "r2"), ("r2", "r3")]
+    assert not h.worker.step(now=0.1)  # r1-r3 added: a new Chains, only it judged
+    assert sorted(judged) == [("r1", "r2"), ("r1", "r3"), ("r2", "r3")]

@@ -94,3 +94,24 @@ def test_pgvd_det_column_fails_loudly_without_its_switch(monkeypatch):
     monkeypatch.setattr(importlib.import_module("pgvd.merge"), "MergeParams", WithoutSwitch)
     with pytest.raises(TypeError, match="probabilistic"):
         methods()
+
+
+def test_speed_table_gives_each_size_and_ratios_against_the_peers():
+    from bench.report import speed_table
+
+    scaling = [
+        {"method": "pgvd", "cells": 500, "seconds": 0.2, "cpu_seconds": 0.3},
+        {"method": "hough", "cells": 500, "seconds": 0.4, "cpu_seconds": 0.6},
+        {"method": "m-explore", "cells": 500, "seconds": 0.8, "cpu_seconds": 1.2},
+        {"method": "pgvd", "cells": 1000, "seconds": 0.3},
+        {"method": "hough", "cells": 1000, "seconds": 0.2},
+    ]
+    head, rule, small, large = speed_table(scaling)
+    assert head == (
+        "| cells | pgvd s | hough s | m-explore s | pgvd / hough | pgvd / m-explore "
+        "| pgvd / hough (cpu) | pgvd / m-explore (cpu) |"
+    )
+    assert rule.count("---") == 8
+    assert small == "| 500^2 | 0.20 | 0.40 | 0.80 | 0.50 | 0.25 | 0.50 | 0.25 |"
+    # a method or a CPU time missing at a size gives a dash, not a ratio against nothing
+    assert large == "| 1000^2 | 0.30 | 0.20 | - | 1.50 | - | - | - |"

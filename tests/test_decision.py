@@ -8,7 +8,7 @@ import pytest
 from pgvd.decision import Scored, decide, same_pose, shifted
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
-from pgvd.matching import WallMap, map_agreement, residual_distortion
+from pgvd.matching import Agreement, WallMap, local_agreement, map_agreement, residual_distortion
 from pgvd.merge import MergeParams, merge
 
 WEIGHT = MergeParams().disagreement_weight
@@ -85,3 +85,59 @@ def test_a_building_against_its_mirror_image_is_rejected(shared):
     r = merge(a, mirror, MergeParams(diagnostics=False))
     assert not r.accepted, r.reason
     assert r.margin < MergeParams().min_margin
+
+
+def _bent(b: WallMap, truth: np.ndarray, prob: np.ndarray, px: int) -> WallMap:
+    """B's map with the part that lands right of the middle of A moved ``px`` rows down,
+    as odometry drift moves the far end of a map."""
+    h, w = prob.shape
+    cols, rows = np.meshgrid(np.arange(w), np.arange(h))
+    ax = truth[0, 0] * cols + truth[0, 1] * rows + truth[0, 2]
+    middle = np.median(b.walls @ truth[0, :2] + truth[0, 2])
+    moved = np.full_like(prob, 0.5)
+    moved[px:] = prob[:-px]
+    return WallMap(np.where(ax > middle, moved, prob), 0.65, 0.3)
+
+
+def test_local_agreement_forgives_drift_not_a_wrong_pose(shared, intel):
+    fine_a, fine_b, truth = intel
+    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
+    bent = _bent(fine_b, truth, b.probability(), 6)
+    block, shift = 100.0, 10.0
+
+    def evidence(ag: Agreement) -> float:
+        return ag.agree - WEIGHT * ag.disagree
+
+    straight = local_agreement(fine_a, fine_b, truth, block, shift, max_points=1500)
+    rigid = map_agreement(fine_a, bent, truth, max_points=1500)
+    local = local_agreement(fine_a, bent, truth, block, shift, max_points=1500)
+    # rigidly, half of the bent map's walls run 6 px beside A's: the true pose loses
+    assert evidence(rigid) < 0, rigid
+    # re-aligned per 5 m square, the bent map agrees nearly as well as the straight one
+    assert evidence(local) > 0.8 * evidence(straight), (local, straight)
+    # a pose 3 m or 3 degrees off keeps its walls on A's free space: still contradicted
+    for wrong in (rigid_matrix(0.0, 60.0, 0.0) @ truth, rigid_matrix(0.05, 0.0, 0.0) @ truth):
+        off = local_agreement(fine_a, bent, wrong, block, shift, max_points=1500)
+        assert evidence(off) < 0 < evidence(local), off
+
+
+def test_a_contradicted_rival_counts_for_the_winner(intel):
+    _, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    win = Scored(truth, Agreement(900, 100))
+    alone = decide([win], WEIGHT, centre).margin
+    assert alone == pytest.approx((900 - WEIGHT * 100) / 1000)
+    far = Scored(_moved(truth, 200.0), Agreement(100, 400))
+    assert decide([win, far], WEIGHT, centre).margin > alone
+    close = Scored(_moved(truth, 200.0), Agreement(450, 0))
+    assert decide([win, close], WEIGHT, centre).margin == pytest.approx(0.05)
+
+
+def test_local_agreement_refuses_bad_squares(intel):
+    fine_a, fine_b, truth = intel
+    for block, shift in ((0.0, 10.0), (-5.0, 10.0), (100.0, -1.0), (float("nan"), 1.0)):
+        with pytest.raises(ValueError, match="block must be"):
+            local_agreement(fine_a, fine_b, truth, block, shift)
+    # no shift at all is the rigid count
+    rigid = map_agreement(fine_a, fine_b, truth, max_points=1500)
+    assert local_agreement(fine_a, fine_b, truth, 100.0, 0.0, max_points=1500) == rigid

@@ -18,6 +18,7 @@ from pgvd.matching import (
     map_agreement,
     refine,
     refine_point_to_line,
+    residual_distortion,
     rho_test,
     similarity,
 )
@@ -189,3 +190,56 @@ def test_refine_and_covariance_of_an_empty_wall_set(intel):
     blank = WallMap(np.full((40, 50), 0.5), 0.65, 0.3)  # all unknown: no walls, nothing free
     assert blank.walls.shape == (0, 2)
     assert map_agreement(wm, blank, start, max_points=500).agree == 0
+
+
+def test_wall_tree_keeps_normals_that_change_nothing(intel):
+    from scipy.spatial import cKDTree
+
+    wm = WallMap(intel, 0.65, 0.3)
+    # built as WallTree builds it: equidistant wall cells are found in the same order
+    plain = cKDTree(wm.walls, balanced_tree=False, compact_nodes=False)
+    truth = rigid_matrix(np.radians(1.5), 4.0, -3.0)
+    walls_b = (wm.walls - truth[:2, 2]) @ np.linalg.inv(truth[:2, :2]).T
+    start = rigid_matrix(0.0, 2.0, -1.0)
+    # twice on the cached tree (the second run reads the normals the first one kept)
+    for _ in range(2):
+        np.testing.assert_array_equal(
+            refine_point_to_line(wm.tree, walls_b, start),
+            refine_point_to_line(plain, walls_b, start),
+        )
+    assert residual_distortion(wm.tree, walls_b, truth) == residual_distortion(
+        plain, walls_b, truth
+    )
+
+
+def test_subsampled_full_resolution_stages_estimate_all_walls(intel):
+    wm = WallMap(intel, 0.65, 0.3)
+    n = len(wm.walls)
+    for m in (np.eye(3), rigid_matrix(0.0, 12.0, -9.0)):
+        full = map_agreement(wm, wm, m)
+        # a cap above the wall count changes nothing
+        assert map_agreement(wm, wm, m, max_points=n, scaled=True) == full
+        quarter = map_agreement(wm, wm, m, max_points=n // 4, scaled=True)
+        assert abs(quarter.agree - full.agree) <= 0.05 * full.agree + 4
+        assert abs(quarter.ratio - full.ratio) < 0.05
+    bent = wm.walls + np.where(wm.walls[:, :1] > np.median(wm.walls[:, 0]), 3.0, 0.0)
+    whole = residual_distortion(wm.tree, bent, np.eye(3), block=80.0)
+    assert residual_distortion(wm.tree, bent, np.eye(3), block=80.0, max_points=n) == whole
+    part = residual_distortion(wm.tree, bent, np.eye(3), block=80.0, max_points=n // 4)
+    assert whole > 2.0 and abs(part - whole) < 0.5
+
+
+def test_coarsen_keeps_walls_and_averages_the_rest(intel):
+    part = intel[:155, :203]  # sides that k does not divide: the last blocks are padded
+    for k in (3, 4):
+        c = coarsen(part, k)
+        h, w = part.shape
+        assert c.shape == (-(-h // k), -(-w // k))
+        padded = np.full((c.shape[0] * k, c.shape[1] * k), 0.5, np.float32)
+        padded[:h, :w] = part
+        want = np.empty_like(c)
+        for r, col in np.ndindex(c.shape):
+            block = padded[r * k : (r + 1) * k, col * k : (col + 1) * k]
+            want[r, col] = block.max() if block.max() > 0.65 else block.mean()
+        np.testing.assert_allclose(c, want, atol=1e-6)
+        assert (want > 0.65).sum() > 100

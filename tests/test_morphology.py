@@ -1,4 +1,4 @@
-"""grow equals scipy's binary_dilation; drop_small removes what scikit-image removes."""
+"""grow and grow_max equal scipy's dilations; drop_small removes what scikit-image removes."""
 
 import inspect
 
@@ -10,7 +10,7 @@ from hypothesis.extra.numpy import arrays
 from scipy import ndimage as ndi
 
 from pgvd.io import read_map
-from pgvd.morphology import drop_small, grow
+from pgvd.morphology import drop_small, grow, grow_max
 
 
 @settings(max_examples=60, deadline=None)
@@ -21,6 +21,29 @@ from pgvd.morphology import drop_small, grow
 def test_grow_equals_scipy_square_dilation(mask, cells):
     expected = ndi.binary_dilation(mask, np.ones((3, 3), bool), iterations=cells)
     assert np.array_equal(grow(mask, cells), expected)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    values=arrays(
+        np.float64,
+        st.tuples(st.integers(1, 20), st.integers(1, 20)),
+        elements=st.floats(0.0, 1.0, allow_nan=False),
+    ),
+    cells=st.integers(1, 3),
+)
+def test_grow_max_equals_scipy_grey_dilation_inside_a_zero_border(values, cells):
+    # the edge sub-matrices of pgvd.matching are padded by as many zeros as they grow
+    padded = np.pad(values, cells)
+    expected = ndi.grey_dilation(padded, size=2 * cells + 1)
+    assert np.array_equal(grow_max(padded, cells), expected)
+
+
+def test_grow_max_refuses_bad_input():
+    with pytest.raises(ValueError, match="cells"):
+        grow_max(np.zeros((3, 3)), -1)
+    with pytest.raises(ValueError, match="2-D"):
+        grow_max(np.zeros(3))
 
 
 def test_grow_zero_is_a_copy_and_bad_input_is_refused():

@@ -8,9 +8,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from pgvd.grid import matrix_to_pose, rigid_matrix
-from pgvd.posegraph import PoseGraphParams, Solution, compose_transforms, solve
+from pgvd.posegraph import (
+    PoseGraphParams,
+    Solution,
+    components,
+    compose_transforms,
+    solve,
+    triangle_groups,
+)
 
 #: A link's own (overconfident) covariance, as the merge reports them: ~0.1 px, 0.01 deg.
 COV = np.diag([0.01, 0.01, 3e-8])
@@ -214,3 +223,38 @@ def test_placement_covariance_matches_monte_carlo_on_a_cycle() -> None:
 def test_bad_links_are_refused(edge: Edge, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         solve(["r0", "r1"], [edge])
+
+
+def test_triangle_groups_need_three_link_cycles() -> None:
+    """A triangle r0-r1-r2 with a bridge r2-r3 to a square r3-r4-r5-r6 and a lone r7: only
+    the triangle is a group; a chord r3-r5 makes the square two triangles."""
+    edges = [("r0", "r1"), ("r1", "r2"), ("r0", "r2"), ("r2", "r3")]
+    edges += [("r3", "r4"), ("r4", "r5"), ("r5", "r6"), ("r3", "r6")]
+    nodes = [f"r{i}" for i in range(8)]
+    alone = [("r3",), ("r4",), ("r5",), ("r6",), ("r7",)]
+    assert triangle_groups(nodes, edges) == [("r0", "r1", "r2"), *alone]
+    assert triangle_groups(nodes, [*edges, ("r3", "r5")]) == [
+        ("r0", "r1", "r2"), ("r3", "r4", "r5", "r6"), ("r7",),
+    ]  # fmt: skip
+
+
+@given(st.integers(1, 9), st.data())
+def test_triangle_groups_hold_triangles_and_no_bridge(n: int, data: st.DataObject) -> None:
+    """Every triangle of the edges lies in one group, and every group within one component of
+    the edges that are not bridges (an edge whose ends fall apart without it)."""
+    nodes = [f"r{i}" for i in range(n)]
+    pairs = [(a, b) for i, a in enumerate(nodes) for b in nodes[i + 1 :]]
+    edges = data.draw(st.lists(st.sampled_from(pairs))) if pairs else []
+    groups = triangle_groups(nodes, edges)
+    assert sorted(r for g in groups for r in g) == nodes
+    held = set(edges)
+    for a, b, c in itertools.combinations(nodes, 3):
+        if {(a, b), (a, c), (b, c)} <= held:
+            assert any({a, b, c} <= set(g) for g in groups)
+    kept = [
+        (a, b)
+        for i, (a, b) in enumerate(edges)
+        if any(a in c and b in c for c in components(nodes, edges[:i] + edges[i + 1 :]))
+    ]
+    blocks = components(nodes, kept)
+    assert all(any(set(g) <= set(blk) for blk in blocks) for g in groups)

@@ -59,6 +59,8 @@ def test_near_prediction_accepted_and_refined(pair, metres, degrees):
         res = verify(a, b, guess, PARAMS)
         assert res.accepted, res.reason
         assert res.score >= PARAMS.min_agreement
+        # the merge's own test: the pose stands out from itself shifted (pgvd.decision)
+        assert res.margin >= PARAMS.min_margin, res.margin
         assert _error_px(res.matrix, truth, b) < 2.0
         assert np.isfinite(res.covariance).all() and np.all(np.linalg.eigvalsh(res.covariance) > 0)
         assert {"refine", "verify", "covariance", "total"} <= set(res.timings_ms)
