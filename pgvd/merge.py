@@ -140,7 +140,9 @@ class MergeParams:
         (:func:`pgvd.matching.local_agreement`): walls that a drifted map puts this far
         beside the other map's are not counted as walls on free space.  0.5 m: the
         development drifted pairs keep 2-8 px (0.1-0.4 m) of residual distortion at
-        their true pose.  0 scores the rigid overlay (ablation: without drift tolerance).
+        their true pose.  0 scores the rigid overlay (ablation: without drift tolerance;
+        on the wide bench it accepts as many right poses, faster, but it accepts the
+        two disjoint halves of fr079_albertB's map312, tests/test_merge.py).
     disagreement_weight : hypotheses are ranked by ``agree - weight * disagree``: a wall on
         clear free space is strong evidence against, a wall on a wall weak evidence for
         (walls are everywhere in a building), so a large overlap with some conflicts
