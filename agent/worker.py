@@ -79,8 +79,14 @@ CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
 RESOLVE_AFTER = 2.0
 #: Largest share of the wall time an agent spends on previews (unsettled global maps).
 PREVIEW_SHARE = 0.1
+#: The share while every pair still needed is a check: the settled map is that close.
+CHECKS_PREVIEW_SHARE = PREVIEW_SHARE / 4
 #: What a rejection records: its transform means nothing; finite for the wire.
 _REJECTED = (np.eye(3), np.zeros((3, 3)))
+
+
+class _Unproven:
+    """A check's rejection that may not stand without a search (:meth:`FusionWorker._checked`)."""
 
 
 def _merge_params(min_agreement: float | None) -> MergeParams:
@@ -312,6 +318,9 @@ class FusionWorker:
         self._now = 0.0
         #: When each needed key's turn came (:func:`agent.links.open_keys`).
         self._opened_at: dict[LinkKey, float] = {}
+        #: Due keys whose check rejected the pair where a rejection needs a search; they wait
+        #: for the other checks of the round (:meth:`_register`).
+        self._deferred: set[LinkKey] = set()
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
@@ -370,6 +379,7 @@ class FusionWorker:
         # wave opened, not from when it was first needed: else every agent of a late wave
         # would be past its timeout at once and search it too.
         self._opened_at = {k: self._opened_at.get(k, now) for k in opened}
+        self._deferred &= set(opened)
         due = due_keys(
             self.me,
             opened,
@@ -381,9 +391,11 @@ class FusionWorker:
         )
         if due:
             # Checks first: they take tens of milliseconds, and each link they add may
-            # turn a pair waiting for a full search into one more check.
-            due.sort(key=lambda k: k not in checkable)
-            self._register(snap, due[0])
+            # turn a pair waiting for a full search into one more check.  Deferred checks
+            # last among them: the links the others add may let their rejection stand.
+            due.sort(key=lambda k: (k not in checkable, k in self._deferred))
+            others = any(k in checkable and k not in self._deferred for k in due[1:])
+            self._register(snap, due[0], may_defer=others)
             return True
         signature = (
             tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
@@ -393,10 +405,11 @@ class FusionWorker:
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
         # would take CPU from the registrations the settled map waits for.
+        checks_only = bool(snap.needed) and all(k in checkable for k in snap.needed)
         if (
             snap.maps
             and signature != self._built
-            and (snap.settled or now - self._rebuilt_at >= self.preview_gap())
+            and (snap.settled or now - self._rebuilt_at >= self.preview_gap(checks_only))
         ):
             self._built = signature  # a failing rebuild is not retried until inputs change
             self._rebuilt_at = now
@@ -405,9 +418,14 @@ class FusionWorker:
                 self._rebuild(snap)
             finally:
                 self._rebuild_seconds = time.monotonic() - t0
+                log.info(
+                    "rebuilt %d maps, %d links (%s): %.2f s",
+                    len(snap.maps), len(snap.links), "settled" if snap.settled else "preview",
+                    self._rebuild_seconds,
+                )  # fmt: skip
         return False
 
-    def preview_gap(self) -> float:
+    def preview_gap(self, checks_only: bool = False) -> float:
         """Seconds between two previews: ``preview_interval``, or more if rebuilds are slow.
 
         A preview may take at most :data:`PREVIEW_SHARE` of the wall time.  A rebuild fuses
@@ -415,8 +433,16 @@ class FusionWorker:
         agent previewing every 3 s, the previews alone asked for more than the 2 cores: the
         registrations the settled map waits for starved.  Wall time grows with the load, so
         on a crowded machine previews thin out by themselves.
+
+        ``checks_only``: every pair still needed is a check (tens of milliseconds each), so
+        the settled map is seconds away; a preview may take :data:`CHECKS_PREVIEW_SHARE`.
+        At 16 robots the previews rebuilt in the last round of checks (~0.35 s of CPU each,
+        seconds of wall time on a loaded machine) delayed the checks the settled map waited
+        for.  Not none at all: a fleet whose robots open new epochs faster than a round of
+        checks settles still sees its map move.
         """
-        return max(self.preview_interval, self._rebuild_seconds / PREVIEW_SHARE)
+        share = CHECKS_PREVIEW_SHARE if checks_only else PREVIEW_SHARE
+        return max(self.preview_interval, self._rebuild_seconds / share)
 
     def effective_timeout(self, n_robots: int) -> float:
         """``link_timeout`` plus the time a peer needs for its share of a round of pairs.
@@ -429,7 +455,14 @@ class FusionWorker:
         mean = self.merge_seconds / self.merges if self.merges else 0.0
         return self.link_timeout + mean * max(n_robots - 1, 0) / 2.0
 
-    def _register(self, snap: Snapshot, key: LinkKey) -> None:
+    def _register(self, snap: Snapshot, key: LinkKey, may_defer: bool = False) -> None:
+        """Decide ``key``: at the known poses' prior, by the check, or by a full search.
+
+        With ``may_defer``, a check's rejection that may not stand yet (:meth:`_checked`)
+        puts the key back once, after the other checks due: the links those add may put
+        the pair on triangles, and the rejection then stands without a search (a search
+        takes seconds at 16 robots, a check tens of milliseconds).
+        """
         a, _, b, _ = key  # epochs; the link records the versions it was computed on
         va, vb = snap.maps[a][0], snap.maps[b][0]
         t0 = time.monotonic()
@@ -437,7 +470,13 @@ class FusionWorker:
         try:
             res = self._at_prior(snap, a, b)
             if res is None:
-                how, res = "checked", self._checked(snap, a, b)
+                how, res = "checked", self._checked(snap, a, b, fresh=key in self._deferred)
+            if isinstance(res, _Unproven):
+                if may_defer and key not in self._deferred:
+                    self._deferred.add(key)
+                    self.counters.add("checks_deferred")
+                    return
+                res = None
             if res is None:
                 how = "searched"
                 self.counters.add("searches")
@@ -519,11 +558,18 @@ class FusionWorker:
         self.counters.add("prior_confirmed")
         return res
 
-    def _checked(self, snap: Snapshot, a: str, b: str) -> Registration | None:
-        """The check of the links' prediction for ``(a, b)``, or None: search instead."""
+    def _checked(
+        self, snap: Snapshot, a: str, b: str, fresh: bool = False
+    ) -> Registration | _Unproven | None:
+        """The check of the links' prediction for ``(a, b)``, or None: search instead.
+
+        :class:`_Unproven`: the check rejected the pair, but that rejection may not stand
+        without a search over these links (yet).  ``fresh``: predict from all the accepted
+        links held, not from a recent solution (a deferred check waited for new links).
+        """
         if self.check is None:
             return None
-        solved = self._solved_for(snap, a, b)
+        solved = self._solved_for(snap, a, b, fresh)
         predicted = None if solved is None else predict(solved[0], a, b)
         if solved is None or predicted is None:
             return None
@@ -539,8 +585,12 @@ class FusionWorker:
             # over links on triangles: were it wrong (a false link on a bridge, or on a
             # long cycle alone, where its error spreads thin), skipping the search would
             # lose the true link that closes a short cycle around the false one and lets
-            # the pose graph reject it.
-            res = None
+            # the pose graph reject it.  A recent solution may lack links that arrived
+            # meanwhile and put the pair on triangles: those are worth a second check
+            # (~0.1 s with the solve) before a search (seconds).
+            if not fresh and self._solution[0] is not self._chains_of(snap):
+                return self._checked(snap, a, b, fresh=True)
+            return _Unproven()
         if res is not None:
             self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
         return res
@@ -561,7 +611,7 @@ class FusionWorker:
         return held[1]
 
     def _solved_for(
-        self, snap: Snapshot, a: str, b: str
+        self, snap: Snapshot, a: str, b: str, fresh: bool = False
     ) -> tuple[Solution, list[tuple[str, ...]]] | None:
         """Placements that join ``a`` and ``b`` and their triangle groups
         (:meth:`Chains.solved`); None at once when no accepted link joins them.
@@ -570,13 +620,14 @@ class FusionWorker:
         the pose graph anew for each (~0.1 s at 16 robots) cost as much as the checks.  The
         last solution serves for :data:`RESOLVE_AFTER` seconds while it joins the pair: a
         prediction is only where a check starts, and a link that arrived meanwhile enters
-        the next solution.
+        the next solution.  ``fresh`` solves the links held now.
         """
         chains = self._chains_of(snap)
         if not chains.linked(a, b):
             return None
         used, at = self._solution
-        if used is not None and used is not chains and self._now - at < RESOLVE_AFTER:
+        recent = self._now - at < RESOLVE_AFTER
+        if used is not None and used is not chains and recent and not fresh:
             held = used.solved()
             if predict(held[0], a, b) is not None:
                 return held

@@ -12,6 +12,7 @@ import pytest
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import (
+    CHECKS_PREVIEW_SHARE,
     PREVIEW_SHARE,
     RESOLVE_AFTER,
     FusionWorker,
@@ -348,6 +349,8 @@ def test_a_disjoint_verdict_over_a_chain_on_triangles_rejects_without_search() -
     links = [("r1", "r2"), ("r2", "r3"), ("r1", "r3"), ("r3", "r4"), ("r1", "r4"), ("r4", "r5")]
     for a, b in links:
         h.book.add_link(_link(a, b, np.eye(3)))
+    for a in ("r1", "r3"):  # decided: r2-r5 has no other check to wait for
+        h.book.add_link(LinkRecord(a, V(1), "r5", V(1), False, *_NOTHING, 0.0, "r9"))
     h.worker.link_timeout = 0.0
     # r2's own pairs go first: r2-r4, then r2-r5 (once past any timeout)
     assert h.worker.step(now=0.0) and h.worker.step(now=100.0)
@@ -355,6 +358,41 @@ def test_a_disjoint_verdict_over_a_chain_on_triangles_rejects_without_search() -
         (("r2", "r4"), False), (("r2", "r5"), True),
     ]  # fmt: skip
     assert len(h.calls) == 1  # r2-r5 searched (the harness's search accepts), r2-r4 not
+
+
+_NOTHING = (np.eye(3), np.zeros((3, 3)))
+
+
+def test_a_rejection_that_needs_a_search_waits_for_the_rounds_other_checks() -> None:
+    """Links as above, r2's check rejects r2-r5 (over the bridge r4-r5: a search would
+    decide) and confirms r1-r5.  r2-r5 waits; r1-r5 puts r4-r5 on the triangle r1-r4-r5,
+    and r2-r5 checked again is rejected with no search at all."""
+    h = Checking("r2", None)
+    grids = {f"r{i}": tiny(i) for i in range(1, 6)}
+    for r, g in grids.items():
+        h.book.put_map(r, V(1), g)
+    links = [("r1", "r2"), ("r2", "r3"), ("r1", "r3"), ("r3", "r4"), ("r1", "r4"), ("r4", "r5")]
+    for a, b in links:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    for a in ("r3",):  # decided; r2-r4 is on triangles, its rejection stands
+        h.book.add_link(LinkRecord(a, V(1), "r5", V(1), False, *_NOTHING, 0.0, "r9"))
+    h.book.add_link(LinkRecord("r2", V(1), "r4", V(1), False, *_NOTHING, 0.0, "r9"))
+
+    def check(a: Grid, b: Grid, predicted: np.ndarray) -> Registration:
+        h.checked.append(predicted)
+        return Registration(a is grids["r1"], np.eye(3), np.eye(3) * 0.1, 0.95)
+
+    h.worker.check = check
+    h.worker.link_timeout = 0.0
+    now = 0.0
+    while h.worker.step(now=now):
+        now += 100.0  # past any wait for the pair's other robot
+    assert sorted((ln.pair, ln.accepted) for ln in h.links) == [
+        (("r1", "r5"), True), (("r2", "r5"), False),
+    ]  # fmt: skip
+    assert h.calls == []  # no search
+    counts = h.worker.counters.snapshot()["counts"]
+    assert counts["checks_deferred"] == 1 and counts["checks"] == 3
 
 
 def test_slow_rebuilds_space_previews_out() -> None:
@@ -373,6 +411,22 @@ def test_slow_rebuilds_space_previews_out() -> None:
     h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
     h.worker.step(now=20.1)
     assert len(h.globals) == 2 and h.globals[-1].settled
+
+
+def test_a_round_of_checks_only_previews_less() -> None:
+    """r1-r3 is the only pair needed and a check (r1-r2-r3 linked): previews wait
+    rebuild / CHECKS_PREVIEW_SHARE, not rebuild / PREVIEW_SHARE."""
+    h = Checking("r2", None)  # r1-r3 is not r2's pair: it only watches
+    _chain(h)
+    h.worker.link_timeout = 1000.0
+    h.worker._rebuild_seconds = 1.0
+    h.worker._rebuilt_at = 0.0
+    assert h.worker.preview_gap(checks_only=True) == 1.0 / CHECKS_PREVIEW_SHARE
+    assert h.worker.preview_gap() == 1.0 / PREVIEW_SHARE < 1.0 / CHECKS_PREVIEW_SHARE
+    assert not h.worker.step(now=1.0 / PREVIEW_SHARE + 1.0)
+    assert h.globals == [] and h.checked == []
+    h.worker.step(now=1.0 / CHECKS_PREVIEW_SHARE + 1.0)
+    assert len(h.globals) == 1 and not h.globals[-1].settled
 
 
 class Superseding(Checking):
@@ -484,6 +538,27 @@ def test_a_recent_solution_keeps_predicting_while_it_joins_the_pair(monkeypatch)
     assert h.worker.step(now=1.0 + RESOLVE_AFTER) and h.links[-1].pair == ("r2", "r4")
     assert solves == [3, 6, 8]  # too old: solved anew
     assert h.calls == [] and len(h.checked) == 4
+
+
+def test_a_rejection_on_a_recent_solution_is_checked_again_on_the_links_held() -> None:
+    """r2-r4 is joined over the bridge r3-r4: its rejection needs a search.  Then r4-r5 and
+    r3-r5 arrive (r3-r4 now on a triangle) while the solution is still recent: the check is
+    made again on the links held, and its rejection stands."""
+    h = Checking("r2", Registration(False, *_NOTHING, 0.0))
+    for i in range(1, 6):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in [("r1", "r2"), ("r2", "r3"), ("r1", "r3"), ("r3", "r4")]:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    h.worker._now = 0.0
+    first = h.worker._checked(h.book.snapshot(), "r2", "r4")
+    assert first is not None and not isinstance(first, Registration)  # unproven
+    assert len(h.checked) == 1  # the solution was the links held: nothing to check again
+    for a, b in [("r4", "r5"), ("r3", "r5")]:
+        h.book.add_link(_link(a, b, np.eye(3)))
+    h.worker._now = 0.5
+    res = h.worker._checked(h.book.snapshot(), "r2", "r4")
+    assert isinstance(res, Registration) and not res.accepted
+    assert len(h.checked) == 3
 
 
 def test_a_disjoint_verdict_over_a_lone_long_cycle_is_searched() -> None:
