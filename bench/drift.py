@@ -34,13 +34,12 @@ robot's calibration removes.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from pgvd.carmen import LaserScan
-from pgvd.integrate import se2
+from pgvd.integrate import rechain_poses, se2
 
 TRANSLATION = 0.03
 HEADING = float(np.radians(0.2))
@@ -57,22 +56,15 @@ class Drift:
 
     def apply(self, scans: list[LaserScan], seed: int) -> list[LaserScan]:
         """The scans with their poses re-chained through noisy steps; the first pose is kept."""
-        if not scans:
-            return []
-        rng = np.random.default_rng(seed)
-        current = se2(*scans[0].pose)
-        out = [scans[0]]
-        for prev, scan in itertools.pairwise(scans):
-            step = np.linalg.inv(se2(*prev.pose)) @ se2(*scan.pose)
-            dist = float(np.hypot(step[0, 2], step[1, 2]))
-            turn = abs(float(np.arctan2(step[1, 0], step[0, 0])))
-            dx, dy = rng.normal(0.0, self.translation * np.sqrt(dist), 2)
-            sigma_h = np.sqrt(self.heading**2 * dist + self.turn**2 * turn)
-            current = current @ step @ se2(dx, dy, rng.normal(0.0, sigma_h))
-            heading = np.arctan2(current[1, 0], current[0, 0])
-            pose = np.array([current[0, 2], current[1, 2], heading])
-            out.append(dataclasses.replace(scan, pose=pose))
-        return out
+        return rechain_poses(scans, self.step_noise, seed)
+
+    def step_noise(
+        self, dist: float, turn: float, rng: np.random.Generator
+    ) -> tuple[float, float, float]:
+        """``(dx, dy, dtheta)`` of one step of ``dist`` metres and ``turn`` radians."""
+        dx, dy = rng.normal(0.0, self.translation * np.sqrt(dist), 2)
+        sigma_h = np.sqrt(self.heading**2 * dist + self.turn**2 * turn)
+        return dx, dy, rng.normal(0.0, sigma_h)
 
     def json(self) -> dict:
         return dataclasses.asdict(self)

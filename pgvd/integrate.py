@@ -16,6 +16,7 @@ same scan, and the log-odds are clamped after every scan.  That makes
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -238,19 +239,17 @@ def integrate_scan(
     return slice(int(r.min()), int(r.max()) + 1), slice(int(c.min()), int(c.max()) + 1)
 
 
-def perturb_odometry(
-    scans: list[LaserScan], odom_noise: tuple[float, float], seed: int = 0
-) -> list[LaserScan]:
-    """Re-chain the poses with extra odometry noise, as a robot without loop closure sees them.
+StepNoise = Callable[[float, float, np.random.Generator], tuple[float, float, float]]
+"""``(metres moved, radians turned, rng) -> (dx, dy, dtheta)``: the error of one odometry step."""
 
-    Each step between consecutive poses (in the robot frame) gets zero-mean
-    Gaussian noise: translation sigma ``odom_noise[0]`` metres per metre moved,
-    heading sigma ``odom_noise[1]`` radians per radian turned plus per metre
-    moved.  The first pose is kept, so the drift grows along the segment.
+
+def rechain_poses(scans: list[LaserScan], step_noise: StepNoise, seed: int) -> list[LaserScan]:
+    """The scans with their poses re-chained through noisy odometry steps.
+
+    Each step between consecutive poses (in the robot frame) is composed with
+    the error ``step_noise`` draws for it, so the drift grows along the
+    segment as on a robot without loop closure; the first pose is kept.
     """
-    sigma_t, sigma_r = odom_noise
-    if sigma_t < 0 or sigma_r < 0:
-        raise ValueError(f"odometry noise must be >= 0, got {odom_noise}")
     if not scans:
         return []
     rng = np.random.default_rng(seed)
@@ -260,12 +259,29 @@ def perturb_odometry(
         step = np.linalg.inv(se2(*prev.pose)) @ se2(*scan.pose)
         dist = float(np.hypot(step[0, 2], step[1, 2]))
         turn = abs(se2_pose(step)[2])
-        dx, dy = rng.normal(0.0, sigma_t * dist, 2)
-        dtheta = rng.normal(0.0, sigma_r * (turn + dist))
-        current = current @ step @ se2(dx, dy, dtheta)
-        pose = np.array(se2_pose(current))
-        out.append(replace(scan, pose=pose))
+        current = current @ step @ se2(*step_noise(dist, turn, rng))
+        out.append(replace(scan, pose=np.array(se2_pose(current))))
     return out
+
+
+def perturb_odometry(
+    scans: list[LaserScan], odom_noise: tuple[float, float], seed: int = 0
+) -> list[LaserScan]:
+    """Re-chain the poses with extra odometry noise, as a robot without loop closure sees them.
+
+    Each step gets zero-mean Gaussian noise (:func:`rechain_poses`):
+    translation sigma ``odom_noise[0]`` metres per metre moved, heading sigma
+    ``odom_noise[1]`` radians per radian turned plus per metre moved.
+    """
+    sigma_t, sigma_r = odom_noise
+    if sigma_t < 0 or sigma_r < 0:
+        raise ValueError(f"odometry noise must be >= 0, got {odom_noise}")
+
+    def noise(dist: float, turn: float, rng: np.random.Generator) -> tuple[float, float, float]:
+        dx, dy = rng.normal(0.0, sigma_t * dist, 2)
+        return dx, dy, rng.normal(0.0, sigma_r * (turn + dist))
+
+    return rechain_poses(scans, noise, seed)
 
 
 def integrate(
