@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 
 from pgvd.carmen import LaserScan
 from pgvd.integrate import rechain_poses, se2
+from pgvd.sampling import subsample
 
 TRANSLATION = 0.03
 HEADING = float(np.radians(0.2))
@@ -150,13 +151,12 @@ def overlap_fit(
     to the identity with ``n = 0`` when the robots share no wall.
     """
     pts, _ = _endpoints(true_b, max_range)
-    pts = pts[:: -(-len(pts) // (4 * max_points))]
+    pts = subsample(pts, 4 * max_points)
     in_a, seen = _placed(true_a, drifted_a, pts, max_range)
     pts, in_a = pts[seen], in_a[seen]
     if len(pts) < 3:
         return np.eye(3), float("nan"), 0
-    step = -(-len(pts) // max_points)
-    pts, in_a = pts[::step], in_a[::step]
+    pts, in_a = subsample(pts, max_points), subsample(in_a, max_points)
     in_b, _ = _placed(true_b, drifted_b, pts, max_range)
     fit = rigid_fit(in_b, in_a)
     resid = in_a - (in_b @ fit[:2, :2].T + fit[:2, 2])

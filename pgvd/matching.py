@@ -791,14 +791,14 @@ def refine_point_to_line(
     numpy.ndarray
         The refined 3x3 rigid matrix, B pixel -> A pixel.
     """
-    pts = walls_b[:: -(-len(walls_b) // max_points)]
+    pts = subsample(walls_b, max_points)
     m = matrix.copy()
     for _ in range(iterations):
         fit = _point_to_line(walls_a, pts, m, radius)
         if len(fit.res) < 10:
             break
         jac, res = fit.jac, fit.res
-        psi = np.arctan2(m[0, 1], m[0, 0])
+        psi = heading(m)
         w = 1.0 / (1.0 + (res / scale) ** 2)
         # a tiny ridge keeps a corridor's free direction from blowing the step up
         step = np.linalg.solve((jac * w[:, None]).T @ jac + 1e-6 * np.eye(3), -(jac.T @ (w * res)))
