@@ -102,7 +102,7 @@ def test_clients_of_two_linked_routers_exchange_puts_and_liveliness() -> None:
         args = ["--count", str(count), "--config", json.dumps(client)]
         sub = lab.popen(1, [sys.executable, "tests/zprobe.py", "sub", *args], name="sub")
         assert read_line(sub).strip() == "READY", lab.stderr_of("sub")
-        args += ["--interval", "0.002"]
+        args += ["--interval", "0.002", "--settle", "1.0"]
         pub = lab.popen(0, [sys.executable, "tests/zprobe.py", "pub", *args], name="pub")
         result = json.loads(sub.communicate(timeout=60)[0].splitlines()[-1])
         assert json.loads(pub.communicate(timeout=30)[0].splitlines()[-1])["matched"]
