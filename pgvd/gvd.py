@@ -110,10 +110,12 @@ def contact_points(
     # One obstacle touches the inscribed circle in several adjacent cells: keep
     # one contact per obstacle patch (the first in neighbourhood order).
     merge = np.maximum(2.1, 0.9 * d[:, 0])
+    # close[:, j, i]: contacts j and i of a cell are one patch; contact j is dropped when
+    # an earlier contact i, itself kept, is close (sequential in j, all i < j at once)
+    close = np.hypot(cr[:, :, None] - cr[:, None, :], cc[:, :, None] - cc[:, None, :])
+    close = close < merge[:, None, None]
     for j in range(1, 9):
-        for i in range(j):
-            close = np.hypot(cr[:, j] - cr[:, i], cc[:, j] - cc[:, i]) < merge
-            valid[:, j] &= ~(valid[:, i] & close)
+        valid[:, j] &= ~np.any(valid[:, :j] & close[:, j, :j], axis=1)
     return cr, cc, valid
 
 

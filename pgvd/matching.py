@@ -155,8 +155,10 @@ class EdgeCorrelator:
                     corr = sfft.irfft2(fa_all[start : start + chunk, None] * fb[None], s=size)
                     flat = corr.reshape(corr.shape[0], len(ib), -1)
                     rows = slice(a0 + start, a0 + start + corr.shape[0])
-                    peak[rows, cols] = flat.max(axis=2)
-                    du, dv = np.divmod(flat.argmax(axis=2), size[1])
+                    # the value at the first maximum is the maximum: one pass, not two
+                    at = flat.argmax(axis=2)
+                    peak[rows, cols] = np.take_along_axis(flat, at[..., None], axis=2)[..., 0]
+                    du, dv = np.divmod(at, size[1])
                     u[rows, cols] = np.where(du < ka[0], du, du - size[0])
                     v[rows, cols] = np.where(dv < ka[1], dv, dv - size[1])
                 a0 += len(ia)
@@ -473,8 +475,11 @@ class WallMap:
     """A full-resolution map for overlay checks: its probabilities and a k-d tree of its walls."""
 
     def __init__(self, prob: np.ndarray, occupied: float, free: float) -> None:
-        self.free = np.asarray(prob) < free
-        r, c = np.nonzero(np.asarray(prob) > occupied)
+        prob = np.asarray(prob)
+        self.free = prob < free
+        # flat indices split by divmod: the same cells in the same (row-major) order as
+        # np.nonzero, which is ~8x slower on a full-resolution map
+        r, c = np.divmod(np.flatnonzero(prob > occupied), prob.shape[1])
         self.walls = np.column_stack([c, r]).astype(float)
         self.tree = WallTree(self.walls)
 

@@ -302,8 +302,11 @@ def coarsen(p: np.ndarray, k: int, occupied: float = OCCUPIED) -> np.ndarray:
         return np.asarray(p, dtype=np.float32)
     h, w = p.shape
     hp, wp = -(-h // k) * k, -(-w // k) * k
-    padded = np.full((hp, wp), 0.5, dtype=np.float32)
-    padded[:h, :w] = p
+    if (hp, wp) == (h, w):  # whole blocks: no padded copy of the map
+        padded = np.asarray(p, dtype=np.float32)
+    else:
+        padded = np.full((hp, wp), 0.5, dtype=np.float32)
+        padded[:h, :w] = p
     # each block's k*k cells made contiguous: one copy, then both reductions run
     # over a contiguous last axis instead of k-long strided pieces (3x faster)
     blocks = padded.reshape(hp // k, k, wp // k, k).transpose(0, 2, 1, 3)
