@@ -78,7 +78,7 @@ CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
 #: arrived (:meth:`FusionWorker._solved_for`).
 RESOLVE_AFTER = 2.0
 #: Largest share of the wall time an agent spends on previews (unsettled global maps).
-PREVIEW_SHARE = 0.1
+PREVIEW_SHARE = 0.05
 #: The share while a round of registrations only re-places the maps of the last rebuild (no
 #: map changed since), or every pair still needed is a check: the settled map is that close.
 CHECKS_PREVIEW_SHARE = PREVIEW_SHARE / 4
@@ -426,7 +426,12 @@ class FusionWorker:
         every map (33)-(37); at 16 robots on 2 cores it took ~0.6 s of CPU and, with every
         agent previewing every 3 s, the previews alone asked for more than the 2 cores: the
         registrations the settled map waits for starved.  Wall time grows with the load, so
-        on a crowded machine previews thin out by themselves.
+        on a crowded machine previews thin out by themselves: with N agents on one host a
+        preview's wall time is about N / cores times its CPU time, and the previews of the
+        whole fleet take about ``cores * PREVIEW_SHARE`` of the host whatever N.  At 0.1,
+        the round after the robots' last maps at 16 robots rebuilt 28 previews beside the
+        16 settled maps, ~16 % of that round's CPU.  An agent alone on its computer
+        (~0.2 s a rebuild at 16 robots) still previews every few seconds.
 
         ``checks_only``: every pair still needed is a check (tens of milliseconds each), so
         the settled map is seconds away; a preview may take :data:`CHECKS_PREVIEW_SHARE`.
@@ -438,9 +443,9 @@ class FusionWorker:
         ``maps_moved``: some robot's map is not the one the last rebuild fused.  When only
         links changed, a preview shows the same maps re-placed by the links of a round in
         progress, which the settled map replaces once the round ends; it waits as long as
-        in a round of checks.  At 16 robots a round after the robots' last maps took ~1.5
-        previews per agent (~0.2 s of CPU each, 12 % of the round's CPU), most of them
-        built after every final map had been fused once.
+        in a round of checks.  Measured at 16 robots, it spared few previews (28 -> 23-26
+        in the round after the last maps): the final versions reach the peers over seconds,
+        so most previews of that round still had a new map to show.
         """
         share = PREVIEW_SHARE if maps_moved and not checks_only else CHECKS_PREVIEW_SHARE
         return max(self.preview_interval, self._rebuild_seconds / share)

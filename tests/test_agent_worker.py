@@ -404,12 +404,13 @@ def test_slow_rebuilds_space_previews_out() -> None:
     assert h.worker.preview_gap() == 2.0 / PREVIEW_SHARE > h.worker.preview_interval
     h.worker._rebuilt_at = 0.0
     h.book.put_map("r2", V(2), tiny(3))
-    h.worker.step(now=h.worker.preview_gap() - 0.1)
+    gap = h.worker.preview_gap()
+    h.worker.step(now=gap - 0.1)
     assert h.globals == []
-    h.worker.step(now=20.0)
+    h.worker.step(now=gap)
     assert len(h.globals) == 1 and not h.globals[-1].settled
     h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
-    h.worker.step(now=20.1)
+    h.worker.step(now=gap + 0.1)
     assert len(h.globals) == 2 and h.globals[-1].settled
 
 
