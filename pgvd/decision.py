@@ -21,6 +21,9 @@ overlap::
 
     margin = (E_win - E_rival) / (agree_win + disagree_win)
 
+measured on the pose that is returned: the winner after its last refinement
+on all its wall cells, scored again (:func:`restate`).
+
 It scales with the evidence of the pair itself, not with fixed floors: a
 rival that scores as well as the winner drives it to 0 whatever the size of
 the overlap (a look-alike corridor), while a small overlap whose every other
@@ -184,8 +187,38 @@ def decide(
         for s in [*ranked[1:], *(probes or [])]
         if not same_pose(s.matrix, win.matrix, centre, deg, px)
     ]
-    rival = max(rivals, default=-np.inf)
+    rival = float(max(rivals, default=-np.inf))
+    return Decision(win, rival, _margin(win, rival, weight))
+
+
+def _margin(win: Scored, rival: float, weight: float) -> float:
+    """``(E_win - E_rival) / (agree_win + disagree_win)``; ``E_rival`` 0 without a rival."""
     points = win.agreement.agree + win.agreement.disagree
     against = rival if np.isfinite(rival) else 0.0
-    margin = (win.evidence(weight) - against) / points if points else 0.0
-    return Decision(win, float(rival), float(margin))
+    return float((win.evidence(weight) - against) / points) if points else 0.0
+
+
+def restate(decision: Decision, final: Scored, weight: float) -> Decision:
+    """The decision measured on the pose that is returned: the winner after its last refinement.
+
+    The finalists are compared after a quick refinement on a subsample; the
+    winner is then refined on all its wall cells, which can move it by a
+    cell or two and by tenths of a degree (most on a drifted map, which has no
+    single rigid fit).  The margin that accepts the merge is that of the pose
+    the merge returns, against the same best rival.
+
+    Parameters
+    ----------
+    decision : Decision
+        The decision among the finalists (:func:`decide`).
+    final : Scored
+        The winner after its last refinement, scored as the finalists were.
+    weight : float
+        The disagreement weight ``w`` of the evidence.
+
+    Returns
+    -------
+    Decision
+        ``final`` as the winner, the same rival, and its margin.
+    """
+    return Decision(final, decision.rival, _margin(final, decision.rival, weight))

@@ -35,10 +35,11 @@ Stages (``timings_ms`` keys):
     walls on clear free space, both ways).  The finalists are refined and
     scored again at full resolution (each 5 m square of the overlap re-aligned by
     up to ``drift_shift`` first, so that a drifted map's walls running beside
-    the other's are not counted as conflict), and the winner is accepted only if it
-    stands out from its rivals on the same pair (:mod:`pgvd.decision`):
-    ``margin >= min_margin``.  The residual distortion of the overlap
-    (:func:`pgvd.matching.residual_distortion`) is reported beside the pose.
+    the other's are not counted as conflict), and the winner, once refined (see
+    ``refine``) and scored again, is accepted only if it stands out from its rivals on
+    the same pair (:mod:`pgvd.decision`): ``margin >= min_margin``.  The residual
+    distortion of the overlap (:func:`pgvd.matching.residual_distortion`) is reported
+    beside the pose.
 ``refine``
     trimmed ICP of the wall cells at full resolution, then a robust (Cauchy)
     point-to-line alignment that does not stop short along corridors.
@@ -56,7 +57,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pgvd.decision import Decision, Scored, decide, shifted
+from pgvd.decision import Decision, Scored, decide, restate, shifted
 from pgvd.graph import EdgeGraph, build_graph
 from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
@@ -119,12 +120,13 @@ class MergeParams:
         most 15-35 % overlaps never reached the decision (intel low-overlap pairs: 2 of
         10 found with two, 4 of 10 with one; no false accept more on the development
         negatives); the margin of :mod:`pgvd.decision` now rejects look-alikes.
-    min_margin : the winner's overlay evidence beyond its best rival's, per overlapping wall
-        cell (:mod:`pgvd.decision`), at least this.  Set on the development negatives of the
-        merge bench (``python -m bench.merge``, ``bench/results/acceptance.md``): the
-        largest margin of a winner on a negative pair there was 0.68 (uos_avz, a
-        building alike under a mirror and across its halves), of a wrong pose on an
-        overlapping pair 0.75 (a drifted pair 2.4 degrees off).
+    min_margin : the margin of the returned pose (the winner after its last refinement)
+        over its best rival, per overlapping wall cell (:mod:`pgvd.decision`), at least
+        this.  Set on the development negatives of the merge bench (``python -m
+        bench.merge``, ``bench/results/acceptance.md``): the largest margin of a winner on
+        a negative pair there was 0.70 (uos_avz, a building alike under a mirror), of a
+        wrong pose on an overlapping pair 0.64 (a drifted pair 2.4 degrees off); 0.74
+        keeps a gap above both (0.71 accepts one drifted pair more, at 0.713).
     min_agreement : optional floor on agreement / (agreement + disagreement) of the final
         overlay (0: the margin decides alone; ``pgvd agent --min-agreement`` sets it).
     min_overlap : minimum length (m) of agreeing walls; small, so that a short but crisp
@@ -178,7 +180,7 @@ class MergeParams:
     max_hypotheses: int = 40
     search_radius: float = 2.4
     min_pairs: int = 1
-    min_margin: float = 0.76
+    min_margin: float = 0.74
     min_agreement: float = 0.0
     min_overlap: float = 3.0
     rival_distance: float = 1.0
@@ -635,6 +637,49 @@ def weigh(
     return decide(scored, params.disagreement_weight, centre, px=rival_px, probes=probes)
 
 
+def decide_finalists(
+    refined: list[np.ndarray], fine_a: WallMap, fine_b: WallMap, params: MergeParams, res: float
+) -> tuple[int, Decision, np.ndarray]:
+    """The decision among finalists already refined on a subsample, and the winner refined.
+
+    Each pose is scored by :func:`score_hypothesis` (each square of the overlap
+    re-aligned by up to ``params.drift_shift`` first: a drifted map has no
+    single rigid fit) and the best is weighed against its rivals
+    (:func:`weigh`).  The winner is then refined on all its wall cells,
+    point-to-point and then point-to-line with a robust loss
+    (:func:`pgvd.matching.refine_point_to_line`), and scored again: the margin
+    is that of the pose returned (:func:`pgvd.decision.restate`).
+
+    Parameters
+    ----------
+    refined : list of numpy.ndarray
+        The finalists' 3x3 B->A pixel matrices (at least one).
+    fine_a, fine_b : WallMap
+        The two maps at full resolution.
+    params : MergeParams
+        The merge's parameters.
+    res : float
+        Cell size (m).
+
+    Returns
+    -------
+    tuple of (int, Decision, numpy.ndarray)
+        The index of the winner in ``refined``, the decision of the refined winner
+        and its B->A pixel matrix.
+    """
+    scored = [score_hypothesis(m, fine_a, fine_b, params, res) for m in refined]
+    decision = weigh(scored, fine_a, fine_b, params, res)
+    index = next(i for i, s in enumerate(scored) if s is decision.winner)
+    sub_fine = subsample(fine_b.walls, params.fine_points)
+    matrix = refine_point_to_line(
+        fine_a.tree,
+        fine_b.walls,
+        refine(fine_a.tree, sub_fine, decision.winner.matrix, radii=(3.0, 2.0)),
+    )
+    final = score_hypothesis(matrix, fine_a, fine_b, params, res)
+    return index, restate(decision, final, params.disagreement_weight), matrix
+
+
 def _decide(
     finalists: list[_Hypothesis],
     fine_a: WallMap,
@@ -647,31 +692,17 @@ def _decide(
     """Refine every finalist at full resolution and weigh the best against its rivals.
 
     ``to_fine`` maps A's coarse crop to A's pixels.  Finalists are refined on
-    a subsample of B's walls and scored on subsamples (quick), each square of
-    the overlap re-aligned by up to ``params.drift_shift`` first
-    (:func:`pgvd.matching.local_agreement`: a drifted map has no single rigid
-    fit); the winner is then refined on all wall cells, point-to-point and then
-    point-to-line with a robust loss (:func:`pgvd.matching.refine_point_to_line`).
-    Finalists within ``params.rival_distance`` (and 2 degrees) of the winner
-    are its own, the others its rivals; ``res`` is the cell size (m).  Returns the winner, the
-    :class:`pgvd.decision.Decision` and the winner's B->A pixel matrix.
+    a subsample of B's walls, then decided by :func:`decide_finalists`;
+    ``res`` is the cell size (m).  Finalists within ``params.rival_distance``
+    (and 2 degrees) of the winner are its own, the others its rivals.  Returns
+    the winner, the :class:`pgvd.decision.Decision` (of the refined winner)
+    and the winner's B->A pixel matrix.
     """
     sub_b = subsample(fine_b.walls, params.refine_points)
     starts = [to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k)) for h in finalists]
     refined = [refine(fine_a.tree, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3) for m in starts]
-    scored = [score_hypothesis(m, fine_a, fine_b, params, res) for m in refined]
-    decision = weigh(scored, fine_a, fine_b, params, res)
-    best = finalists[next(i for i, s in enumerate(scored) if s is decision.winner)]
-    sub_fine = subsample(fine_b.walls, params.fine_points)
-    return (
-        best,
-        decision,
-        refine_point_to_line(
-            fine_a.tree,
-            fine_b.walls,
-            refine(fine_a.tree, sub_fine, decision.winner.matrix, radii=(3.0, 2.0)),
-        ),
-    )
+    index, decision, matrix = decide_finalists(refined, fine_a, fine_b, params, res)
+    return finalists[index], decision, matrix
 
 
 def _edge_mask(graph: EdgeGraph, idx: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pgvd.decision import Scored, decide, same_pose, shifted
+from pgvd.decision import Scored, decide, restate, same_pose, shifted
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.matching import Agreement, WallMap, local_agreement, map_agreement, residual_distortion
@@ -141,3 +141,20 @@ def test_local_agreement_refuses_bad_squares(intel):
     # no shift at all is the rigid count
     rigid = map_agreement(fine_a, fine_b, truth, max_points=1500)
     assert local_agreement(fine_a, fine_b, truth, 100.0, 0.0, max_points=1500) == rigid
+
+
+def test_restate_measures_the_returned_pose_against_the_same_rival(intel):
+    _, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    # the finalists' quick refinement left the winner 4 px and 0.5 degrees off
+    off = _scored(intel, rigid_matrix(np.radians(0.5), 4.0, -4.0) @ truth)
+    rival = _scored(intel, _moved(truth, 200.0))
+    first = decide([off, rival], WEIGHT, centre)
+    assert first.winner is off
+    final = _scored(intel, truth)
+    again = restate(first, final, WEIGHT)
+    assert again.winner is final and again.rival == first.rival
+    points = final.agreement.agree + final.agreement.disagree
+    assert again.margin == pytest.approx((final.evidence(WEIGHT) - first.rival) / points)
+    # the refined pose puts more walls on walls: its margin, not the rough one's, decides
+    assert again.margin > first.margin, (again, first)

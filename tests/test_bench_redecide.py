@@ -1,0 +1,69 @@
+"""bench.redecide: the decision replayed from a merge's finalists is the merge's own."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.capture import Finalists
+from bench.redecide import params_from, replay, summary
+from pgvd.io import read_map
+from pgvd.merge import MergeParams, merge
+
+
+def test_params_from_reads_each_field_as_its_type():
+    p = params_from(["min_margin=0.7", "finalists=5", "rho_veto=false", "drift_shift=0"])
+    assert (p.min_margin, p.finalists, p.rho_veto, p.drift_shift) == (0.7, 5, False, 0.0)
+    assert isinstance(p.finalists, int) and not p.diagnostics
+    for bad in ("min_margin", "no_such_field=1", "finalists=many"):
+        with pytest.raises(ValueError):
+            params_from([bad])
+
+
+def test_replay_gives_the_merges_decision(shared):
+    a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
+    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
+    params = MergeParams(diagnostics=False)
+    finalists = Finalists()
+    with finalists.watching():
+        result = merge(a, b, params)
+    assert result.accepted and len(finalists.matrices) > 1
+    got = replay(a, b, [m.tolist() for m in finalists.matrices], params)
+    assert got["accepted"] and got["margin"] == pytest.approx(result.margin, abs=1e-12)
+    assert np.allclose(got["matrix"], result.matrix, atol=1e-9)
+    # a stricter threshold rejects the same pose
+    strict = params_from([f"min_margin={result.margin + 0.01}"])
+    assert not replay(a, b, finalists.matrices, strict)["accepted"]
+
+
+def test_summary_counts_right_wrong_and_false_accepts():
+    rows = [
+        {
+            "pair": "s0",
+            "set": "standard",
+            "before": True,
+            "right": True,
+            "accepted": True,
+            "margin": 1.0,
+        },
+        {
+            "pair": "s1",
+            "set": "standard",
+            "before": False,
+            "right": False,
+            "accepted": True,
+            "margin": 0.8,
+        },
+        {
+            "pair": "n0",
+            "set": "negative",
+            "before": False,
+            "right": False,
+            "accepted": False,
+            "margin": 0.5,
+        },
+    ]
+    lines = summary(rows)
+    assert lines[0] == "standard: 1/2 right and accepted (run: 1), 1 wrong accepts"
+    assert lines[1] == "negative: 0/1 right and accepted (run: 0), 0 false accepts"
+    assert lines[2] == "largest margin of a wrong or negative winner: 0.800 (s1)"
