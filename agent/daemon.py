@@ -217,7 +217,7 @@ class Agent:
                     mode = zenoh.ConsolidationMode.NONE
                     self.session.get(where, self._on_reply, consolidation=mode, timeout=5.0)
                 case act.PersistMap(robot, stored, point):
-                    self.state.save_map(robot, stored, point)
+                    self.state.save_map(robot, stored, point, durable=robot == self.opts.robot)
                     self._call(self.node.on_persisted, robot, stored.version, _now())
                 case act.PersistLinks(records):
                     self.state.save_links(list(records))

@@ -29,6 +29,10 @@ from pgvd.posegraph import PoseGraphParams, link_problem, solve
 from protocol.quantize import quantise
 
 FuseFn = Callable[[Grid, Grid, np.ndarray, np.ndarray], Grid]
+#: ``{id(record): (record, sound)}``: whether a link record is a rigid transform with a
+#: covariance (:func:`pgvd.posegraph.link_problem`).  The record is held so that its id
+#: cannot be reused while the entry lives.
+Soundness = dict[int, tuple[LinkRecord, bool]]
 
 
 @dataclass(frozen=True)
@@ -77,11 +81,45 @@ def map_digest(grid: Grid) -> str:
     return h.hexdigest()
 
 
+def accepted_links(
+    maps: Mapping[str, tuple[int, Grid]], links: Iterable[LinkRecord]
+) -> list[LinkRecord]:
+    """The accepted links between robots of ``maps``, sorted by pair."""
+    held = (ln for ln in links if ln.accepted and ln.a in maps and ln.b in maps)
+    return sorted(held, key=lambda ln: ln.pair)
+
+
+def usable_links(
+    maps: Mapping[str, tuple[int, Grid]],
+    links: Iterable[LinkRecord],
+    sound: Soundness | None = None,
+) -> list[LinkRecord]:
+    """The accepted links the pose graph can take (:func:`accepted_links`), sorted by pair.
+
+    A peer's link that is not a rigid transform with a covariance
+    (:func:`pgvd.posegraph.link_problem`) is left out like an inconsistent one: refusing the
+    whole global map for it would let one bad record stall it.  ``sound`` remembers each
+    record's verdict across calls (records never change): a fleet of 16 holds 120 links,
+    and judging them all at every link and every rebuild cost as much as a registration's
+    check.
+    """
+    memo: Soundness = {} if sound is None else sound
+    out = []
+    for ln in accepted_links(maps, links):
+        held = memo.get(id(ln))
+        if held is None or held[0] is not ln:
+            held = memo[id(ln)] = (ln, link_problem(ln, (ln.a, ln.b)) is None)
+        if held[1]:
+            out.append(ln)
+    return out
+
+
 def build_components(
     maps: Mapping[str, tuple[int, Grid]],
     links: Iterable[LinkRecord],
     fuse: FuseFn | None = None,
     params: PoseGraphParams | None = None,
+    sound: Soundness | None = None,
 ) -> list[Component]:
     """Every component's global map from the latest local maps and one link per pair.
 
@@ -95,6 +133,7 @@ def build_components(
         says where the base went, so matrices are re-expressed through
         :func:`pgvd.grid.relative_matrix`.
     params : the pose graph's floors and threshold (:class:`pgvd.posegraph.PoseGraphParams`).
+    sound : the links' soundness judged before (:func:`usable_links`); filled in.
 
     Returns
     -------
@@ -102,13 +141,8 @@ def build_components(
     """
     if fuse is None:
         from pgvd.fusion import fuse_maps as fuse
-    accepted = sorted(
-        (ln for ln in links if ln.accepted and ln.a in maps and ln.b in maps),
-        key=lambda ln: ln.pair,
-    )
-    # A peer's link that is not a rigid transform with a covariance is left out like an
-    # inconsistent one: refusing the whole global map for it would let one bad record stall it.
-    usable = [ln for ln in accepted if link_problem(ln, maps) is None]
+    accepted = accepted_links(maps, links)
+    usable = usable_links(maps, accepted, sound)
     sol = solve(maps, usable, params)
     dropped = {ln.pair for ln in accepted} - {
         ln.pair for ln, u in zip(usable, sol.used, strict=True) if u

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -82,6 +83,13 @@ class LinkRecord:
     @property
     def pair(self) -> tuple[str, str]:
         return (self.a, self.b)
+
+    @cached_property
+    def json_text(self) -> str:
+        """:meth:`to_json` as one line of JSON, made once: a record never changes, and an
+        agent rewrites its whole links file (:func:`dumps`) every status period while links
+        arrive -- 120 of them at 16 robots, each encoded anew every second otherwise."""
+        return json.dumps(self.to_json())
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -316,7 +324,8 @@ def select_links(versions: Mapping[str, int], cache: LinkCache) -> tuple[list[Li
 
 
 def dumps(records: Iterable[LinkRecord]) -> str:
-    return json.dumps([r.to_json() for r in records], indent=1)
+    """A JSON list of the records, one per line (:func:`loads` reads it back)."""
+    return "[\n" + ",\n".join(r.json_text for r in records) + "\n]\n"
 
 
 def loads(text: str) -> list[LinkRecord]:

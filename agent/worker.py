@@ -46,12 +46,12 @@ import numpy as np
 
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
-from agent.globalmap import Component, FuseFn, build_components
+from agent.globalmap import Component, FuseFn, Soundness, build_components, usable_links
 from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
 from pgvd.grid import Grid
-from pgvd.posegraph import Solution, components, link_problem, solve, triangle_groups
+from pgvd.posegraph import Solution, components, solve, triangle_groups
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
     from pgvd.merge import MergeParams
@@ -78,11 +78,28 @@ CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
 #: arrived (:meth:`FusionWorker._solved_for`).
 RESOLVE_AFTER = 2.0
 #: Largest share of the wall time an agent spends on previews (unsettled global maps).
-PREVIEW_SHARE = 0.1
-#: The share while every pair still needed is a check: the settled map is that close.
+PREVIEW_SHARE = 0.05
+#: The share while a round of registrations only re-places the maps of the last rebuild (no
+#: map changed since), or every pair still needed is a check: the settled map is that close.
 CHECKS_PREVIEW_SHARE = PREVIEW_SHARE / 4
 #: What a rejection records: its transform means nothing; finite for the wire.
 _REJECTED = (np.eye(3), np.zeros((3, 3)))
+
+
+@dataclass(frozen=True)
+class _Clock:
+    """When a job started, on the wall clock and in this thread's CPU time."""
+
+    wall: float
+    cpu: float
+
+    @classmethod
+    def start(cls) -> _Clock:
+        return cls(time.monotonic(), time.thread_time())
+
+    def elapsed(self) -> tuple[float, float]:
+        """Wall and CPU seconds since :meth:`start` (on a shared machine they differ)."""
+        return time.monotonic() - self.wall, time.thread_time() - self.cpu
 
 
 class _Unproven:
@@ -174,40 +191,12 @@ def _identity(ln: LinkRecord) -> tuple[object, ...]:
     return (ln.key, ln.decided_by, ln.version_a, ln.version_b)
 
 
-#: ``{id(record): (record, sound)}``: whether a link record is a rigid transform with a
-#: covariance (:func:`pgvd.posegraph.link_problem` on its own two robots).  The record is held
-#: so that its id cannot be reused while the entry lives.
-Soundness = dict[int, tuple[LinkRecord, bool]]
-
-
-def _usable(
-    maps: dict[str, tuple[int, Grid]], links: list[LinkRecord], sound: Soundness | None = None
-) -> list[LinkRecord]:
-    """The accepted links the pose graph can take (as :func:`agent.globalmap.build_components`).
-
-    ``sound`` remembers each record's verdict across calls: records never change, and the
-    checks (a rigid matrix, a positive semi-definite covariance) cost as much as a
-    registration's check once a fleet of 16 holds 120 links and asks after every link.
-    """
-    memo: Soundness = {} if sound is None else sound
-    out = []
-    for ln in links:
-        if not ln.accepted or ln.a not in maps or ln.b not in maps:
-            continue
-        held = memo.get(id(ln))
-        if held is None or held[0] is not ln:
-            held = memo[id(ln)] = (ln, link_problem(ln, (ln.a, ln.b)) is None)
-        if held[1]:
-            out.append(ln)
-    return out
-
-
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
     """The robust pose graph (:func:`pgvd.posegraph.solve`, GNC-TLS) of the accepted links.
 
     A link inconsistent around a cycle is not kept, so it does not enter a prediction.
     """
-    return solve(maps, _usable(maps, links))
+    return solve(maps, usable_links(maps, links))
 
 
 class Chains:
@@ -226,7 +215,7 @@ class Chains:
         sound: Soundness | None = None,
     ) -> None:
         self.maps = maps
-        self.usable = _usable(maps, links, sound)
+        self.usable = usable_links(maps, links, sound)
         self.groups = components(maps, [ln.pair for ln in self.usable])
         self._solved: tuple[Solution, list[tuple[str, ...]]] | None = None
 
@@ -240,9 +229,11 @@ class Chains:
         (:func:`pgvd.posegraph.triangle_groups`).  Within one, a wrong link would disagree
         with the two others of a three-link cycle and the robust solution would drop one."""
         if self._solved is None:
+            clock = _Clock.start()
             sol = solve(self.maps, self.usable)
             kept = [ln.pair for ln, u in zip(self.usable, sol.used, strict=True) if u]
             self._solved = (sol, triangle_groups(self.maps, kept))
+            log.info("solved %d links: %.2f s, %.2f s CPU", len(self.usable), *clock.elapsed())
         return self._solved
 
 
@@ -406,33 +397,41 @@ class FusionWorker:
         # An unsettled map is only a preview: rebuilding it on every link of a round
         # would take CPU from the registrations the settled map waits for.
         checks_only = bool(snap.needed) and all(k in checkable for k in snap.needed)
+        maps_moved = self._built is None or signature[0] != self._built[0]
         if (
             snap.maps
             and signature != self._built
-            and (snap.settled or now - self._rebuilt_at >= self.preview_gap(checks_only))
+            and (
+                snap.settled or now - self._rebuilt_at >= self.preview_gap(checks_only, maps_moved)
+            )
         ):
             self._built = signature  # a failing rebuild is not retried until inputs change
             self._rebuilt_at = now
-            t0 = time.monotonic()
+            clock = _Clock.start()
             try:
                 self._rebuild(snap)
             finally:
-                self._rebuild_seconds = time.monotonic() - t0
+                self._rebuild_seconds, cpu = clock.elapsed()
                 log.info(
-                    "rebuilt %d maps, %d links (%s): %.2f s",
+                    "rebuilt %d maps, %d links (%s): %.2f s, %.2f s CPU",
                     len(snap.maps), len(snap.links), "settled" if snap.settled else "preview",
-                    self._rebuild_seconds,
+                    self._rebuild_seconds, cpu,
                 )  # fmt: skip
         return False
 
-    def preview_gap(self, checks_only: bool = False) -> float:
+    def preview_gap(self, checks_only: bool = False, maps_moved: bool = True) -> float:
         """Seconds between two previews: ``preview_interval``, or more if rebuilds are slow.
 
         A preview may take at most :data:`PREVIEW_SHARE` of the wall time.  A rebuild fuses
         every map (33)-(37); at 16 robots on 2 cores it took ~0.6 s of CPU and, with every
         agent previewing every 3 s, the previews alone asked for more than the 2 cores: the
         registrations the settled map waits for starved.  Wall time grows with the load, so
-        on a crowded machine previews thin out by themselves.
+        on a crowded machine previews thin out by themselves: with N agents on one host a
+        preview's wall time is about N / cores times its CPU time, and the previews of the
+        whole fleet take about ``cores * PREVIEW_SHARE`` of the host whatever N.  At 0.1,
+        the round after the robots' last maps at 16 robots rebuilt 28 previews beside the
+        16 settled maps, ~16 % of that round's CPU.  An agent alone on its computer
+        (~0.2 s a rebuild at 16 robots) still previews every few seconds.
 
         ``checks_only``: every pair still needed is a check (tens of milliseconds each), so
         the settled map is seconds away; a preview may take :data:`CHECKS_PREVIEW_SHARE`.
@@ -440,8 +439,15 @@ class FusionWorker:
         seconds of wall time on a loaded machine) delayed the checks the settled map waited
         for.  Not none at all: a fleet whose robots open new epochs faster than a round of
         checks settles still sees its map move.
+
+        ``maps_moved``: some robot's map is not the one the last rebuild fused.  When only
+        links changed, a preview shows the same maps re-placed by the links of a round in
+        progress, which the settled map replaces once the round ends; it waits as long as
+        in a round of checks.  Measured at 16 robots, it spared few previews (28 -> 23-26
+        in the round after the last maps): the final versions reach the peers over seconds,
+        so most previews of that round still had a new map to show.
         """
-        share = CHECKS_PREVIEW_SHARE if checks_only else PREVIEW_SHARE
+        share = PREVIEW_SHARE if maps_moved and not checks_only else CHECKS_PREVIEW_SHARE
         return max(self.preview_interval, self._rebuild_seconds / share)
 
     def effective_timeout(self, n_robots: int) -> float:
@@ -465,7 +471,7 @@ class FusionWorker:
         """
         a, _, b, _ = key  # epochs; the link records the versions it was computed on
         va, vb = snap.maps[a][0], snap.maps[b][0]
-        t0 = time.monotonic()
+        clock = _Clock.start()
         how = "prior"
         try:
             res = self._at_prior(snap, a, b)
@@ -475,6 +481,7 @@ class FusionWorker:
                 if may_defer and key not in self._deferred:
                     self._deferred.add(key)
                     self.counters.add("checks_deferred")
+                    log.info("check %s - %s deferred: %.2f s, %.2f s CPU", a, b, *clock.elapsed())
                     return
                 res = None
             if res is None:
@@ -485,20 +492,20 @@ class FusionWorker:
             log.warning("registration of %s v%d / %s v%d failed: %s", a, va, b, vb, exc)
             res = Registration(False, *_REJECTED, 0.0)
         self.merges += 1
-        self.merge_seconds += time.monotonic() - t0
-        self._record(a, va, b, vb, res, how, t0)
+        self.merge_seconds += clock.elapsed()[0]
+        self._record(a, va, b, vb, res, how, clock)
         if how == "searched" and res.accepted:
             self._carry_forward(a, va, b, vb, res.matrix)
 
     def _record(
-        self, a: str, va: int, b: str, vb: int, res: Registration, how: str, t0: float
+        self, a: str, va: int, b: str, vb: int, res: Registration, how: str, clock: _Clock
     ) -> None:
         """Log the decision, cache it and publish it if it is the link of its epochs."""
         rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)
         log.info(
-            "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s)",
+            "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s, %.2f s CPU)",
             a, va, b, vb, "accepted" if res.accepted else "rejected", res.score, how,
-            time.monotonic() - t0,
+            *clock.elapsed(),
         )  # fmt: skip
         if self.book.add_link(rec):
             self.on_link(rec)
@@ -520,7 +527,7 @@ class FusionWorker:
         key = (a, epoch_of(na), b, epoch_of(nb))
         if key == (a, epoch_of(va), b, epoch_of(vb)) or key not in self.book.snapshot().needed:
             return  # not superseded, or decided already
-        t0 = time.monotonic()
+        clock = _Clock.start()
         self.counters.add("checks")
         try:
             res = self.check(grid_a, grid_b, matrix)
@@ -530,7 +537,7 @@ class FusionWorker:
         if res is None or not res.accepted:
             return
         self.counters.add("checks_confirmed")
-        self._record(a, na, b, nb, res, "carried forward", t0)
+        self._record(a, na, b, nb, res, "carried forward", clock)
 
     def _checkable(self, chains: Chains, a: str, b: str) -> bool:
         """Whether a check may decide ``(a, b)``: both poses known, or accepted links join
@@ -604,11 +611,15 @@ class FusionWorker:
         )
         held = self._chains
         if held[0] != signature or held[1] is None:
-            # only the records held now: the memo does not grow with every link ever seen
-            held_now = {id(ln) for ln in snap.links}
-            self._sound = {k: v for k, v in self._sound.items() if k in held_now}
-            held = self._chains = (signature, Chains(snap.maps, snap.links, self._sound))
+            held = self._chains = (signature, Chains(snap.maps, snap.links, self._soundness(snap)))
         return held[1]
+
+    def _soundness(self, snap: Snapshot) -> Soundness:
+        """The soundness memo of the link records of ``snap``, those of records no longer
+        held dropped: it does not grow with every link ever seen."""
+        held_now = {id(ln) for ln in snap.links}
+        self._sound = {k: v for k, v in self._sound.items() if k in held_now}
+        return self._sound
 
     def _solved_for(
         self, snap: Snapshot, a: str, b: str, fresh: bool = False
@@ -636,5 +647,7 @@ class FusionWorker:
         return chains.solved()
 
     def _rebuild(self, snap: Snapshot) -> None:
-        components = build_components(snap.maps, snap.links, self.fuse)
+        clock = _Clock.start()
+        components = build_components(snap.maps, snap.links, self.fuse, sound=self._soundness(snap))
+        log.info("built %d components: %.2f s, %.2f s CPU", len(components), *clock.elapsed())
         self.on_global(GlobalState(components, snap.settled, time.time()))

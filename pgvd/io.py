@@ -494,7 +494,9 @@ def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
 # ----------------------------------------------------------------------------- write
 
 
-def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], object]) -> None:
+def atomic_write(
+    path: str | os.PathLike[str], write: Callable[[BinaryIO], object], durable: bool = True
+) -> None:
     """Write a file so that a crash or power cut leaves either the old or the new one whole.
 
     ``write`` fills a temporary file ``.<name>.<random>.tmp`` in the same
@@ -508,6 +510,10 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], objec
         The file to create or replace; missing parent directories are created.
     write : callable
         Called once with the temporary file, opened for binary writing.
+    durable : bool, optional
+        False skips both fsyncs: a crash of the process (``kill -9``) still leaves the old
+        or the new file whole (the kernel holds what was written), a power cut may not.
+        For files whose content can be had again; each fsync can cost tens of milliseconds.
 
     Raises
     ------
@@ -524,11 +530,14 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], objec
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()
-            os.fsync(f.fileno())
+            if durable:
+                os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    if not durable:
+        return
     dir_fd = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(dir_fd)

@@ -20,6 +20,29 @@ def grid(seed: int) -> Grid:
     return Grid(lo, 0.1, (1.5, -2.0, 0.0))
 
 
+def test_only_the_own_map_is_fsynced(tmp_path: Path, monkeypatch) -> None:
+    """The own map (durable) is fsynced, file and directory; a peer's map, the links and
+    the status are renamed into place without: the peers have them again."""
+    synced: list[int] = []
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:
+        synced.append(fd)
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    sd = StateDir(tmp_path)
+    sd.save_map("r2", StoredMap(3, grid(2)))
+    sd.save_links([LinkRecord("r1", 7, "r2", 3, True, np.eye(3), np.eye(3), 0.95, "r1")])
+    sd.save_status(b"{}")
+    assert synced == []
+    sd.save_map("r1", StoredMap(7, grid(1)), durable=True)
+    assert len(synced) == 2
+    maps, errors = StateDir(tmp_path).load_maps()
+    assert errors == [] and maps["r2"].version == 3 and maps["r1"].version == 7
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["links.json", "maps", "status.json"]
+
+
 def test_maps_and_links_round_trip(tmp_path: Path) -> None:
     sd = StateDir(tmp_path)
     sd.save_map("r1", StoredMap(7, grid(1), {"cursor": 120}))

@@ -404,13 +404,35 @@ def test_slow_rebuilds_space_previews_out() -> None:
     assert h.worker.preview_gap() == 2.0 / PREVIEW_SHARE > h.worker.preview_interval
     h.worker._rebuilt_at = 0.0
     h.book.put_map("r2", V(2), tiny(3))
-    h.worker.step(now=h.worker.preview_gap() - 0.1)
+    gap = h.worker.preview_gap()
+    h.worker.step(now=gap - 0.1)
     assert h.globals == []
-    h.worker.step(now=20.0)
+    h.worker.step(now=gap)
     assert len(h.globals) == 1 and not h.globals[-1].settled
     h.book.add_link(LinkRecord("r1", V(1), "r2", V(2), True, np.eye(3), np.eye(3), 0.9, "r1"))
-    h.worker.step(now=20.1)
+    h.worker.step(now=gap + 0.1)
     assert len(h.globals) == 2 and h.globals[-1].settled
+
+
+def test_links_alone_preview_less_than_new_maps() -> None:
+    """A link that only re-places the maps of the last preview waits
+    rebuild / CHECKS_PREVIEW_SHARE; a new map version previews after rebuild / PREVIEW_SHARE."""
+    h = Harness("r3")  # no pair of r1, r2, r4 is r3's, and it never steps in
+    h.worker.link_timeout = 1000.0
+    for robot in ("r1", "r2", "r4"):
+        h.book.put_map(robot, V(1), tiny(int(robot[1])))
+    h.worker.step(now=0.0)
+    assert len(h.globals) == 1 and not h.globals[-1].settled
+    h.worker._rebuild_seconds = 1.0
+    h.book.add_link(LinkRecord("r1", V(1), "r2", V(1), True, np.eye(3), np.eye(3), 0.9, "r1"))
+    assert h.worker.preview_gap(maps_moved=False) == 1.0 / CHECKS_PREVIEW_SHARE
+    h.worker.step(now=1.0 / PREVIEW_SHARE + 1.0)
+    assert len(h.globals) == 1  # links alone: not yet
+    h.worker.step(now=1.0 / CHECKS_PREVIEW_SHARE + 1.0)
+    assert len(h.globals) == 2 and h.globals[-1].components[0].members == ("r1", "r2")
+    h.book.put_map("r4", V(1, 1), tiny(5))  # more detail: the map moved
+    h.worker.step(now=1.0 / CHECKS_PREVIEW_SHARE + 1.0 / PREVIEW_SHARE + 2.0)
+    assert len(h.globals) == 3 and h.globals[-1].components[1].versions == {"r4": V(1, 1)}
 
 
 def test_a_round_of_checks_only_previews_less() -> None:
@@ -574,20 +596,22 @@ def test_a_disjoint_verdict_over_a_lone_long_cycle_is_searched() -> None:
 
 
 def test_a_link_records_soundness_is_judged_once(monkeypatch) -> None:
-    """The pose graph's input checks run once per link record held, not once per step."""
-    import agent.worker as worker
+    """The pose graph's input checks run once per link record held, not once per step
+    nor once more per rebuild (the rebuild at 0.1 s shares the worker's verdicts)."""
+    import agent.globalmap as globalmap
 
     judged: list[tuple[str, str]] = []
-    problem = worker.link_problem
+    problem = globalmap.link_problem
 
     def counting(ln, nodes):
         judged.append(ln.pair)
         return problem(ln, nodes)
 
-    monkeypatch.setattr(worker, "link_problem", counting)
+    monkeypatch.setattr(globalmap, "link_problem", counting)
     h = Checking("r3", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
     _chain(h)  # r1-r2, r2-r3 linked: r1-r3 is checked
     assert h.worker.step(now=0.0)
     assert sorted(judged) == [("r1", "r2"), ("r2", "r3")]
     assert not h.worker.step(now=0.1)  # r1-r3 added: a new Chains, only it judged
     assert sorted(judged) == [("r1", "r2"), ("r1", "r3"), ("r2", "r3")]
+    assert h.globals[-1].settled and h.globals[-1].components[0].members == ("r1", "r2", "r3")
