@@ -76,7 +76,7 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
         ``winner`` (index in ``finalists``), ``margin``, ``rival``, ``accepted`` and
         ``matrix`` (3x3 array).
     """
-    fine_a = WallMap(a.probability(), params.occupied, params.free)
+    fine_a = WallMap(a.probability(), params.occupied, params.free, lookup=True)
     fine_b = WallMap(b.probability(), params.occupied, params.free)
     mats = [np.asarray(m, dtype=float) for m in finalists]
     index, decision, matrix = decide_finalists(mats, fine_a, fine_b, params, a.resolution)

@@ -472,20 +472,74 @@ class WallTree(cKDTree):
 
 
 class WallMap:
-    """A full-resolution map for overlay checks: its probabilities and a k-d tree of its walls."""
+    """A full-resolution map for overlay checks: its probabilities and a k-d tree of its walls.
 
-    def __init__(self, prob: np.ndarray, occupied: float, free: float) -> None:
+    With ``lookup``, nearest-wall queries (:meth:`nearest`) read a table of
+    every cell's nearest wall cell instead of the tree, built on first use
+    from a distance transform: an O(1) lookup a point for a transform of the
+    whole map, which pays for the map every hypothesis is scored against
+    (A), not for one only counted once per hypothesis (B).
+    """
+
+    def __init__(
+        self, prob: np.ndarray, occupied: float, free: float, lookup: bool = False
+    ) -> None:
         prob = np.asarray(prob)
         self.free = prob < free
         # flat indices split by divmod: the same cells in the same (row-major) order as
         # np.nonzero, which is ~8x slower on a full-resolution map
-        r, c = np.divmod(np.flatnonzero(prob > occupied), prob.shape[1])
+        self._flat = np.flatnonzero(prob > occupied)
+        r, c = np.divmod(self._flat, prob.shape[1])
         self.walls = np.column_stack([c, r]).astype(float)
         self.tree = WallTree(self.walls)
+        self.lookup = lookup
+        self._table: np.ndarray | None = None
 
     def normals(self, idx: np.ndarray) -> np.ndarray:
         """Unit wall normals (:func:`_normals`) at the wall cells ``idx``, computed once each."""
         return self.tree.normals(idx)
+
+    def _nearest_table(self) -> np.ndarray:
+        """(H, W) index into :attr:`walls` of each cell's nearest wall cell (built once)."""
+        if self._table is None:
+            import cv2
+
+            shape = self.free.shape
+            open_cells = np.ones(shape, np.uint8)
+            open_cells.flat[self._flat] = 0
+            # each wall cell is its own label, numbered from 1 in row-major order: the
+            # order of self.walls.  The 5x5 chamfer transform finds a nearest wall to
+            # within a few per cent of the distance; nearest() measures it exactly.
+            _, label = cv2.distanceTransformWithLabels(
+                open_cells, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+            )
+            label -= 1
+            self._table = label
+        return self._table
+
+    def nearest(self, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+        """Distance and index of a nearest wall cell of each point ``(x, y)``, within ``reach``.
+
+        With ``lookup``, the wall is the one nearest the cell the point rounds
+        to (a point off the map: the nearest cell on it), so it may be a
+        fraction of a cell farther than the true nearest; the distance is the
+        exact one to it.  As ``cKDTree.query``: ``inf`` and ``len(walls)``
+        beyond ``reach``.
+        """
+        if not self.lookup:
+            return self.tree.query(points, distance_upper_bound=reach)
+        n = len(self.walls)
+        if n == 0 or len(points) == 0:
+            return np.full(len(points), np.inf), np.full(len(points), n)
+        h, w = self.free.shape
+        col = np.clip(np.rint(points[:, 0]), 0, w - 1).astype(np.intp)
+        row = np.clip(np.rint(points[:, 1]), 0, h - 1).astype(np.intp)
+        idx = self._nearest_table()[row, col]
+        off = self.walls[idx] - points
+        dist = np.hypot(off[:, 0], off[:, 1])
+        far = dist > reach
+        dist[far], idx[far] = np.inf, n
+        return dist, idx
 
     def count(self, points: np.ndarray, tolerance: float) -> tuple[int, int]:
         """(agree, disagree) of another map's wall points ``(N, 2)`` (x, y) in this frame.
@@ -493,13 +547,29 @@ class WallMap:
         A point agrees within ``tolerance`` of a wall here and disagrees on a
         free cell farther than ``2 tolerance`` from every wall.
         """
-        dist, _ = self.tree.query(points, distance_upper_bound=2 * tolerance + 1e-9)
+        dist, _ = self.nearest(points, 2 * tolerance + 1e-9)
         ij = np.rint(points).astype(np.int64)
         h, w = self.free.shape
         inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
         free = np.zeros(len(points), bool)
         free[inside] = self.free[ij[inside, 1], ij[inside, 0]]
         return int(np.sum(dist <= tolerance)), int(np.sum(free & ~np.isfinite(dist)))
+
+
+Walls = cKDTree | WallMap
+"""A's walls for the alignment stages: a k-d tree of wall cells, or a :class:`WallMap`."""
+
+
+def _query(walls_a: Walls, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest wall cell of each point within ``reach``: (distance, index), as ``cKDTree.query``."""
+    if isinstance(walls_a, WallMap):
+        return walls_a.nearest(points, reach)
+    return walls_a.query(points, distance_upper_bound=reach)
+
+
+def _cells_of(walls_a: Walls) -> np.ndarray:
+    """(N, 2) wall cells ``(x, y)`` that :func:`_query` indexes."""
+    return walls_a.walls if isinstance(walls_a, WallMap) else walls_a.data
 
 
 def map_agreement(
@@ -578,7 +648,7 @@ def _block_shifts(
         pts = moved + d[group]
         # the first pass reaches as far as the shift may go; later ones only refine it
         reach = max_shift + 2.0 if it == 0 else 3.0
-        dist, idx = a.tree.query(pts, distance_upper_bound=reach)
+        dist, idx = a.nearest(pts, reach)
         ok = np.isfinite(dist)
         if not ok.any():
             break
@@ -673,7 +743,7 @@ def _fit_rigid(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def refine(
-    walls_a: cKDTree,
+    walls_a: Walls,
     walls_b: np.ndarray,
     matrix: np.ndarray,
     radii: tuple[float, ...] = (12.0, 8.0, 5.0, 3.0, 2.0),
@@ -688,7 +758,7 @@ def refine(
 
     Parameters
     ----------
-    walls_a : scipy.spatial.cKDTree
+    walls_a : scipy.spatial.cKDTree or WallMap
         A's wall cells ``(x, y)``.
     walls_b : numpy.ndarray
         (N, 2) B's wall cells ``(x, y)``.
@@ -711,11 +781,11 @@ def refine(
     for k, radius in enumerate(radii):
         pts = walls_b if k == len(radii) - 1 else sub
         for _ in range(iterations):
-            dist, idx = walls_a.query(_apply(m, pts), distance_upper_bound=radius)
+            dist, idx = _query(walls_a, _apply(m, pts), radius)
             ok = np.isfinite(dist)
             if ok.sum() < 10:
                 return m
-            new = _fit_rigid(pts[ok], walls_a.data[idx[ok]])
+            new = _fit_rigid(pts[ok], _cells_of(walls_a)[idx[ok]])
             step = np.abs(new - m).max()
             m = new
             if step < 1e-3:
@@ -733,9 +803,7 @@ class _LineFit:
     jac: np.ndarray  # (M, 3) d res / d (tx, ty, psi)
 
 
-def _point_to_line(
-    walls_a: cKDTree, pts: np.ndarray, matrix: np.ndarray, radius: float
-) -> _LineFit:
+def _point_to_line(walls_a: Walls, pts: np.ndarray, matrix: np.ndarray, radius: float) -> _LineFit:
     """Residuals along A's wall normals, and their Jacobian, of B's cells within ``radius``.
 
     ``r_i = n_i . (R x_i + t - y_i)`` with ``y_i`` the nearest wall cell of A and
@@ -743,9 +811,9 @@ def _point_to_line(
     (eqs. (1)-(2)).
     """
     moved = _apply(matrix, pts)
-    dist, idx = walls_a.query(moved, distance_upper_bound=radius)
+    dist, idx = _query(walls_a, moved, radius)
     ok = np.isfinite(dist)
-    x, y = pts[ok], walls_a.data[idx[ok]]
+    x, y = pts[ok], _cells_of(walls_a)[idx[ok]]
     n = _wall_normals(walls_a, idx[ok]) if ok.any() else np.zeros((0, 2))
     psi = heading(matrix)
     c, s = np.cos(psi), np.sin(psi)
@@ -755,7 +823,7 @@ def _point_to_line(
 
 
 def refine_point_to_line(
-    walls_a: cKDTree,
+    walls_a: Walls,
     walls_b: np.ndarray,
     matrix: np.ndarray,
     radius: float = 3.0,
@@ -776,7 +844,7 @@ def refine_point_to_line(
 
     Parameters
     ----------
-    walls_a : scipy.spatial.cKDTree
+    walls_a : scipy.spatial.cKDTree or WallMap
         A's wall cells ``(x, y)``.
     walls_b : numpy.ndarray
         (N, 2) B's wall cells ``(x, y)``.
@@ -814,7 +882,7 @@ def refine_point_to_line(
 
 
 def residual_distortion(
-    walls_a: cKDTree,
+    walls_a: Walls,
     walls_b: np.ndarray,
     matrix: np.ndarray,
     block: float = 100.0,
@@ -834,7 +902,7 @@ def residual_distortion(
 
     Parameters
     ----------
-    walls_a : scipy.spatial.cKDTree
+    walls_a : scipy.spatial.cKDTree or WallMap
         A's wall cells ``(x, y)``.
     walls_b : numpy.ndarray
         (N, 2) B's wall cells ``(x, y)``.
@@ -882,9 +950,11 @@ def residual_distortion(
     return float(np.hypot(d[:, 0], d[:, 1]).max())
 
 
-def _wall_normals(tree: cKDTree, idx: np.ndarray) -> np.ndarray:
-    """Unit wall normals at the cells ``idx`` of ``tree``, from its cache when it keeps one."""
-    return tree.normals(idx) if isinstance(tree, WallTree) else _normals(tree, tree.data[idx])
+def _wall_normals(walls_a: Walls, idx: np.ndarray) -> np.ndarray:
+    """Unit wall normals at the cells ``idx`` of ``walls_a``, from its cache when it keeps one."""
+    if isinstance(walls_a, WallMap | WallTree):
+        return walls_a.normals(idx)
+    return _normals(walls_a, walls_a.data[idx])
 
 
 def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
@@ -918,7 +988,7 @@ class AlignmentFit:
 
 
 def alignment_fit(
-    walls_a: cKDTree,
+    walls_a: Walls,
     walls_b: np.ndarray,
     matrix: np.ndarray,
     radius: float = 2.0,
@@ -935,7 +1005,7 @@ def alignment_fit(
 
     Parameters
     ----------
-    walls_a : scipy.spatial.cKDTree
+    walls_a : scipy.spatial.cKDTree or WallMap
         A's wall cells ``(x, y)``.
     walls_b : numpy.ndarray
         (N, 2) B's wall cells ``(x, y)``.
@@ -969,7 +1039,7 @@ def alignment_fit(
 
 
 def alignment_covariance(
-    walls_a: cKDTree,
+    walls_a: Walls,
     walls_b: np.ndarray,
     matrix: np.ndarray,
     radius: float = 2.0,

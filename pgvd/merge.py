@@ -675,9 +675,7 @@ def decide_finalists(
     index = next(i for i, s in enumerate(scored) if s is decision.winner)
     sub_fine = subsample(fine_b.walls, params.fine_points)
     matrix = refine_point_to_line(
-        fine_a.tree,
-        fine_b.walls,
-        refine(fine_a.tree, sub_fine, decision.winner.matrix, radii=(3.0, 2.0)),
+        fine_a, fine_b.walls, refine(fine_a, sub_fine, decision.winner.matrix, radii=(3.0, 2.0))
     )
     final = score_hypothesis(matrix, fine_a, fine_b, params, res)
     return index, restate(decision, final, params.disagreement_weight), matrix
@@ -703,7 +701,7 @@ def _decide(
     """
     sub_b = subsample(fine_b.walls, params.refine_points)
     starts = [to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k)) for h in finalists]
-    refined = [refine(fine_a.tree, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3) for m in starts]
+    refined = [refine(fine_a, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3) for m in starts]
     index, decision, matrix = decide_finalists(refined, fine_a, fine_b, params, res)
     return finalists[index], decision, matrix
 
@@ -911,7 +909,7 @@ def merge(
             else (f"no translation is supported by {params.min_pairs} edge pairs")
         )
         return _rejected(why, clock)
-    fine_a = WallMap(pa, params.occupied, params.free)
+    fine_a = WallMap(pa, params.occupied, params.free, lookup=True)
     fine_b = WallMap(pb, params.occupied, params.free)
     clock.lap("verify")
     to_fine = _scale(k) @ off_a
