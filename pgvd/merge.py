@@ -919,7 +919,7 @@ def merge(
     agreement = map_agreement(fine_a, fine_b, matrix, max_points=params.fine_points, scaled=True)
     overlap_m = 0.5 * agreement.agree * a.resolution
     distortion = residual_distortion(
-        fine_a.tree,
+        fine_a,
         fine_b.walls,
         matrix,
         block=params.distortion_block / a.resolution,

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from pgvd.graph import build_graph
 from pgvd.grid import rigid_matrix
@@ -210,6 +213,58 @@ def test_wall_tree_keeps_normals_that_change_nothing(intel):
     assert residual_distortion(wm.tree, walls_b, truth) == residual_distortion(
         plain, walls_b, truth
     )
+
+
+def test_nearest_wall_table_agrees_with_the_tree(intel):
+    wm = WallMap(intel, 0.65, 0.3, lookup=True)
+    h, w = intel.shape
+    rng = np.random.default_rng(3)
+    # on and near the walls, anywhere on the map, and up to 15 cells off it
+    pts = np.vstack(
+        [
+            wm.walls[rng.integers(0, len(wm.walls), 20000)] + rng.normal(0, 3, (20000, 2)),
+            rng.uniform([-15, -15], [w + 15, h + 15], (20000, 2)),
+        ]
+    )
+    for reach in (2.0, 12.0):
+        dist, idx = wm.nearest(pts, reach)
+        exact, _ = wm.tree.query(pts, distance_upper_bound=reach)
+        found = np.isfinite(dist)
+        # a wall the table names is a real wall at the distance given, never nearer
+        # than the nearest one, and beyond reach nothing is named
+        np.testing.assert_allclose(dist[found], np.hypot(*(wm.walls[idx[found]] - pts[found]).T))
+        assert np.all(idx[~found] == len(wm.walls))
+        assert np.all(dist[found] >= exact[found] - 1e-9)
+        both = found & np.isfinite(exact)
+        assert np.mean(np.isclose(dist[both], exact[both])) > 0.99
+        assert np.max(dist[both] - exact[both]) < 0.5
+        assert np.mean(found != np.isfinite(exact)) < 1e-3
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    walls=arrays(bool, st.tuples(st.integers(1, 12), st.integers(1, 12))),
+    points=arrays(float, (16, 2), elements=st.floats(-4.0, 16.0)),
+)
+def test_nearest_wall_by_table_is_a_wall_within_a_cell_of_the_nearest(walls, points):
+    prob = np.where(walls, 0.9, 0.1)
+    wm = WallMap(prob, 0.65, 0.3, lookup=True)
+    dist, idx = wm.nearest(points, 100.0)
+    if not walls.any():
+        assert np.all(np.isinf(dist)) and np.all(idx == 0)
+        return
+    nearest = np.min(np.linalg.norm(points[:, None] - wm.walls[None], axis=2), axis=1)
+    np.testing.assert_allclose(dist, np.linalg.norm(wm.walls[idx] - points, axis=1))
+    assert np.all(dist >= nearest - 1e-9) and np.all(dist <= nearest + 1.0)
+
+
+def test_refinement_from_the_wall_table_recovers_the_pose(intel):
+    wm = WallMap(intel, 0.65, 0.3, lookup=True)
+    truth = rigid_matrix(np.radians(1.0), 3.0, -2.0)
+    walls_b = (wm.walls - truth[:2, 2]) @ np.linalg.inv(truth[:2, :2]).T  # A = truth(B)
+    np.testing.assert_allclose(refine(wm, walls_b, np.eye(3)), truth, atol=0.02)
+    start = rigid_matrix(np.radians(1.4), 4.5, -2.0)
+    np.testing.assert_allclose(refine_point_to_line(wm, walls_b, start), truth, atol=0.02)
 
 
 def test_subsampled_full_resolution_stages_estimate_all_walls(intel):
