@@ -16,9 +16,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from netns import Lab, pgvd_argv
 
+from agent import wire
 from agent.launcher import agreement, sources_done
+from agent.state import StoredMap
 
 PORT = 7447
 INTEL = Path(__file__).resolve().parents[1] / "agent" / "data" / "intel-corrected.log.gz"
@@ -136,3 +139,14 @@ def digests(statuses: dict[str, dict | None]) -> set[str]:
 
 def accepted_links(status: dict) -> set[tuple[str, str]]:
     return {(ln["a"], ln["b"]) for ln in status["links"] if ln["current"] and ln["accepted"]}
+
+
+def assert_held_maps_match_owners(held: dict[str, dict[str, StoredMap]]) -> None:
+    """Every map an agent holds of a peer is that peer's own latest version, cell for cell
+    (as it travels on the wire): nothing was lost, whatever was dropped on the way."""
+    for robot, maps in held.items():
+        for peer, stored in maps.items():
+            if peer != robot:
+                own = wire.on_the_wire(held[peer][peer].grid)
+                assert stored.version == held[peer][peer].version, (robot, peer)
+                assert np.array_equal(stored.grid.logodds, own.logodds), (robot, peer)

@@ -21,7 +21,14 @@ import time
 from pathlib import Path
 
 import pytest
-from netfleet import SOURCES, NetFleet, accepted_links, digests, wait_agreed
+from netfleet import (
+    SOURCES,
+    NetFleet,
+    accepted_links,
+    assert_held_maps_match_owners,
+    digests,
+    wait_agreed,
+)
 from netns import Lab, lab_or_skip
 
 from agent.state import StateDir
@@ -151,7 +158,8 @@ def scenario(record_testsuite_property) -> dict:
 
         out["agreed_s"] = wait_agreed(fleet, 120)
         out["statuses"] = fleet.statuses()
-    print("\n", {k: v for k, v in out.items() if k != "statuses"})
+        out["held"] = {r: StateDir(fleet.state_dir(r)).load_maps()[0] for r in SOURCES}
+    print("\n", {k: v for k, v in out.items() if k not in ("statuses", "held")})
     for kill in out["kills"]:
         for key in ("reached_s", "restart_s", "peers_caught_up_s", "since_restart_s"):
             record_testsuite_property(f"{kill['point']}_{key}", kill[key])
@@ -194,4 +202,8 @@ def test_everyone_ends_with_the_same_global_map(scenario: dict) -> None:
     assert len(digests(statuses)) == 1
     for status in statuses.values():
         assert accepted_links(status) == {("r1", "r2"), ("r1", "r3"), ("r2", "r3")}
-        assert status["drops"] == {}
+        # A tile or fetch reply of a superseded version can arrive after the newer one is held
+        # (restarts and the heal reorder them): it is dropped as stale, and nothing is lost, as
+        # the comparison of every held map with its owner's checks. Any other drop is a fault.
+        assert set(status["drops"]) <= {"stale_version"}, status["drops"]
+    assert_held_maps_match_owners(scenario["held"])

@@ -23,10 +23,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from netfleet import SOURCES, NetFleet, accepted_links, digests, wait_agreed
+from netfleet import (
+    SOURCES,
+    NetFleet,
+    accepted_links,
+    assert_held_maps_match_owners,
+    digests,
+    wait_agreed,
+)
 from netns import Lab, lab_or_skip
 
-from agent import wire
 from agent.evaluate import link_error, true_matrix
 from agent.state import StateDir
 
@@ -98,12 +104,7 @@ def test_fleet_agrees_on_the_baseline_map_with_true_links(
     assert run["seconds"] is not None, f"{name}: no agreement"
     statuses, held = run["statuses"], run["held"]
     assert len(digests(statuses)) == 1
-    for robot, maps in held.items():
-        for peer, stored in maps.items():
-            if peer != robot:
-                own = wire.on_the_wire(held[peer][peer].grid)
-                assert stored.version == held[peer][peer].version
-                assert np.array_equal(stored.grid.logodds, own.logodds), (robot, peer)
+    assert_held_maps_match_owners(held)
     for status in statuses.values():
         # A message of a superseded version may still arrive once the newer one is held (a
         # tile on the unordered UDP session, a fetch reply in flight): it is dropped as stale
