@@ -26,36 +26,20 @@ import pytest
 pytest.importorskip("rosbags")
 import bags
 import ros2_peer
+import ros2_truth
 
 from agent.evaluate import link_error, true_matrix
 from agent.launcher import ROOT, LocalFleet, free_port, wait_for
 from agent.scenario import LOG, random_frames, segments
 from agent.state import StateDir
 from pgvd.carmen import read_carmen
-from pgvd.integrate import frame_for, integrate_scan, se2, select_segment
+from pgvd.integrate import select_segment
 from pgvd.io import read_map
 
 pytestmark = [pytest.mark.fleet, pytest.mark.slow]
 
 TF = "tf2_msgs/msg/TFMessage"
 ROBOTS = ("r1", "r2")
-
-
-def _ros_map(segment: tuple[float, float], frame_deg: tuple[float, float, float]) -> dict:
-    """An Intel segment mapped in ``frame`` as a SLAM node would publish it (0.1 m cells)."""
-    x, y, deg = frame_deg
-    world_to_map = se2(x, y, math.radians(deg))
-    scans = select_segment(read_carmen(LOG), segment)
-    frame = frame_for(scans, 0.1, world_to_map)
-    logodds = frame.empty()
-    for scan in scans:
-        integrate_scan(logodds, scan, frame)
-    prob = frame.grid(logodds).probability()
-    cells = np.full(prob.shape, -1, dtype=np.int8)
-    cells[prob > 0.65], cells[prob < 0.196] = 100, 0
-    h, w = prob.shape
-    cdr = ros2_peer.grid_cdr(np.flipud(cells).ravel(), w, h, 0.1, frame.origin)
-    return {"cdr": cdr, "world_to_map": world_to_map, "shape": (h, w), "origin": frame.origin}
 
 
 def _status_cli(endpoint: str, fleet: str) -> dict:
@@ -112,7 +96,8 @@ def _bad_inputs(robot_session, topic: str, good: dict) -> dict[str, int]:
 def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
     work = tmp_path_factory.mktemp("ros2fleet")
     frames = random_frames(2, seed=12)
-    maps = {r: _ros_map(seg, fr) for r, seg, fr in zip(ROBOTS, segments(2), frames, strict=True)}
+    maps = {r: ros2_truth.ros_map(seg, fr)
+            for r, seg, fr in zip(ROBOTS, segments(2), frames, strict=True)}
     out: dict = {"maps": maps}
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot = ros2_peer.session(listen=endpoint)
@@ -128,15 +113,9 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
         with LocalFleet("ros", work, ["--connect", endpoint, "--link-timeout", "3"]) as fleet:
             fleet.add("r1", "ros2:/r1/map", ["--ros-publish", "/map_merged", "--ros-rate", "4"])
             fleet.add("r2", "ros2:/r2/map")
-
-            def merged_both() -> bool:
-                st = fleet.statuses()
-                return all(
-                    s and s["global"] and s["global"]["members"] == list(ROBOTS) and s["settled"]
-                    for s in st.values()
-                )
-
-            out["merged"] = wait_for(merged_both, 120)
+            out["merged"] = wait_for(
+                lambda: ros2_truth.one_global_map(fleet.statuses(), ROBOTS), 120
+            )
             out["statuses"] = fleet.statuses()
             digest = out["statuses"]["r1"]["global"]["digest"]
             time.sleep(1.0)  # a TF send at 4 Hz after the global map it places
@@ -180,25 +159,8 @@ def test_two_ros_robots_merge_and_the_merged_map_reaches_ros(ros_fleet: dict) ->
 
 
 def test_tf_places_each_robot_map_within_2_cells_and_half_a_degree(ros_fleet: dict) -> None:
-    tf_msg = ros_fleet["tf"][0]
-    placed = {t.child_frame_id: t for t in tf_msg.transforms}
-    assert sorted(placed) == ["r1/map", "r2/map"]
-    anchor = ros_fleet["maps"]["r1"]["world_to_map"]  # the merged frame is r1's map frame
-    for robot in ROBOTS:
-        t = placed[f"{robot}/map"]
-        assert t.header.frame_id == "world"
-        q = t.transform.rotation
-        yaw = 2.0 * math.atan2(q.z, q.w)
-        got = se2(t.transform.translation.x, t.transform.translation.y, yaw)
-        truth = anchor @ np.linalg.inv(ros_fleet["maps"][robot]["world_to_map"])
-        deg = math.degrees(math.atan2(got[1, 0], got[0, 0]) - math.atan2(truth[1, 0], truth[0, 0]))
-        assert abs((deg + 180.0) % 360.0 - 180.0) <= 0.5, (robot, deg)
-        h, w = ros_fleet["maps"][robot]["shape"]
-        ox, oy = ros_fleet["maps"][robot]["origin"]
-        corners = np.array([[ox, oy, 1], [ox + w * 0.1, oy, 1], [ox, oy + h * 0.1, 1],
-                            [ox + w * 0.1, oy + h * 0.1, 1]]).T
-        cells = np.linalg.norm((got @ corners - truth @ corners)[:2], axis=0).max() / 0.1
-        assert cells <= 2.0, (robot, cells)
+    # the merged frame is r1's map frame
+    ros2_truth.assert_tf_places_maps(ros_fleet["tf"][0], ros_fleet["maps"], anchor="r1")
 
 
 def test_a_late_ros_subscriber_still_gets_the_merged_map(ros_fleet: dict) -> None:
