@@ -38,6 +38,15 @@ def test_bag_scans_give_back_the_logs_poses_and_map(tmp_path, intel, storage) ->
     assert np.mean(np.sign(ours.logodds) == np.sign(theirs.logodds)) > 0.999
 
 
+def test_odometry_stands_in_for_tf_when_the_bag_has_no_tf(tmp_path, intel) -> None:
+    write_scan_bag(tmp_path / "bag", intel, odometry=True)
+    scans = read_rosbag_scans(tmp_path / "bag")
+    assert len(scans) == len(intel)
+    for got, want in zip(scans, intel, strict=True):
+        np.testing.assert_allclose(got.pose[:2], want.pose[:2], atol=1e-6)
+        assert np.cos(got.pose[2] - want.pose[2]) == pytest.approx(1.0, abs=1e-9)
+
+
 def test_a_bag_without_tf_to_the_laser_is_refused(tmp_path, intel) -> None:
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
