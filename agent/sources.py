@@ -8,7 +8,9 @@
     demo or a test can compute the true relative transforms.
 ``rosbag:BAG[:TOPIC]``
     The same replay of a rosbag2's ``sensor_msgs/msg/LaserScan`` topic, each scan placed by
-    the bag's TF or odometry (:func:`pgvd.rosbag.read_rosbag_scans`).
+    the bag's TF or odometry (:func:`pgvd.rosbag.read_rosbag_scans`); or, when ``TOPIC`` is
+    a recorded ``nav_msgs/msg/OccupancyGrid`` topic (a SLAM's ``/map``), a replay of its
+    maps, each taken when its bag time comes as a ``ros2:`` source takes a live one.
 ``map:FILE.yaml``
     Follows a map_server file that an external SLAM rewrites: a new map is read only when
     the YAML and image have been unchanged for one poll (a writer may be half-way), and a
@@ -52,7 +54,7 @@ class SourceSpec:
     """A parsed ``--source``: ``kind`` is "carmen", "rosbag", "map" or "ros2".
 
     ``path`` is the log, bag or map file (None for ``ros2``); ``topic`` the bag's LaserScan
-    topic (None: its only one) or the ROS 2 map topic.
+    or OccupancyGrid topic (None: its only LaserScan topic) or the ROS 2 map topic.
     """
 
     kind: str
@@ -423,7 +425,91 @@ class RosTopicSource:
         }
 
 
-Source = CarmenSource | MapFileSource | RosTopicSource
+class RosbagGridSource:
+    """Replays the maps a rosbag2 recorded on a ``nav_msgs/msg/OccupancyGrid`` topic.
+
+    The maps due by the replay clock (bag time, ``speed`` times real time) are skipped to the
+    latest, which replaces the robot's map whole, as a SLAM node's next ``/map`` does; the
+    change gate alone decides versions. A map that does not decode is refused for the reason
+    a live ``ros2:`` topic would refuse it, counted (``refused`` in the status), and the map
+    before it stays.
+
+    Parameters
+    ----------
+    spec : a ``rosbag:BAG:TOPIC`` :class:`SourceSpec` whose topic is an OccupancyGrid one.
+    speed : replay speed, times real time; ``inf`` takes the last map at once.
+    cursor : maps already replayed by an earlier run (resuming).
+    """
+
+    kind = "rosbag"
+
+    def __init__(self, spec: SourceSpec, speed: float, cursor: int = 0) -> None:
+        from pgvd.rosbag import read_rosbag_grids
+
+        assert spec.path is not None and spec.topic is not None
+        self.spec = spec
+        self.speed = speed
+        self.recorded = read_rosbag_grids(spec.path, spec.topic)
+        if not self.recorded:
+            raise ValueError(f"{spec.path}: no map recorded on {spec.topic}")
+        self.cursor = min(cursor, len(self.recorded))
+        self.refused = 0
+        self.last_error: str | None = None
+        self._map: RosMap | None = None
+        self._t0: float | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.cursor >= len(self.recorded)
+
+    def step(self, now: float) -> bool:
+        """Take the latest map due by ``now`` (monotonic seconds); True if one was taken."""
+        from protocol.ros2.occupancy import GridRefused, decode_occupancy_grid
+
+        if self.done:
+            return False
+        first = self.recorded[0][0]
+        if self._t0 is None:
+            # Resume mid-bag: the replay clock starts at the next map.
+            self._t0 = now - (self.recorded[self.cursor][0] - first) / self.speed
+        horizon = first + (now - self._t0) * self.speed
+        due = self.cursor
+        while due < len(self.recorded) and self.recorded[due][0] <= horizon:
+            due += 1
+        if due == self.cursor:
+            return False
+        self.cursor = due
+        try:
+            self._map = decode_occupancy_grid(self.recorded[due - 1][1])
+        except GridRefused as exc:
+            self.refused += 1
+            self.last_error = f"{exc.what}: {exc}"
+            # The bag's last map refused: the one before it is the final one.
+            return self.done and self._map is not None
+        return True
+
+    def grid(self) -> Grid:
+        if self._map is None:
+            raise RuntimeError("no map replayed yet")
+        return self._map.grid
+
+    def resume_state(self) -> dict[str, object]:
+        return {"cursor": self.cursor}
+
+    def describe(self) -> dict[str, object]:
+        return {
+            "kind": self.kind,
+            "path": str(self.spec.path),
+            "topic": self.spec.topic,
+            "progress": [self.cursor, len(self.recorded)],
+            "done": self.done,
+            "refused": self.refused,
+            "last_error": self.last_error,
+            "frame_id": None if self._map is None else self._map.frame_id,
+        }
+
+
+Source = CarmenSource | MapFileSource | RosTopicSource | RosbagGridSource
 
 
 def make_source(
@@ -454,4 +540,9 @@ def make_source(
         grid = getattr(resume, "grid", None)
         if grid is not None and "cursor" in extra:
             state = (grid.logodds, int(extra["cursor"]))
+    if spec.kind == "rosbag" and spec.topic is not None:
+        from pgvd.rosbag import GRID, topic_types
+
+        if topic_types(spec.path).get(spec.topic) == GRID:
+            return RosbagGridSource(spec, speed, 0 if state is None else state[1])
     return CarmenSource(spec, frame or frame_for_robot(robot), resolution, speed, state)

@@ -6,6 +6,9 @@ frame's pose in the root of the bag's TF tree at the scan's stamp: dynamic trans
 ``/tf_static``. A bag without TF to the laser may carry ``nav_msgs/msg/Odometry`` instead
 (``/odom``): its pose of ``child_frame_id`` then stands in for the dynamic part.
 
+A bag may instead hold a SLAM node's maps (``nav_msgs/msg/OccupancyGrid``, e.g. ``/map``):
+:func:`read_rosbag_grids` gives their raw CDR with their bag times, for the caller to decode.
+
 A ROS scan is turned into the CARMEN form :mod:`pgvd.integrate` casts (beams evenly spread
 over a field of view centred on the pose's heading): the heading is turned by the middle of
 ``angle_min..angle_max``; NaN, infinite and below-``range_min`` ranges become "no return".
@@ -25,6 +28,7 @@ import numpy as np
 from pgvd.carmen import LaserScan
 
 SCAN = "sensor_msgs/msg/LaserScan"
+GRID = "nav_msgs/msg/OccupancyGrid"
 TF_TYPES = ("tf2_msgs/msg/TFMessage",)
 ODOMETRY = "nav_msgs/msg/Odometry"
 
@@ -149,16 +153,11 @@ def read_rosbag_scans(path: str | Path, topic: str | None = None) -> list[LaserS
         No such bag, no or several LaserScan topics, no TF or odometry reaching the laser,
         or a message that does not decode.
     """
-    from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     path = Path(path)
-    try:
-        reader = Reader(path)
-        reader.open()
-    except Exception as exc:
-        raise BagFormatError(f"{path}: not a readable rosbag2: {exc}") from None
+    reader = _open(path)
     try:
         scan_topic = _scan_topic(reader.connections, topic, path)
         tree, scans = _TfTree(), []
@@ -177,6 +176,52 @@ def read_rosbag_scans(path: str | Path, topic: str | None = None) -> list[LaserS
     finally:
         reader.close()
     return _place(scans, tree, path)
+
+
+def _open(path: Path) -> Any:
+    """An open rosbags ``Reader`` of ``path``; :class:`BagFormatError` if it cannot be."""
+    from rosbags.rosbag2 import Reader
+
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:
+        raise BagFormatError(f"{path}: not a readable rosbag2: {exc}") from None
+    return reader
+
+
+def topic_types(path: str | Path) -> dict[str, str]:
+    """Each topic a bag records -> its message type; :class:`BagFormatError` if unreadable."""
+    reader = _open(Path(path))
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def read_rosbag_grids(path: str | Path, topic: str) -> list[tuple[float, bytes]]:
+    """The maps recorded on an OccupancyGrid ``topic``: (bag time in s, raw CDR), in order.
+
+    They are left undecoded so that the caller refuses and counts a bad map as it does on a
+    live topic (:func:`protocol.ros2.occupancy.decode_occupancy_grid`), and holds a long
+    recording as int8 cells rather than as decoded grids.
+
+    Raises
+    ------
+    BagFormatError
+        No such bag, or ``topic`` is not an OccupancyGrid topic of it.
+    """
+    path = Path(path)
+    reader = _open(path)
+    try:
+        conns = [c for c in reader.connections if c.topic == topic and c.msgtype == GRID]
+        if not conns:
+            grids = sorted({c.topic for c in reader.connections if c.msgtype == GRID})
+            raise BagFormatError(f"{path}: no OccupancyGrid topic {topic} "
+                                 f"(has: {grids or 'none'})")
+        return [(t_ns / 1e9, bytes(raw)) for _, t_ns, raw in reader.messages(connections=conns)]
+    finally:
+        reader.close()
 
 
 def _scan_topic(connections: Iterable[Any], topic: str | None, path: Path) -> str:

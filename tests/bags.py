@@ -97,3 +97,11 @@ def write_scan_bag(path: Path, scans, storage: str = "mcap", odometry: bool = Fa
                 ranges=np.asarray(scan.ranges, dtype=np.float32),
                 intensities=np.zeros(0, dtype=np.float32),
             ))
+
+
+def write_grid_bag(path: Path, maps: list[tuple[float, bytes]], topic: str = "/map") -> None:
+    """A SLAM node's recorded maps: ``(bag time in s, OccupancyGrid CDR)`` on ``topic``."""
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection(topic, "nav_msgs/msg/OccupancyGrid", typestore=TS)
+        for t, cdr in maps:
+            writer.write(conn, int(t * 1e9), cdr)

@@ -16,6 +16,7 @@ from agent.sources import (
     CarmenSource,
     ChangeGate,
     MapFileSource,
+    RosbagGridSource,
     RosTopicSource,
     SourceSpec,
     epoch_due,
@@ -94,6 +95,63 @@ def test_a_rosbag_replays_like_the_carmen_log_it_was_written_from(tmp_path: Path
     a, b = log.grid(), bag.grid()
     assert a.shape == b.shape and a.origin == pytest.approx(b.origin)
     assert np.mean(np.sign(a.logodds) == np.sign(b.logodds)) > 0.99
+
+
+def test_a_rosbag_of_a_growing_slam_map_replays_its_maps_in_bag_time(tmp_path: Path) -> None:
+    """slam_toolbox's /map recorded as it grew (the Intel map's lower-left corner, then more),
+    and last a map a live topic would refuse: each map is taken when its bag time comes."""
+    pytest.importorskip("rosbags")
+    import bags
+    import ros2_peer
+
+    grid = read_map(Path(__file__).resolve().parents[1] / "examples" / "intel_a.yaml")
+    p = grid.probability()
+    cells = np.where(p > 0.65, 100, np.where(p < 0.196, 0, -1)).astype(np.int8)
+    ros = np.flipud(cells)  # row 0 is the lowest row: a crop [:h, :w] keeps the origin
+    h, w = ros.shape
+    sizes = [(h // 2, w // 3), (h * 3 // 4, w * 2 // 3), (h, w)]
+    recorded = [(100.0 + 10 * i, ros2_peer.grid_cdr(ros[:hh, :ww].ravel(), ww, hh,
+                                                     grid.resolution, grid.origin[:2]))
+                for i, (hh, ww) in enumerate(sizes)]
+    bad = ros2_peer.grid_cdr(ros.ravel(), w, h, 0.0, grid.origin[:2])  # resolution 0
+    bags.write_grid_bag(tmp_path / "bag", [*recorded, (130.0, bad)])
+
+    spec = parse_source(f"rosbag:{tmp_path / 'bag'}:/map")
+    src = make_source(spec, "r1", None, 0.1, 1.0)
+    assert isinstance(src, RosbagGridSource) and src.kind == "rosbag"
+    assert src.step(0.0) and src.grid().shape == sizes[0]
+    assert not src.step(9.0)  # the next map is 10 s later in the bag
+    assert src.step(10.0) and src.grid().shape == sizes[1]
+    assert src.step(20.0) and not src.done, src.describe()
+    got = src.grid()
+    assert got.shape == (h, w) and got.origin[:2] == pytest.approx(grid.origin[:2])
+    np.testing.assert_array_equal(got.probability() > 0.5, cells == 100)
+    np.testing.assert_array_equal(got.probability() < 0.5, cells == 0)
+    assert src.step(30.0) and src.done  # refused; the map before it is the final one
+    assert src.grid() is got
+    status = src.describe()
+    assert status["progress"] == [4, 4] and status["refused"] == 1
+    assert status["last_error"].startswith("resolution:")
+    assert src.resume_state() == {"cursor": 4}
+
+    # A restart resumes after the maps already taken, on the replay clock of the next one.
+    resume = type("Stored", (), {"grid": got, "extra": {"cursor": 1}})()
+    again = make_source(spec, "r1", None, 0.1, 1.0, resume)
+    assert again.step(50.0) and again.grid().shape == sizes[1]
+    assert not again.step(59.0) and again.step(60.0) and again.grid().shape == (h, w)
+
+
+def test_a_rosbag_topic_that_holds_no_maps_gets_one_line(tmp_path: Path) -> None:
+    pytest.importorskip("rosbags")
+    import bags
+
+    from pgvd.rosbag import BagFormatError, read_rosbag_grids
+
+    bags.write_grid_bag(tmp_path / "bag", [])
+    with pytest.raises(ValueError, match="no map recorded on /map"):
+        make_source(parse_source(f"rosbag:{tmp_path / 'bag'}:/map"), "r1", None, 0.1, 1.0)
+    with pytest.raises(BagFormatError, match=r"no OccupancyGrid topic /scan \(has: \['/map'\]\)"):
+        read_rosbag_grids(tmp_path / "bag", "/scan")
 
 
 def test_frames() -> None:

@@ -37,7 +37,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         "--source",
         required=True,
         help="carmen:LOG[@FROM-TO] (fractions), rosbag:BAG[:TOPIC] (a rosbag2's LaserScan "
-        "and TF), map:FILE.yaml, or ros2:/TOPIC (a ROS 2 OccupancyGrid, e.g. ros2:/robot1/map)",
+        "and TF, or its recorded OccupancyGrid TOPIC), map:FILE.yaml, or ros2:/TOPIC (a ROS 2 "
+        "OccupancyGrid, e.g. ros2:/robot1/map)",
     )
     p.add_argument("--state-dir", required=True, type=Path, help="persistent state directory")
     p.add_argument("--fleet", default="default", help="fleet name (key prefix pgvd/<fleet>/)")
