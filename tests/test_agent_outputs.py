@@ -1,26 +1,37 @@
-"""The global map's placements in the merged frame, from real maps in known frames."""
+"""The global map's placements in the merged frame, from real maps in known frames, and the
+TF an agent publishes from them as its global map changes."""
 
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import pytest
 
+from agent.book import FleetBook
+from agent.counters import Counters
 from agent.globalmap import Component
-from agent.outputs import map_placements
+from agent.launcher import wait_for
+from agent.outputs import OutputOptions, Outputs, map_placements
 from pgvd.grid import Grid, relative_matrix
 from pgvd.integrate import se2
 from pgvd.io import read_map
 
 
-def _component(maps: dict[str, tuple[int, Grid]], transforms: dict[str, np.ndarray]) -> Component:
+def _component(maps: dict[str, tuple[int, Grid]], transforms: dict[str, np.ndarray],
+               digest: str = "d") -> Component:
     members = tuple(sorted(maps))
     return Component(
         anchor=members[0], members=members, versions={r: v for r, (v, _) in maps.items()},
         transforms=transforms, covariances={r: np.zeros((3, 3)) for r in members},
-        used=(), rejected=(), grid=maps[members[0]][1], digest="d",
+        used=(), rejected=(), grid=maps[members[0]][1], digest=digest,
     )
+
+
+def _b_in_a(a: Grid, x: float, y: float, yaw: float) -> np.ndarray:
+    """B px -> A px when B's metric frame is A's moved by (x, y, yaw) (B: A's cells, flipped)."""
+    return relative_matrix(a, Grid(a.logodds[::-1, :].copy(), a.resolution, (x, y, yaw)))
 
 
 @pytest.mark.parametrize("yaw_b", [0.0, 0.7, -2.5])
@@ -31,9 +42,8 @@ def test_placements_are_the_true_frames_of_each_map(yaw_b: float) -> None:
     # is where A's metric frame puts its lower-left corner, so the true B px -> A px matrix is
     # relative_matrix of the two grids expressed in A's frame.
     b_to_a = se2(3.0, -2.0, yaw_b)
-    b_in_a = Grid(a.logodds[::-1, :].copy(), a.resolution, (3.0, -2.0, yaw_b))
-    b_own = Grid(b_in_a.logodds, a.resolution, (0.0, 0.0, 0.0))
-    px = relative_matrix(a, b_in_a)  # b_own and b_in_a share pixels
+    b_own = Grid(a.logodds[::-1, :].copy(), a.resolution, (0.0, 0.0, 0.0))
+    px = _b_in_a(a, 3.0, -2.0, yaw_b)  # b_own and B placed in A's frame share pixels
     comp = _component({"a": (1, a), "b": (4, b_own)}, {"a": np.eye(3), "b": px})
     placed = {p.child: p for p in map_placements(comp, {"a": (1, a), "b": (4, b_own)}, "world")}
     assert placed["a/map"].x == pytest.approx(0.0, abs=1e-9)
@@ -50,3 +60,60 @@ def test_a_map_newer_than_the_component_is_not_placed() -> None:
     placed = map_placements(comp, {"a": (1, a), "b": (5, a)}, "world")
     assert [p.child for p in placed] == ["a/map"]
     assert map_placements(comp, {"a": (2, a), "b": (4, a)}, "world") == []
+
+
+def test_tf_follows_the_global_map_as_it_changes() -> None:
+    """Each new global map re-places the robots on /tf; while a member's map has moved on
+    since the rebuild, the last placements stand in rather than dropping it from TF."""
+    pytest.importorskip("rosbags")
+    import ros2_peer
+
+    a = read_map("examples/intel_a.yaml")
+    b = Grid(a.logodds[::-1, :].copy(), a.resolution, (0.0, 0.0, 0.0))
+    book = FleetBook()
+    book.put_map("a", 1, a)
+    book.put_map("b", 4, b)
+    session = ros2_peer.session()
+    lock, got = threading.Lock(), []
+
+    def on_tf(sample) -> None:
+        msg = ros2_peer.TS.deserialize_cdr(sample.payload.to_bytes(), "tf2_msgs/msg/TFMessage")
+        with lock:
+            got.append({t.child_frame_id: t.transform for t in msg.transforms})
+
+    def sent_after(tick) -> dict:
+        with lock:
+            seen = len(got)
+        tick()
+        assert wait_for(lambda: len(got) > seen, 10)
+        with lock:
+            return got[-1]
+
+    sub = session.declare_subscriber(ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage"), on_tf)
+    out = Outputs(OutputOptions(publish="/map_merged", rate=1.0), "a", session, Counters())
+    try:
+        first = _component({"a": (1, a), "b": (4, b)},
+                           {"a": np.eye(3), "b": _b_in_a(a, 3.0, -2.0, 0.7)})
+        tf = sent_after(lambda: out.tick(0.0, first, book))
+        assert (tf["b/map"].translation.x, tf["b/map"].translation.y) == pytest.approx(
+            (3.0, -2.0), abs=1e-6)
+        # The merge refines B's link: a new global map, and B's transform moves with it.
+        refined = _component({"a": (1, a), "b": (4, b)},
+                             {"a": np.eye(3), "b": _b_in_a(a, 3.5, -1.0, 0.7)}, digest="d2")
+        tf = sent_after(lambda: out.tick(1.0, refined, book))
+        assert (tf["b/map"].translation.x, tf["b/map"].translation.y) == pytest.approx(
+            (3.5, -1.0), abs=1e-6)
+        q = tf["b/map"].rotation
+        assert 2 * math.atan2(q.z, q.w) == pytest.approx(0.7, abs=1e-9)
+        # B's map moves on before the next rebuild: its placement cannot be computed from
+        # this global map, so the refined placements stand in and B stays in TF.
+        book.put_map("b", 5, b)
+        stale = _component({"a": (1, a), "b": (4, b)},
+                           {"a": np.eye(3), "b": _b_in_a(a, 9.0, 9.0, 0.0)}, digest="d3")
+        tf = sent_after(lambda: out.tick(2.0, stale, book))
+        assert sorted(tf) == ["a/map", "b/map"]
+        assert tf["b/map"].translation.x == pytest.approx(3.5, abs=1e-6)
+    finally:
+        out.close()
+        sub.undeclare()
+        session.close()
