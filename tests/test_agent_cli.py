@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import sys
 from pathlib import Path
 
 import pytest
@@ -64,3 +65,36 @@ def test_known_poses_reach_the_agent_options(tmp_path: Path) -> None:
     argv = agent(tmp_path, "--known-pose", "r1=0,0,0", "--known-pose", "r2=4.0,-1.5,0.3")
     opts = options_from_args(build_parser(["agent"]).parse_args(argv))
     assert dict(opts.known_poses) == {"r1": (0.0, 0.0, 0.0), "r2": (4.0, -1.5, 0.3)}
+
+
+@pytest.mark.parametrize(
+    ("extra", "module", "message"),
+    [
+        (["--source", "ros2:/robot1/map"], "rosbags",
+         "--source ros2: needs rosbags, which is not installed: pip install 'pgvd-fleet[ros2]'"),
+        (["--source", "rosbag:/some/bag"], "rosbags", "--source rosbag: needs rosbags"),
+        (["--ros-publish", "/map_merged"], "rosbags", "--ros-publish needs rosbags"),
+        (["--foxglove", "127.0.0.1:8765"], "foxglove",
+         "--foxglove needs foxglove, which is not installed: pip install 'pgvd-fleet[view]'"),
+    ],
+)
+def test_a_missing_extra_is_named_in_one_line(
+    tmp_path: Path, capsys, monkeypatch, extra: list[str], module: str, message: str
+) -> None:
+    monkeypatch.setitem(sys.modules, module, None)  # as if it were not installed
+    assert main(agent(tmp_path, *extra)) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+
+
+def test_an_agent_without_ros_needs_neither_extra(tmp_path: Path, monkeypatch) -> None:
+    """rosbags (ros2) and foxglove-sdk (view) are extras: a carmen: agent runs without them."""
+    from agent.cli.agent import options_from_args
+    from agent.cli.dispatch import build_parser
+    from protocol.ros2.types import typestore
+
+    for module in ("rosbags", "foxglove"):
+        monkeypatch.setitem(sys.modules, module, None)
+    typestore.cache_clear()  # a type store made by an earlier test would hide an import
+    opts = options_from_args(build_parser(["agent"]).parse_args(agent(tmp_path)))
+    assert opts.source.kind == "carmen" and not opts.outputs.active

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import zenoh
 
-from agent.cli.common import EXIT_OK, CliError, read_fleet_key
+from agent.cli.common import EXIT_OK, CliError, read_fleet_key, require_extra
 from agent.failpoints import check_armed
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
@@ -22,8 +22,8 @@ from agent.ros2_io import RosOptions
 from agent.sources import parse_frame, parse_source
 from agent.view import parse_endpoint
 from agent.zenoh_config import MODES, ZenohOptions, build_config, tile_session_options
-from protocol.ros2.keys import FORMS, check_topic, data_key
-from protocol.ros2.types import DISTROS, OCCUPANCY_GRID
+from protocol.ros2.keys import FORMS, check_domain, check_topic
+from protocol.ros2.types import DISTROS
 
 #: A TF frame id: tf2 refuses a leading slash; the rest as ROS names.
 _FRAME_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
@@ -167,6 +167,7 @@ def options_from_args(args: argparse.Namespace):
         check_armed()  # a misspelt failpoint must not let a crash test pass without a crash
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    _require_extras(source.kind, outputs)
     if source.path is not None and not source.path.exists():
         raise CliError(f"source file not found: {source.path}")
     for name in ("resolution", "speed", "link_timeout", "announce", "min_interval", "inbox_mib",
@@ -228,10 +229,20 @@ def options_from_args(args: argparse.Namespace):
     )
 
 
+def _require_extras(source_kind: str, outputs: OutputOptions) -> None:
+    """The optional dependencies the source and outputs use are installed (else CliError)."""
+    if source_kind in ("ros2", "rosbag"):
+        require_extra("rosbags", "ros2", f"--source {source_kind}:")
+    if outputs.publish is not None:
+        require_extra("rosbags", "ros2", "--ros-publish")
+    if outputs.foxglove is not None:
+        require_extra("foxglove", "view", "--foxglove")
+
+
 def _output_options(args: argparse.Namespace) -> OutputOptions:
     """The ROS 2 and Foxglove options (``ValueError`` with one line if bad)."""
-    ros = RosOptions(domain=args.ros_domain, distro=args.ros_distro, form=args.ros_keys)
-    data_key("/map", OCCUPANCY_GRID, domain=ros.domain, distro=ros.distro, form=ros.form)
+    ros = RosOptions(domain=check_domain(args.ros_domain), distro=args.ros_distro,
+                     form=args.ros_keys)
     if args.ros_publish is not None:
         check_topic(args.ros_publish)
     if not _FRAME_ID.fullmatch(args.ros_frame):

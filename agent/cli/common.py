@@ -7,6 +7,7 @@ reported as one line on stderr; 3 the two maps of ``pgvd merge`` do not overlap.
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 EXIT_OK = 0
@@ -46,3 +47,26 @@ def read_fleet_key(path: Path | None) -> bytes | None:
     if not key:
         raise CliError(f"key file is empty: {path}")
     return key
+
+
+def require_extra(module: str, extra: str, needed_by: str) -> None:
+    """Refuse, in one line, an option whose optional dependency is not installed.
+
+    Parameters
+    ----------
+    module : the import name of the dependency (``rosbags``, ``foxglove``).
+    extra : the project extra that installs it (``ros2``, ``view``).
+    needed_by : what asked for it, for the message (``--source ros2:``).
+
+    Raises
+    ------
+    CliError
+        When ``module`` cannot be imported.
+    """
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        raise CliError(
+            f"{needed_by} needs {module}, which is not installed: "
+            f"pip install 'pgvd-fleet[{extra}]'"
+        ) from None

@@ -40,6 +40,13 @@ def check_topic(topic: str) -> str:
     return topic
 
 
+def check_domain(domain: int) -> int:
+    """Return ``domain`` if it is a ROS_DOMAIN_ID (0..232), else raise ``ValueError``."""
+    if not 0 <= domain <= 232:
+        raise ValueError(f"ROS domain id must be in 0..232, got {domain}")
+    return domain
+
+
 def data_key(topic: str, msgtype: str, *, domain: int = 0, distro: str = "jazzy",
              form: str = "rmw_zenoh") -> str:
     """The Zenoh key of ``topic``'s samples.
@@ -57,9 +64,7 @@ def data_key(topic: str, msgtype: str, *, domain: int = 0, distro: str = "jazzy"
         return bare
     if form != "rmw_zenoh":
         raise ValueError(f"unknown ROS key form {form!r}, expected one of {', '.join(FORMS)}")
-    if not 0 <= domain <= 232:
-        raise ValueError(f"ROS domain id must be in 0..232, got {domain}")
-    return f"{domain}/{bare}/{dds_type_name(msgtype)}/{type_hash(msgtype, distro)}"
+    return f"{check_domain(domain)}/{bare}/{dds_type_name(msgtype)}/{type_hash(msgtype, distro)}"
 
 
 def _mangle(name: str) -> str:
