@@ -82,6 +82,29 @@ def test_latched_map_reaches_a_late_subscriber_and_updates_follow(sessions) -> N
         pub.close()
 
 
+def test_a_humble_robots_map_is_followed_with_ros_distro_humble(sessions) -> None:
+    """Humble's rmw_zenoh writes ``TypeHashNotSupported`` where the hash goes; a Jazzy key on
+    the same topic is then another type's, dropped and counted."""
+    robot, agent = sessions
+    cells, w, h = _cells()
+    humble = ros2_peer.LatchedPublisher(robot, "/robot1/map", type_hash="TypeHashNotSupported")
+    humble.put(ros2_peer.grid_cdr(cells, w, h, 0.05, (0.0, 0.0)))
+    drops: list[tuple[str, str]] = []
+    sub = RosMapSubscription(agent, "/robot1/map", RosOptions(distro="humble"),
+                             lambda r, d: drops.append((r, d)))
+    jazzy = ros2_peer.LatchedPublisher(robot, "/robot1/map")
+    try:
+        assert _wait(sub.take).grid.shape == (h, w)
+        time.sleep(0.3)  # let the subscription see the Jazzy publisher
+        jazzy.put(ros2_peer.grid_cdr(cells, w, h, 0.05, (0.0, 0.0)))
+        _wait(lambda: drops)
+        assert [r for r, _ in drops] == ["type_hash"] and sub.take() is None
+    finally:
+        sub.close()
+        jazzy.close()
+        humble.close()
+
+
 @pytest.mark.parametrize(
     ("kind", "reason"),
     [("hash", "type_hash"), ("attachment", "attachment"), ("truncated", "cdr"),
