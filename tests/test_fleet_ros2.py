@@ -92,6 +92,34 @@ def _bad_inputs(robot_session, topic: str, good: dict) -> dict[str, int]:
             "ros2_origin": 1, "ros2_cells": 2, "ros2_attachment": 1}
 
 
+def _r1_component(status: dict | None) -> dict:
+    """The component of r1's status that holds r1 (its global map), {} if none yet."""
+    comps = (status or {}).get("components", [])
+    return next((c for c in comps if "r1" in c["members"]), {})
+
+
+def _grow(fleet: LocalFleet, publisher, tf: _Collector, merged: _Collector, frame) -> dict:
+    """r2's SLAM map grows, as slam_toolbox's does: same map frame, a new origin and size.
+
+    Its segment of the log is extended backwards, so the grid grows on its low side and its
+    origin moves. Returns the grown map's truth, the ``/tf`` and ``/map_merged`` that r1 sends
+    once its global map holds the grown version, and that map's component in r1's status.
+    """
+    start, end = segments(2)[1]
+    grown = ros2_truth.ros_map((start - 0.15, end), frame)
+    held = _r1_component(fleet.agents["r1"].status())["versions"]["r2"]
+    publisher.put(grown["cdr"])
+
+    def rebuilt() -> dict:
+        status = fleet.agents["r1"].status() or {}
+        comp = _r1_component(status) if status.get("settled") else {}
+        return comp if comp.get("versions", {}).get("r2", held) > held else {}
+
+    wait_for(rebuilt, 60)
+    time.sleep(1.0)  # a TF send at 4 Hz after the global map it places
+    return {"map": grown, "component": rebuilt(), "tf": tf.last(), "merged_map": merged.last()}
+
+
 @pytest.fixture(scope="module")
 def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
     work = tmp_path_factory.mktemp("ros2fleet")
@@ -133,6 +161,7 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
             out["alive"] = [r for r, a in fleet.agents.items() if a.alive()]
             out["digest_after"] = fleet.agents["r1"].status()["global"]["digest"]
             out["digest_before"] = digest
+            out["grown"] = _grow(fleet, publishers[1], tf, merged, frames[1])
     finally:
         for sub in subs:
             sub.undeclare()
@@ -242,3 +271,16 @@ def test_a_dds_robot_behind_zenoh_bridge_ros2dds_is_followed(tmp_path) -> None:
     p = stored.probability()
     np.testing.assert_array_equal(p > 0.5, cells == 100)
     np.testing.assert_array_equal(p < 0.5, cells == 0)
+
+
+def test_a_growing_slam_map_is_followed_and_placed_again(ros_fleet: dict) -> None:
+    """slam_toolbox's /map grows (m-explore-ros2 #10): the merged map and TF follow it."""
+    grown = ros_fleet["grown"]
+    comp = grown["component"]
+    assert comp, "r1 never rebuilt its global map with r2's grown map"
+    assert grown["map"]["shape"] != ros_fleet["maps"]["r2"]["shape"]
+    assert comp["members"] == list(ROBOTS)
+    msg = grown["merged_map"][0]
+    assert (msg.info.height, msg.info.width) == tuple(comp["shape"])
+    maps = {"r1": ros_fleet["maps"]["r1"], "r2": grown["map"]}
+    ros2_truth.assert_tf_places_maps(grown["tf"][0], maps, anchor="r1")
