@@ -77,8 +77,10 @@ def grid_cdr(cells, width: int, height: int, resolution: float, origin: tuple[fl
 class LatchedPublisher:
     """slam_toolbox's ``/map``: transient local, depth 1, with its MP token."""
 
-    def __init__(self, s: zenoh.Session, topic: str, type_hash: str | None = None) -> None:
-        self.key = key(topic, type_hash=type_hash)
+    def __init__(
+        self, s: zenoh.Session, topic: str, type_hash: str | None = None, domain: int = 0
+    ) -> None:
+        self.key = key(topic, type_hash=type_hash, domain=domain)
         self.pub = zenoh.ext.declare_advanced_publisher(
             s, self.key, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
         )
@@ -86,7 +88,7 @@ class LatchedPublisher:
         mangled = topic.replace("/", "%")
         type_field = self.key.split("/")[-1]
         self.token = s.liveliness().declare_token(
-            f"@ros2_lv/0/{s.zid()}/0/10/MP/%/%/slam_toolbox/{mangled}/"
+            f"@ros2_lv/{domain}/{s.zid()}/0/10/MP/%/%/slam_toolbox/{mangled}/"
             f"nav_msgs::msg::dds_::OccupancyGrid_/{type_field}/:1:,1:,:,:,,"
         )
 

@@ -105,6 +105,30 @@ def test_a_humble_robots_map_is_followed_with_ros_distro_humble(sessions) -> Non
         humble.close()
 
 
+def test_only_the_agents_ros_domain_is_followed(sessions) -> None:
+    """ROS_DOMAIN_ID is the first chunk of every rmw_zenoh key: a robot on domain 0 is another
+    network for an agent started with ``--ros-domain 7``."""
+    robot, agent = sessions
+    cells, w, h = _cells()
+    other = ros2_peer.LatchedPublisher(robot, "/robot1/map")
+    other.put(ros2_peer.grid_cdr(cells, w, h, 0.05, (0.0, 0.0)))
+    drops: list[tuple[str, str]] = []
+    sub = RosMapSubscription(agent, "/robot1/map", RosOptions(domain=7),
+                             lambda r, d: drops.append((r, d)))
+    ours = ros2_peer.LatchedPublisher(robot, "/robot1/map", domain=7)
+    try:
+        time.sleep(0.5)  # domain 0's cached map would have arrived by now
+        assert sub.take() is None
+        ours.put(ros2_peer.grid_cdr(cells, w, h, 0.1, (1.0, 2.0)))
+        got = _wait(sub.take)
+        # MapMetaData.resolution is a float32
+        assert got.grid.shape == (h, w) and got.grid.resolution == pytest.approx(0.1) and not drops
+    finally:
+        sub.close()
+        ours.close()
+        other.close()
+
+
 @pytest.mark.parametrize(
     ("kind", "reason"),
     [("hash", "type_hash"), ("attachment", "attachment"), ("truncated", "cdr"),
