@@ -109,6 +109,7 @@ def test_accepted_pair_json_fused_map_and_plot(tmp_path: Path, shared: Path) -> 
     cov = np.array(doc["covariance"])
     assert cov.shape == (3, 3) and np.all(np.linalg.eigvalsh(cov) >= 0)
     assert doc["timings_ms"]["total"] > 0
+    assert "diagnostics" in doc["timings_ms"]  # the PGVD panels of the plot were painted
     # the fused map reads back, holds both halves, and keeps A's world frame
     g = read_map(fused)
     to_a = relative_matrix(g, a)
@@ -137,6 +138,16 @@ def test_rejected_pair_exits_3_and_still_plots(tmp_path: Path, shared: Path) -> 
     doc = json.loads(proc.stdout)  # strict JSON: NaN covariance entries are null
     assert doc.keys() >= CONTRACT_KEYS and doc["accepted"] is False and doc["reason"]
     assert plot.stat().st_size > 0 and not fused.exists()
+
+
+def test_without_plot_the_pgvd_images_are_not_painted(shared: Path) -> None:
+    """Only ``--plot`` draws MergeResult.diagnostics: without it the merge skips them."""
+    d = shared / "maps/intel_split_gt"
+    proc = pgvd_merge(d / "intel_partA.yaml", d / "intel_partB.yaml", "--json")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    assert doc["accepted"] is True and "covariance" in doc["timings_ms"]
+    assert "diagnostics" not in doc["timings_ms"]
 
 
 @pytest.mark.slow
