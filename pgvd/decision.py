@@ -31,8 +31,16 @@ pose is contradicted by the maps passes however short it is.  A rival with
 negative evidence (the maps contradict that pose) counts for the winner, so
 a noisy map whose true pose keeps some walls on free space (people, clutter)
 can still stand out; with no rival at all ``E_rival`` is 0, the empty
-overlay.  The threshold is set on the development negatives of the merge
-bench (``bench/results/acceptance.md``).
+overlay.  It does so only for a winner the maps do not contradict: when
+``E_win <= 0`` (more walls on free space, weighted, than on walls) the margin
+is ``E_win / (agree_win + disagree_win)``, 0 or below, whatever its rivals.
+Without that floor a contradicted pose won by being contradicted less than
+its rivals: with ``MergeParams.heading_span = 6`` the wide bench accepted a
+low-overlap fr079 log pair turned by 180 degrees at margin 0.95 (evidence
+-482 against a rival at -1380; ``python3 -m bench.merge --methods
+pgvd-heading``); no right winner of that run or of the default one has
+``E_win <= 0`` at a margin above the threshold.  The threshold is set on the
+development negatives of the merge bench (``bench/results/acceptance.md``).
 """
 
 from __future__ import annotations
@@ -86,7 +94,7 @@ class Decision:
         Best evidence of a hypothesis with another pose (``-inf`` when there is none).
     margin : float
         The statistic of the module docstring (0 or below when a rival scores as
-        well as the winner, or without overlap).
+        well as the winner, when the maps contradict the winner, or without overlap).
     """
 
     winner: Scored
@@ -192,10 +200,19 @@ def decide(
 
 
 def _margin(win: Scored, rival: float, weight: float) -> float:
-    """``(E_win - E_rival) / (agree_win + disagree_win)``; ``E_rival`` 0 without a rival."""
+    """``(E_win - E_rival) / (agree_win + disagree_win)``; ``E_rival`` 0 without a rival.
+
+    A winner with ``E_win <= 0`` gets ``E_win / (agree_win + disagree_win)``: a rival
+    contradicted by the maps counts for a winner only if the winner is not contradicted too.
+    """
     points = win.agreement.agree + win.agreement.disagree
+    if not points:
+        return 0.0
+    own = win.evidence(weight)
+    if own <= 0:
+        return float(own / points)
     against = rival if np.isfinite(rival) else 0.0
-    return float((win.evidence(weight) - against) / points) if points else 0.0
+    return float((own - against) / points)
 
 
 def restate(decision: Decision, final: Scored, weight: float) -> Decision:
