@@ -178,3 +178,25 @@ def test_restate_measures_the_returned_pose_against_the_same_rival(intel):
     assert again.margin == pytest.approx((final.evidence(WEIGHT) - first.rival) / points)
     # the refined pose puts more walls on walls: its margin, not the rough one's, decides
     assert again.margin > first.margin, (again, first)
+
+
+def test_a_small_overlap_must_stand_out_more(intel):
+    fine_a, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    noise = MergeParams().margin_noise
+    drops = []
+    # the same true pose and rival counted on ~150 and ~1500 walls a map: about the same
+    # margin per wall, but the small count's margin is the less certain
+    for points in (150, 1500):
+        win, rival = (
+            Scored(m, map_agreement(fine_a, fine_b, m, max_points=points))
+            for m in (truth, _moved(truth, 60.0))
+        )
+        plain = decide([win, rival], WEIGHT, centre)
+        lowered = decide([win, rival], WEIGHT, centre, noise=noise)
+        n = win.agreement.agree + win.agreement.disagree
+        assert lowered.margin == pytest.approx(plain.margin - noise / np.sqrt(n))
+        # the returned pose's margin is lowered the same way
+        assert restate(plain, win, WEIGHT, noise).margin == pytest.approx(lowered.margin)
+        drops.append(plain.margin - lowered.margin)
+    assert drops[0] > 2.5 * drops[1] > 0, drops
