@@ -17,6 +17,10 @@ margin of a winner at a wrong pose or on a negative pair: a threshold above
 it accepts none of them.  ``-v`` prints every pair.
 
     python3 -m bench.redecide [bench/results/merge.json] [--set drifted] [--param min_margin=0.7]
+
+``--method pgvd-heading`` replays the records of that bench method instead of
+``pgvd``'s (its finalists; the decision's parameters are still ``MergeParams``
+with the ``--param`` overrides).
 """
 
 from __future__ import annotations
@@ -92,7 +96,7 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
 def replay_run(
     records: list[dict], entries: dict[str, Entry], params: MergeParams, verbose: bool
 ) -> list[dict]:
-    """Replay every pgvd record that has finalists; one row per pair."""
+    """Replay every record that has finalists; one row per pair."""
     rows = []
     for rec in records:
         if not rec.get("finalists") or rec["pair"] not in entries:
@@ -148,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("json", nargs="?", type=Path, default=RESULTS / "merge.json")
     parser.add_argument("--set", choices=SETS, help="only this set")
+    parser.add_argument("--method", default="pgvd", help="records of this bench method")
     parser.add_argument("--param", nargs="*", default=[], help="MergeParams FIELD=VALUE")
     parser.add_argument("--seed", type=int, default=1, help="seed of the run's pairs")
     parser.add_argument("--cache", type=Path, default=CACHE)
@@ -158,8 +163,11 @@ def main(argv: list[str] | None = None) -> int:
     records = [
         r
         for r in doc["records"]
-        if r["method"] == "pgvd" and (args.set is None or r["set"] == args.set)
+        if r["method"] == args.method and (args.set is None or r["set"] == args.set)
     ]
+    if not records:
+        print(f"{args.json}: no records of method {args.method!r}")
+        return 1
     entries = {e.pair.name: e for e in build(FULL, args.seed, args.cache, SOURCES)}
     rows = replay_run(records, entries, params, args.verbose)
     print("\n".join(summary(rows)))

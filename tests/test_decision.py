@@ -133,6 +133,26 @@ def test_a_contradicted_rival_counts_for_the_winner(intel):
     assert decide([win, close], WEIGHT, centre).margin == pytest.approx(0.05)
 
 
+def test_a_contradicted_winner_has_no_margin_whatever_its_rivals(shared, intel):
+    fine_a, fine_b, truth = intel
+    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
+    bent = _bent(fine_b, truth, b.probability(), 6)
+    centre = fine_b.walls.mean(axis=0)
+    # scored rigidly, half of the bent map's walls lie beside A's: even the true pose is
+    # contradicted, and a pose 3 m off is contradicted more
+    win, rival = (
+        Scored(m, map_agreement(fine_a, bent, m, max_points=1500))
+        for m in (truth, _moved(truth, 60.0))
+    )
+    assert rival.evidence(WEIGHT) < win.evidence(WEIGHT) < 0, (win, rival)
+    d = decide([rival, win], WEIGHT, centre)
+    assert d.winner is win and d.rival == rival.evidence(WEIGHT)
+    # being contradicted less than a rival is no evidence for a pose
+    points = win.agreement.agree + win.agreement.disagree
+    assert d.margin == pytest.approx(win.evidence(WEIGHT) / points)
+    assert d.margin < 0
+
+
 def test_local_agreement_refuses_bad_squares(intel):
     fine_a, fine_b, truth = intel
     for block, shift in ((0.0, 10.0), (-5.0, 10.0), (100.0, -1.0), (float("nan"), 1.0)):
@@ -158,3 +178,25 @@ def test_restate_measures_the_returned_pose_against_the_same_rival(intel):
     assert again.margin == pytest.approx((final.evidence(WEIGHT) - first.rival) / points)
     # the refined pose puts more walls on walls: its margin, not the rough one's, decides
     assert again.margin > first.margin, (again, first)
+
+
+def test_a_small_overlap_must_stand_out_more(intel):
+    fine_a, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    noise = MergeParams().margin_noise
+    drops = []
+    # the same true pose and rival counted on ~150 and ~1500 walls a map: about the same
+    # margin per wall, but the small count's margin is the less certain
+    for points in (150, 1500):
+        win, rival = (
+            Scored(m, map_agreement(fine_a, fine_b, m, max_points=points))
+            for m in (truth, _moved(truth, 60.0))
+        )
+        plain = decide([win, rival], WEIGHT, centre)
+        lowered = decide([win, rival], WEIGHT, centre, noise=noise)
+        n = win.agreement.agree + win.agreement.disagree
+        assert lowered.margin == pytest.approx(plain.margin - noise / np.sqrt(n))
+        # the returned pose's margin is lowered the same way
+        assert restate(plain, win, WEIGHT, noise).margin == pytest.approx(lowered.margin)
+        drops.append(plain.margin - lowered.margin)
+    assert drops[0] > 2.5 * drops[1] > 0, drops
