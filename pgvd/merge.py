@@ -30,9 +30,10 @@ Stages (``timings_ms`` keys):
     across the corridor, so each proposal first slides (within
     ``search_radius``) to the best whole-map overlay nearby; it then counts
     only if at least ``min_pairs`` edge pairs pass (32) *at that
-    translation*.  Hypotheses of all headings are ranked by the overlay
-    evidence ``agree - disagreement_weight * disagree`` (walls on walls vs
-    walls on clear free space, both ways).  The finalists are refined and
+    translation*.  Hypotheses of all headings are ranked by the coarse overlay
+    evidence ``agree + search_free_weight * free_agree - search_conflict_weight *
+    disagree`` (walls on walls, cells free in both, walls on clear free space,
+    both ways).  The finalists are refined and
     scored again at full resolution (each 5 m square of the overlap re-aligned by
     up to ``drift_shift`` first, so that a drifted map's walls running beside
     the other's are not counted as conflict), and the winner, once refined (see
@@ -66,6 +67,7 @@ from pgvd.matching import (
     MapView,
     Overlay,
     OverlayScores,
+    OverlayWeights,
     PairSupport,
     WallMap,
     alignment_fit,
@@ -83,6 +85,14 @@ from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
 from pgvd.sampling import subsample
 from pgvd.transform import warp
 from pgvd.uncertainty import rotation_blur
+
+#: ICP iterations per correspondence radius when the finalists are refined (each stops
+#: early once it no longer moves).  Three left the true pose of low-overlap pairs short of
+#: it: on the development low-overlap pairs, the true finalist came within the bench's
+#: success bounds in 15 of 48 pairs with 3, 21 with 8 (``/tmp`` trace of the finalists,
+#: see the srch10 report); the winner's own refinement comes after the decision, too late
+#: to change which finalist wins.
+FINALIST_ICP_ITERATIONS = 8
 
 
 @dataclass(frozen=True)
@@ -145,10 +155,24 @@ class MergeParams:
         their true pose.  0 scores the rigid overlay (ablation: without drift tolerance;
         on the wide bench it accepts as many right poses, faster, but it accepts the
         two disjoint halves of fr079_albertB's map312, tests/test_merge.py).
-    disagreement_weight : hypotheses are ranked by ``agree - weight * disagree``: a wall on
-        clear free space is strong evidence against, a wall on a wall weak evidence for
-        (walls are everywhere in a building), so a large overlap with some conflicts
-        must not outrank a smaller, consistent one.
+    disagreement_weight : refined finalists are scored by ``agree - weight * disagree``
+        (:mod:`pgvd.decision`): a wall on clear free space is strong evidence against, a
+        wall on a wall weak evidence for (walls are everywhere in a building), so a large
+        overlap with some conflicts must not outrank a smaller, consistent one.
+    search_conflict_weight, search_free_weight : the coarse hypotheses (whole-map overlay
+        peaks, slides of the edge pairs' proposals, the finalists' ranking, the order of
+        the headings) are ranked by ``agree + free_weight * free_agree - conflict_weight *
+        disagree`` (:class:`pgvd.matching.OverlayWeights`), where ``free_agree`` counts
+        cells free in both maps.  With walls alone (``agree - 4 disagree``) a look-alike
+        translation with a larger overlap outranks a small true one despite its conflicts:
+        at the true heading, the true translation of the 48 development low-overlap pairs
+        was the best overlay peak in 19 and among the best 8 in 36; free space seen by
+        both is evidence too, and conflicts weigh more once it counts (exhaustive count
+        over the peaks, the srch10 report).  Measured (best peak / best 8 peaks, low
+        48 pairs, drifted 48, standard 80): ``4, 0``: 19/36, 41/47, 75/79; ``12, 1``:
+        26/44, 42/48, 76/80; ``24, 0.5``: 33/47, 37/40, 80/80, but drifted maps conflict
+        where they drift, and with 16 or 24 the bench accepted a drifted pair at a pose
+        8 degrees off.  BENCH
     finalists : best coarse hypotheses refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
     fine_points : wall cells per map, at most, of the winner's full-resolution stages (its
@@ -188,11 +212,14 @@ class MergeParams:
     distortion_block: float = 5.0
     drift_shift: float = 0.5
     disagreement_weight: float = 4.0
+    search_conflict_weight: float = 12.0
+    search_free_weight: float = 1.0
     heading_span: float = 0.0
     heading_step: float = 3.0
     search_headings: int = 6
     overlay_peaks: int = 5
     finalists: int = 8
+    search_finalists: int = 0
     refine_points: int = 1500
     fine_points: int = 20000
     occupied: float = OCCUPIED
@@ -202,6 +229,11 @@ class MergeParams:
     gamma_ranking: bool = True
     heading_blur: bool = True
     diagnostics: bool = True
+
+    @property
+    def search_weights(self) -> OverlayWeights:
+        """The coarse overlay's evidence (``search_conflict_weight``, ``search_free_weight``)."""
+        return OverlayWeights(self.search_conflict_weight, self.search_free_weight)
 
 
 @dataclass
@@ -282,7 +314,8 @@ class MergeResult:
 class _Hypothesis:
     heading: HeadingCandidate
     coarse_matrix: np.ndarray  # coarse B -> A's coarse crop
-    evidence: float
+    evidence: float  # agree - disagreement_weight * disagree (walls only)
+    search_evidence: float  # MergeParams.search_weights
     ratio: float
     support: int
     passing: np.ndarray
@@ -446,7 +479,7 @@ def _overlay_evidence(
     rb = warp(cb, rot, shape, order=1, cval=0.5)
     rows, cols = _known_box(rb)
     view = MapView(rb[rows, cols], params.occupied, params.free, 1)
-    return scores.overlay(view).best_evidence(params.disagreement_weight)
+    return scores.overlay(view).best_evidence(_weights(params)[0])
 
 
 def _refined_heading(
@@ -499,9 +532,9 @@ def _with_refined(
     return out
 
 
-def _ranked(turned: list[_Rotated], weight: float) -> list[_Rotated]:
+def _ranked(turned: list[_Rotated], weights: OverlayWeights) -> list[_Rotated]:
     """Rotated B's, best whole-map overlay evidence first."""
-    return sorted(turned, key=lambda r: -r.overlay.best_evidence(weight))
+    return sorted(turned, key=lambda r: -r.overlay.best_evidence(weights))
 
 
 def _search_heading(
@@ -540,7 +573,9 @@ def _search_heading(
     # The whole-map overlay's own peaks propose too: with a small overlap the
     # edge pairs that cross it are few and their correlation peaks (29) can all
     # fall elsewhere; the rho test (32) at the translation still has to pass.
-    proposals += overlay.peaks(params.overlay_peaks, radius, params.disagreement_weight)
+    rankings = _weights(params)
+    for weights in rankings:
+        proposals += overlay.peaks(params.overlay_peaks, radius, weights)
     clock.lap("gamma")
     out: list[_Hypothesis] = []
     if not proposals:
@@ -549,9 +584,8 @@ def _search_heading(
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
     # A straight edge pair fixes the translation only across the corridor:
     # slide each proposal to the best whole-map agreement nearby.
-    refined = dict.fromkeys(
-        overlay.best_near(t, radius, params.disagreement_weight) for t in proposals
-    )
+    # (by each ranking's evidence: each ranking's finalists come from its own slides)
+    refined = dict.fromkeys(overlay.best_near(t, radius, w) for w in rankings for t in proposals)
     for tx, ty in refined:
         ok = pairs.correlation((tx, ty)) > thresh
         support = pair_support(ok) if params.rho_veto else params.min_pairs
@@ -560,7 +594,8 @@ def _search_heading(
             _Hypothesis(
                 heading=heading,
                 coarse_matrix=_translation(tx, ty) @ rot,
-                evidence=agreement.agree - params.disagreement_weight * agreement.disagree,
+                evidence=overlay.evidence_at((tx, ty), rankings[0]),
+                search_evidence=overlay.evidence_at((tx, ty), rankings[-1]),
                 ratio=agreement.ratio,
                 support=support,
                 passing=ok,
@@ -574,27 +609,70 @@ def _search_heading(
     return out
 
 
-def _finalists(hyps: list[_Hypothesis], n: int) -> list[_Hypothesis]:
-    """The ``n`` best hypotheses by evidence, skipping near-duplicates of better ones."""
+def _weights(params: MergeParams) -> tuple[OverlayWeights, ...]:
+    """The rankings of the coarse hypotheses: walls only (``agree - disagreement_weight *
+    disagree``), then, with ``search_finalists``, ``params.search_weights``."""
+    walls = OverlayWeights(params.disagreement_weight)
+    return (walls, params.search_weights) if params.search_finalists > 0 else (walls,)
+
+
+def _near(h: _Hypothesis, chosen: list[_Hypothesis]) -> bool:
+    """True when ``h`` is within 2 degrees and 3 coarse cells of one of ``chosen``."""
+    return any(
+        abs(np.angle(np.exp(1j * (h.heading.psi - o.heading.psi)))) < np.radians(2.0)
+        and np.hypot(*(h.coarse_matrix[:2, 2] - o.coarse_matrix[:2, 2])) < 3.0
+        for o in chosen
+    )
+
+
+def _best(
+    hyps: list[_Hypothesis],
+    n: int,
+    key: Callable[[_Hypothesis], float],
+    chosen: tuple[_Hypothesis, ...] = (),
+) -> list[_Hypothesis]:
+    """The ``n`` best hypotheses by ``key``, skipping near-duplicates of better ones and
+    of ``chosen``."""
     out: list[_Hypothesis] = []
-    for h in sorted(hyps, key=lambda h: (-h.evidence, -h.ratio)):
-        same = any(
-            abs(np.angle(np.exp(1j * (h.heading.psi - o.heading.psi)))) < np.radians(2.0)
-            and np.hypot(*(h.coarse_matrix[:2, 2] - o.coarse_matrix[:2, 2])) < 3.0
-            for o in out
-        )
-        if not same:
-            out.append(h)
+    for h in sorted(hyps, key=lambda h: (-key(h), -h.ratio)):
         if len(out) == n:
             break
+        if not _near(h, [*chosen, *out]):
+            out.append(h)
     return out
 
 
-def _decided(hyps: list[_Hypothesis], params: MergeParams, bound: float) -> bool:
-    """True when ``params.finalists`` supported hypotheses all score above ``bound``."""
+def _rankings(params: MergeParams) -> list[tuple[int, Callable[[_Hypothesis], float]]]:
+    """How many finalists each ranking chooses, and its key."""
+    out = [(params.finalists, lambda h: h.evidence)]
+    if params.search_finalists > 0:
+        out.append((params.search_finalists, lambda h: h.search_evidence))
+    return out
+
+
+def _finalists(hyps: list[_Hypothesis], params: MergeParams) -> list[_Hypothesis]:
+    """The ``finalists`` best by walls-only evidence, then the ``search_finalists`` best by
+    the search evidence (``search_weights``) among the others.
+
+    The search evidence finds small, consistent overlaps that look-alikes with more
+    walls outrank; the walls-only evidence keeps those look-alikes among the
+    finalists, where the decision weighs the winner against them (:mod:`pgvd.decision`).
+    """
+    out: list[_Hypothesis] = []
+    for n, key in _rankings(params):
+        out += _best(hyps, n, key, tuple(out))
+    return out
+
+
+def _decided(hyps: list[_Hypothesis], params: MergeParams, bounds: tuple[float, ...]) -> bool:
+    """True when, by each ranking (:func:`_rankings`), as many supported hypotheses as it
+    chooses all score above that ranking's bound in ``bounds``."""
     good = [h for h in hyps if h.support >= params.min_pairs]
-    chosen = _finalists(good, params.finalists)
-    return len(chosen) == params.finalists and chosen[-1].evidence > bound
+    for (n, key), bound in zip(_rankings(params), bounds, strict=True):
+        chosen = _best(good, n, key)
+        if len(chosen) < n or key(chosen[-1]) <= bound:
+            return False
+    return True
 
 
 def score_hypothesis(
@@ -702,7 +780,10 @@ def _decide(
     """
     sub_b = subsample(fine_b.walls, params.refine_points)
     starts = [to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k)) for h in finalists]
-    refined = [refine(fine_a, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3) for m in starts]
+    refined = [
+        refine(fine_a, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=FINALIST_ICP_ITERATIONS)
+        for m in starts
+    ]
     index, decision, matrix = decide_finalists(refined, fine_a, fine_b, params, res)
     return finalists[index], decision, matrix
 
@@ -888,17 +969,21 @@ def merge(
     clock.lap("rotation")
     canvases: dict[float, np.ndarray] = {}
     turned = _ranked(
-        [_rotate(h, cb, scores, params, canvases) for h in headings], params.disagreement_weight
+        [_rotate(h, cb, scores, params, canvases) for h in headings], _weights(params)[0]
     )
     clock.lap("verify")
     hyps: list[_Hypothesis] = []
     searched: tuple[float, ...] = ()
-    for t in turned[: params.search_headings]:
+    turned = turned[: params.search_headings]
+    for i, t in enumerate(turned):
         # A heading's hypotheses score at most its best overlay evidence, and the
         # finalists are the best by evidence: once that many supported ones beat
-        # everything this heading (and the weaker ones after it) could offer, it
-        # cannot change the outcome, so its PGVD/Gamma stages are skipped.
-        if _decided(hyps, params, t.overlay.best_evidence(params.disagreement_weight)):
+        # everything this heading and the ones after it could offer, by either
+        # ranking, they cannot change the outcome, so their PGVD/Gamma stages are skipped.
+        bounds = tuple(
+            max(r.overlay.best_evidence(w) for r in turned[i:]) for w in _weights(params)
+        )
+        if _decided(hyps, params, bounds):
             break
         searched += (float(np.degrees(t.heading.psi)),)
         hyps += _search_heading(t, graph_a, correlator, params, min_len, radius, clock)
@@ -914,7 +999,7 @@ def merge(
     fine_b = WallMap(pb, params.occupied, params.free)
     clock.lap("verify")
     to_fine = _scale(k) @ off_a
-    finalists = _finalists(good, params.finalists)
+    finalists = _finalists(good, params)
     best, decision, matrix = _decide(finalists, fine_a, fine_b, to_fine, k, params, a.resolution)
     clock.lap("refine")
     agreement = map_agreement(fine_a, fine_b, matrix, max_points=params.fine_points, scaled=True)
