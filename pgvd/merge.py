@@ -87,11 +87,13 @@ from pgvd.transform import warp
 from pgvd.uncertainty import rotation_blur
 
 #: ICP iterations per correspondence radius when the finalists are refined (each stops
-#: early once it no longer moves).  Three left the true pose of low-overlap pairs short of
-#: it: on the development low-overlap pairs, the true finalist came within the bench's
-#: success bounds in 15 of 48 pairs with 3, 21 with 8 (``/tmp`` trace of the finalists,
-#: see the srch10 report); the winner's own refinement comes after the decision, too late
-#: to change which finalist wins.
+#: early once it no longer moves).  With 3, a finalist started a few cells off often
+#: stopped short of its optimum and was weighed there; the winner's own refinement comes
+#: after the decision, too late to change which finalist wins or what its rivals score.
+#: Development bench (``python -m bench.merge --methods pgvd --no-scaling``): 3 -> 8
+#: succeeds on drifted pairs 20/48 instead of 16 (standard 74/86, low 12/48 unchanged,
+#: 0 wrong and 0 false accepts); 5 gives drifted 18, standard 73.  Cost: 14 % more time
+#: a pair (median over 63 pairs, interleaved with main's merge in one process).
 FINALIST_ICP_ITERATIONS = 8
 
 
@@ -159,21 +161,30 @@ class MergeParams:
         (:mod:`pgvd.decision`): a wall on clear free space is strong evidence against, a
         wall on a wall weak evidence for (walls are everywhere in a building), so a large
         overlap with some conflicts must not outrank a smaller, consistent one.
-    search_conflict_weight, search_free_weight : the coarse hypotheses (whole-map overlay
-        peaks, slides of the edge pairs' proposals, the finalists' ranking, the order of
-        the headings) are ranked by ``agree + free_weight * free_agree - conflict_weight *
-        disagree`` (:class:`pgvd.matching.OverlayWeights`), where ``free_agree`` counts
-        cells free in both maps.  With walls alone (``agree - 4 disagree``) a look-alike
-        translation with a larger overlap outranks a small true one despite its conflicts:
-        at the true heading, the true translation of the 48 development low-overlap pairs
-        was the best overlay peak in 19 and among the best 8 in 36; free space seen by
-        both is evidence too, and conflicts weigh more once it counts (exhaustive count
-        over the peaks, the srch10 report).  Measured (best peak / best 8 peaks, low
-        48 pairs, drifted 48, standard 80): ``4, 0``: 19/36, 41/47, 75/79; ``12, 1``:
-        26/44, 42/48, 76/80; ``24, 0.5``: 33/47, 37/40, 80/80, but drifted maps conflict
-        where they drift, and with 16 or 24 the bench accepted a drifted pair at a pose
-        8 degrees off.  BENCH
-    finalists : best coarse hypotheses refined and compared at full resolution.
+    search_conflict_weight, search_free_weight : with ``search_finalists``, the weights of
+        the search evidence ``agree + free_weight * free_agree - conflict_weight *
+        disagree`` (:class:`pgvd.matching.OverlayWeights`; ``free_agree`` counts cells
+        free in both maps).  With walls alone (``agree - 4 disagree``) a look-alike
+        translation with more walls outranks a small true overlap despite its conflicts:
+        at the exact true heading, the true translation of the 48 development low-overlap
+        pairs was the best overlay peak in 19 and among the best 8 in 36.  Free space
+        seen by both is evidence too, and conflicts weigh more once it counts.  Best peak
+        / best 8 peaks (low 48, drifted 48, standard 80 pairs): ``4, 0`` 19/36, 41/47,
+        75/79; ``12, 1`` 26/44, 42/48, 76/80; ``24, 0.5`` 33/47, 37/40, 80/80.  Drifted
+        maps conflict where they drift, so these weights rank only the extra finalists;
+        the ``finalists`` stay ranked by walls alone.
+    search_finalists : finalists more, the best by the search evidence among the
+        hypotheses not already finalists (:func:`_finalists`), proposed from the overlay
+        peaks and slides by that evidence too.  Off (0) by default: on the development
+        bench (``python -m bench.merge --methods pgvd-search``, then ``python -m
+        bench.recall --method pgvd-search``), 4 find the pose in 138 of 182 pairs instead
+        of 129 (low overlap 23/48 instead of 15), but with today's decision succeed on 98
+        instead of 106 (its rivals are stronger), accept 2 fr079-log low-overlap pairs
+        near the truth but beyond the success bounds (margins 1.2 and 1.7) and 1 drifted
+        pair 8 degrees off (0.98), and 1 negative (a stata look-alike, 1.00); 20 %
+        slower (median).
+    finalists : best coarse hypotheses (by walls only, ``agree - disagreement_weight *
+        disagree``) refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
     fine_points : wall cells per map, at most, of the winner's full-resolution stages (its
         last point-to-point refinement, the overlay score, the residual distortion): an
@@ -212,8 +223,8 @@ class MergeParams:
     distortion_block: float = 5.0
     drift_shift: float = 0.5
     disagreement_weight: float = 4.0
-    search_conflict_weight: float = 12.0
-    search_free_weight: float = 1.0
+    search_conflict_weight: float = 24.0
+    search_free_weight: float = 0.5
     heading_span: float = 0.0
     heading_step: float = 3.0
     search_headings: int = 6
