@@ -174,15 +174,18 @@ class MergeParams:
         maps conflict where they drift, so these weights rank only the extra finalists;
         the ``finalists`` stay ranked by walls alone.
     search_finalists : finalists more, the best by the search evidence among the
-        hypotheses not already finalists (:func:`_finalists`), proposed from the overlay
-        peaks and slides by that evidence too.  Off (0) by default: on the development
-        bench (``python -m bench.merge --methods pgvd-search``, then ``python -m
-        bench.recall --method pgvd-search``), 4 find the pose in 138 of 182 pairs instead
-        of 129 (low overlap 23/48 instead of 15), but with today's decision succeed on 98
-        instead of 106 (its rivals are stronger), accept 2 fr079-log low-overlap pairs
-        near the truth but beyond the success bounds (margins 1.2 and 1.7) and 1 drifted
-        pair 8 degrees off (0.98), and 1 negative (a stata look-alike, 1.00); 20 %
-        slower (median).
+        hypotheses that beat every walls-ranked finalist by it (:func:`_finalists`),
+        proposed from the overlay peaks and slides by that evidence too.  Off (0) by
+        default: on the development bench (``python -m bench.merge --methods pgvd
+        pgvd-search --no-scaling``, then ``python -m bench.recall --method
+        pgvd-search``), 4 find the pose in 135 of 182 pairs instead of 129 (low overlap
+        20/48 instead of 15) and succeed on 107 instead of 106 (standard 74, low 15
+        instead of 12, drifted 18 instead of 20), but with today's decision accept 2
+        fr079-log low-overlap pairs near the truth and just beyond the success bounds
+        (3.6 and 3.7 cells, margins 1.20 and 1.71) and 1 negative (willow against
+        ritsumeikan_cc4f, margin 0.78).  Without the bar (every hypothesis may be one of
+        the extra finalists) they find 138 but succeed on 98: the extra finalists are
+        strong rivals of true winners.  About 20 % slower (median).
     finalists : best coarse hypotheses (by walls only, ``agree - disagreement_weight *
         disagree``) refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
@@ -663,15 +666,19 @@ def _rankings(params: MergeParams) -> list[tuple[int, Callable[[_Hypothesis], fl
 
 def _finalists(hyps: list[_Hypothesis], params: MergeParams) -> list[_Hypothesis]:
     """The ``finalists`` best by walls-only evidence, then the ``search_finalists`` best by
-    the search evidence (``search_weights``) among the others.
+    the search evidence (``search_weights``) among those that beat every walls-ranked
+    finalist by it.
 
     The search evidence finds small, consistent overlaps that look-alikes with more
     walls outrank; the walls-only evidence keeps those look-alikes among the
     finalists, where the decision weighs the winner against them (:mod:`pgvd.decision`).
+    The bar keeps the extra finalists to pairs where the two rankings disagree: where
+    the walls' best is also the search's, more finalists would only be more rivals.
     """
     out: list[_Hypothesis] = []
     for n, key in _rankings(params):
-        out += _best(hyps, n, key, tuple(out))
+        bar = max((key(h) for h in out), default=-np.inf)
+        out += _best([h for h in hyps if key(h) > bar], n, key, tuple(out))
     return out
 
 
