@@ -358,13 +358,13 @@ class Overlay:
     Attributes
     ----------
     agree, disagree : arrays indexed by ``(ty mod size[0], tx mod size[1])``.
-    free_agree : cells free in both maps, indexed the same way.
+    free_agree : cells free in both maps, indexed the same way (None when not counted).
     shape_a, shape_b : shapes of the two maps (bounds of meaningful translations).
     """
 
     agree: np.ndarray
     disagree: np.ndarray
-    free_agree: np.ndarray
+    free_agree: np.ndarray | None
     shape_a: tuple[int, int]
     shape_b: tuple[int, int]
     _evidence: dict[OverlayWeights, np.ndarray] = field(
@@ -377,6 +377,8 @@ class Overlay:
         if weights not in self._evidence:
             ev = self.agree - weights.conflict * self.disagree
             if weights.free:
+                if self.free_agree is None:
+                    raise ValueError("free space was not counted: use OverlayScores(a, free=True)")
                 ev = ev + weights.free * self.free_agree
             ev.setflags(write=False)
             self._evidence[weights] = ev
@@ -451,18 +453,17 @@ class OverlayScores:
 
     ``agree(t)`` counts B's walls on A's near-wall cells plus A's walls on
     B's, ``disagree(t)`` the walls on the other map's clear free space,
-    ``free_agree(t)`` the cells free in both.  A's spectra are cached per FFT
-    size and reused for every rotated B.
+    ``free_agree(t)`` the cells free in both, when ``free`` (one FFT more per
+    overlay).  A's spectra are cached per FFT size and reused for every rotated B.
     """
 
-    _LAYERS = ("near", "clear", "occ", "free")
-
-    def __init__(self, a: MapView) -> None:
+    def __init__(self, a: MapView, free: bool = False) -> None:
         self.a = a
+        self.layers = ("near", "clear", "occ", "free") if free else ("near", "clear", "occ")
         self._fa: dict[tuple[int, int], dict[str, np.ndarray]] = {}
 
     def _spectra(self, view: MapView, size: tuple[int, int]) -> dict[str, np.ndarray]:
-        return {k: sfft.rfft2(getattr(view, k).astype(np.float32), s=size) for k in self._LAYERS}
+        return {k: sfft.rfft2(getattr(view, k).astype(np.float32), s=size) for k in self.layers}
 
     def overlay(self, b: MapView) -> Overlay:
         """Agreement and disagreement of ``b`` on A for all translations."""
@@ -475,8 +476,8 @@ class OverlayScores:
         fb = {k: np.conj(v) for k, v in self._spectra(b, size).items()}
         agree = sfft.irfft2(fa["near"] * fb["occ"] + fa["occ"] * fb["near"], s=size)
         disagree = sfft.irfft2(fa["clear"] * fb["occ"] + fa["occ"] * fb["clear"], s=size)
-        free = sfft.irfft2(fa["free"] * fb["free"], s=size)
-        return Overlay(np.rint(agree), np.rint(disagree), np.rint(free), self.a.shape, b.shape)
+        free = np.rint(sfft.irfft2(fa["free"] * fb["free"], s=size)) if "free" in fa else None
+        return Overlay(np.rint(agree), np.rint(disagree), free, self.a.shape, b.shape)
 
 
 def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:

@@ -31,9 +31,10 @@ Stages (``timings_ms`` keys):
     ``search_radius``) to the best whole-map overlay nearby; it then counts
     only if at least ``min_pairs`` edge pairs pass (32) *at that
     translation*.  Hypotheses of all headings are ranked by the coarse overlay
-    evidence ``agree + search_free_weight * free_agree - search_conflict_weight *
-    disagree`` (walls on walls, cells free in both, walls on clear free space,
-    both ways).  The finalists are refined and
+    evidence ``agree - disagreement_weight * disagree`` (walls on walls vs
+    walls on clear free space, both ways); with ``search_finalists``, those that
+    beat them all by a second evidence, which also counts the cells free in both
+    maps, join them.  The finalists are refined and
     scored again at full resolution (each 5 m square of the overlap re-aligned by
     up to ``drift_shift`` first, so that a drifted map's walls running beside
     the other's are not counted as conflict), and the winner, once refined (see
@@ -185,7 +186,8 @@ class MergeParams:
         (3.6 and 3.7 cells, margins 1.20 and 1.71) and 1 negative (willow against
         ritsumeikan_cc4f, margin 0.78).  Without the bar (every hypothesis may be one of
         the extra finalists) they find 138 but succeed on 98: the extra finalists are
-        strong rivals of true winners.  About 20 % slower (median).
+        strong rivals of true winners.  14 % slower (median over 63 pairs, interleaved
+        with the default in one process).
     finalists : best coarse hypotheses (by walls only, ``agree - disagreement_weight *
         disagree``) refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
@@ -979,7 +981,9 @@ def merge(
     clock.lap("graph")
     if not graph_a.edges:
         return _rejected(f"map A has no GVD edge of {params.min_edge_length} m or more", clock)
-    scores = OverlayScores(MapView(ca, params.occupied, params.free, 1))
+    scores = OverlayScores(
+        MapView(ca, params.occupied, params.free, 1), free=params.search_finalists > 0
+    )
     correlator = EdgeCorrelator(graph_a.edges, params.edge_tolerance)
     radius = max(1, round(params.search_radius / coarse_res))
     clock.lap("verify")

@@ -82,7 +82,7 @@ def test_free_space_and_heavier_conflicts_rank_a_small_true_overlap_first(shared
     c = coarsen(p, round(MergeParams().coarse_resolution / 0.05))
     c = c[_known_box(c)]
     cut_a, cut_b = round(0.575 * c.shape[0]), round(0.425 * c.shape[0])
-    overlay = OverlayScores(MapView(c[:cut_a], 0.65, 0.3, 1)).overlay(
+    overlay = OverlayScores(MapView(c[:cut_a], 0.65, 0.3, 1), free=True).overlay(
         MapView(c[cut_b:], 0.65, 0.3, 1)
     )
     walls = OverlayWeights(MergeParams().disagreement_weight)
