@@ -21,6 +21,9 @@ Methods, all in this one process:
 ``pgvd-heading`` an option that is off by default: the Radon candidates refined on
                 the whole-map overlay, ``MergeParams(heading_span=6)``
                 (``python -m bench.recall --method pgvd-heading`` shows what it finds);
+``pgvd-search`` an option that is off by default: 4 finalists more, the best by the
+                search evidence (free space seen by both counts, conflicts weigh more),
+                ``MergeParams(search_finalists=4)``;
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -128,7 +131,7 @@ ABLATIONS = {
     "pgvd-rigid": {"drift_shift": 0.0},
 }
 #: Options of pgvd that are off by default, measured beside it: MergeParams overrides.
-OPTIONS = {"pgvd-heading": {"heading_span": 6.0}}
+OPTIONS = {"pgvd-heading": {"heading_span": 6.0}, "pgvd-search": {"search_finalists": 4}}
 METHOD_NAMES = ("pgvd", *ABLATIONS, *OPTIONS, "m-explore", "hough", "exhaustive")
 
 

@@ -317,20 +317,38 @@ class Agreement:
 
 
 class MapView:
-    """A coarse map prepared for :class:`OverlayScores`: wall, near-wall and clear-free masks.
+    """A coarse map prepared for :class:`OverlayScores`: wall, near-wall and free masks.
 
     ``near`` is the walls dilated by ``tolerance`` cells; ``clear`` is free
     space farther than ``2 tolerance`` cells from any wall, so that a wall
-    that is off by the tolerance never counts as a disagreement.
+    that is off by the tolerance never counts as a disagreement; ``free`` is
+    every free cell.
     """
 
     def __init__(self, prob: np.ndarray, occupied: float, free: float, tolerance: int) -> None:
         prob = np.asarray(prob)
         self.occ = prob > occupied
         self.near = grow(self.occ, tolerance)
+        self.free = prob < free
         # growing ``near`` once more is the two-fold dilation of the walls, one pass cheaper
-        self.clear = (prob < free) & ~grow(self.near, tolerance)
+        self.clear = self.free & ~grow(self.near, tolerance)
         self.shape = prob.shape
+
+
+@dataclass(frozen=True)
+class OverlayWeights:
+    """How the counts of an :class:`Overlay` add up to one evidence per translation.
+
+    ``evidence = agree + free * free_agree - conflict * disagree``.
+
+    Attributes
+    ----------
+    conflict : weight of a wall on clear free space of the other map.
+    free : weight of a cell free in both maps.
+    """
+
+    conflict: float = 1.0
+    free: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -340,33 +358,51 @@ class Overlay:
     Attributes
     ----------
     agree, disagree : arrays indexed by ``(ty mod size[0], tx mod size[1])``.
+    free_agree : cells free in both maps, indexed the same way (None when not counted).
     shape_a, shape_b : shapes of the two maps (bounds of meaningful translations).
     """
 
     agree: np.ndarray
     disagree: np.ndarray
+    free_agree: np.ndarray | None
     shape_a: tuple[int, int]
     shape_b: tuple[int, int]
-    _evidence: dict[float, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
+    _evidence: dict[OverlayWeights, np.ndarray] = field(
+        default_factory=dict, repr=False, compare=False
+    )
 
-    def evidence(self, disagreement_weight: float = 1.0) -> np.ndarray:
-        """``agree - disagreement_weight * disagree`` for every translation (kept per weight)."""
-        if disagreement_weight not in self._evidence:
-            ev = self.agree - disagreement_weight * self.disagree
+    def evidence(self, weights: OverlayWeights = OverlayWeights()) -> np.ndarray:
+        """``agree + free free_agree - conflict disagree`` for every translation (kept per
+        weights)."""
+        if weights not in self._evidence:
+            ev = self.agree - weights.conflict * self.disagree
+            if weights.free:
+                if self.free_agree is None:
+                    raise ValueError("free space was not counted: use OverlayScores(a, free=True)")
+                ev = ev + weights.free * self.free_agree
             ev.setflags(write=False)
-            self._evidence[disagreement_weight] = ev
-        return self._evidence[disagreement_weight]
+            self._evidence[weights] = ev
+        return self._evidence[weights]
+
+    def _index(self, t: tuple[int, int]) -> tuple[int, int]:
+        return t[1] % self.agree.shape[0], t[0] % self.agree.shape[1]
 
     def at(self, t: tuple[int, int]) -> Agreement:
         """Counts at the translation ``t = (tx, ty)``."""
-        idx = (t[1] % self.agree.shape[0], t[0] % self.agree.shape[1])
+        idx = self._index(t)
         return Agreement(int(self.agree[idx]), int(self.disagree[idx]))
 
-    def best_evidence(self, disagreement_weight: float = 1.0) -> float:
-        """Largest ``agree - disagreement_weight * disagree`` over all translations."""
-        return float(np.max(self.evidence(disagreement_weight)))
+    def evidence_at(self, t: tuple[int, int], weights: OverlayWeights = OverlayWeights()) -> float:
+        """The evidence of :meth:`evidence` at the translation ``t = (tx, ty)``."""
+        return float(self.evidence(weights)[self._index(t)])
 
-    def peaks(self, n: int, radius: int, disagreement_weight: float = 1.0) -> list[tuple[int, int]]:
+    def best_evidence(self, weights: OverlayWeights = OverlayWeights()) -> float:
+        """Largest evidence (:meth:`evidence`) over all translations."""
+        return float(np.max(self.evidence(weights)))
+
+    def peaks(
+        self, n: int, radius: int, weights: OverlayWeights = OverlayWeights()
+    ) -> list[tuple[int, int]]:
         """Translations of the largest overlay evidence that are local maxima.
 
         Parameters
@@ -375,8 +411,8 @@ class Overlay:
             Number of translations returned at most.
         radius : int
             A peak is the largest evidence within this many cells.
-        disagreement_weight : float, optional
-            Evidence is ``agree - disagreement_weight * disagree``.
+        weights : OverlayWeights, optional
+            How the counts add up to the evidence (:meth:`evidence`).
 
         Returns
         -------
@@ -385,7 +421,7 @@ class Overlay:
         """
         if n <= 0:
             return []
-        ev = self.evidence(disagreement_weight)
+        ev = self.evidence(weights)
         top = ndi.maximum_filter(ev, size=2 * radius + 1, mode="wrap")
         rows, cols = np.nonzero((ev == top) & (ev > 0))
         order = np.argsort(-ev[rows, cols], kind="stable")[:n]
@@ -398,18 +434,16 @@ class Overlay:
         return out
 
     def best_near(
-        self, t: tuple[int, int], radius: int, disagreement_weight: float = 1.0
+        self, t: tuple[int, int], radius: int, weights: OverlayWeights = OverlayWeights()
     ) -> tuple[int, int]:
-        """The translation ``(tx, ty)`` within ``radius`` of ``t`` of largest
-        ``agree - disagreement_weight * disagree``."""
+        """The translation ``(tx, ty)`` within ``radius`` of ``t`` of largest evidence
+        (:meth:`evidence`)."""
         (ha, wa), (hb, wb) = self.shape_a, self.shape_b
         ty = np.arange(max(t[1] - radius, 1 - hb), min(t[1] + radius, ha - 1) + 1)
         tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
         if ty.size == 0 or tx.size == 0:
             return t
-        window = self.evidence(disagreement_weight)[
-            np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])
-        ]
+        window = self.evidence(weights)[np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])]
         i, j = np.unravel_index(int(np.argmax(window)), window.shape)
         return int(tx[j]), int(ty[i])
 
@@ -418,18 +452,18 @@ class OverlayScores:
     """Dense form of :func:`map_agreement` for translations only, by FFT.
 
     ``agree(t)`` counts B's walls on A's near-wall cells plus A's walls on
-    B's, ``disagree(t)`` the walls on the other map's clear free space.  A's
-    spectra are cached per FFT size and reused for every rotated B.
+    B's, ``disagree(t)`` the walls on the other map's clear free space,
+    ``free_agree(t)`` the cells free in both, when ``free`` (one FFT more per
+    overlay).  A's spectra are cached per FFT size and reused for every rotated B.
     """
 
-    _LAYERS = ("near", "clear", "occ")
-
-    def __init__(self, a: MapView) -> None:
+    def __init__(self, a: MapView, free: bool = False) -> None:
         self.a = a
+        self.layers = ("near", "clear", "occ", "free") if free else ("near", "clear", "occ")
         self._fa: dict[tuple[int, int], dict[str, np.ndarray]] = {}
 
     def _spectra(self, view: MapView, size: tuple[int, int]) -> dict[str, np.ndarray]:
-        return {k: sfft.rfft2(getattr(view, k).astype(np.float32), s=size) for k in self._LAYERS}
+        return {k: sfft.rfft2(getattr(view, k).astype(np.float32), s=size) for k in self.layers}
 
     def overlay(self, b: MapView) -> Overlay:
         """Agreement and disagreement of ``b`` on A for all translations."""
@@ -442,7 +476,8 @@ class OverlayScores:
         fb = {k: np.conj(v) for k, v in self._spectra(b, size).items()}
         agree = sfft.irfft2(fa["near"] * fb["occ"] + fa["occ"] * fb["near"], s=size)
         disagree = sfft.irfft2(fa["clear"] * fb["occ"] + fa["occ"] * fb["clear"], s=size)
-        return Overlay(np.rint(agree), np.rint(disagree), self.a.shape, b.shape)
+        free = np.rint(sfft.irfft2(fa["free"] * fb["free"], s=size)) if "free" in fa else None
+        return Overlay(np.rint(agree), np.rint(disagree), free, self.a.shape, b.shape)
 
 
 def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:

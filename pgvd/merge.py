@@ -30,9 +30,11 @@ Stages (``timings_ms`` keys):
     across the corridor, so each proposal first slides (within
     ``search_radius``) to the best whole-map overlay nearby; it then counts
     only if at least ``min_pairs`` edge pairs pass (32) *at that
-    translation*.  Hypotheses of all headings are ranked by the overlay
+    translation*.  Hypotheses of all headings are ranked by the coarse overlay
     evidence ``agree - disagreement_weight * disagree`` (walls on walls vs
-    walls on clear free space, both ways).  The finalists are refined and
+    walls on clear free space, both ways); with ``search_finalists``, those that
+    beat them all by a second evidence, which also counts the cells free in both
+    maps, join them.  The finalists are refined and
     scored again at full resolution (each 5 m square of the overlap re-aligned by
     up to ``drift_shift`` first, so that a drifted map's walls running beside
     the other's are not counted as conflict), and the winner, once refined (see
@@ -67,6 +69,7 @@ from pgvd.matching import (
     MapView,
     Overlay,
     OverlayScores,
+    OverlayWeights,
     PairSupport,
     WallMap,
     alignment_fit,
@@ -84,6 +87,16 @@ from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
 from pgvd.sampling import subsample
 from pgvd.transform import warp
 from pgvd.uncertainty import rotation_blur
+
+#: ICP iterations per correspondence radius when the finalists are refined (each stops
+#: early once it no longer moves).  With 3, a finalist started a few cells off often
+#: stopped short of its optimum and was weighed there; the winner's own refinement comes
+#: after the decision, too late to change which finalist wins or what its rivals score.
+#: Development bench (``python -m bench.merge --methods pgvd --no-scaling``): 3 -> 8
+#: succeeds on drifted pairs 20/48 instead of 16 (standard 74/86, low 12/48 unchanged,
+#: 0 wrong and 0 false accepts); 5 gives drifted 18, standard 73.  Cost: 14 % more time
+#: a pair (median over 63 pairs, interleaved with main's merge in one process).
+FINALIST_ICP_ITERATIONS = 8
 
 
 @dataclass(frozen=True)
@@ -167,11 +180,38 @@ class MergeParams:
         overlay (ablation: without drift tolerance; on the wide bench it accepts as many
         right poses, faster, but it accepts the two disjoint halves of fr079_albertB's
         map312, tests/test_merge.py).
-    disagreement_weight : hypotheses are ranked by ``agree - weight * disagree``: a wall on
-        clear free space is strong evidence against, a wall on a wall weak evidence for
-        (walls are everywhere in a building), so a large overlap with some conflicts
-        must not outrank a smaller, consistent one.
-    finalists : best coarse hypotheses refined and compared at full resolution.
+    disagreement_weight : refined finalists are scored by ``agree - weight * disagree``
+        (:mod:`pgvd.decision`): a wall on clear free space is strong evidence against, a
+        wall on a wall weak evidence for (walls are everywhere in a building), so a large
+        overlap with some conflicts must not outrank a smaller, consistent one.
+    search_conflict_weight, search_free_weight : with ``search_finalists``, the weights of
+        the search evidence ``agree + free_weight * free_agree - conflict_weight *
+        disagree`` (:class:`pgvd.matching.OverlayWeights`; ``free_agree`` counts cells
+        free in both maps).  With walls alone (``agree - 4 disagree``) a look-alike
+        translation with more walls outranks a small true overlap despite its conflicts:
+        at the exact true heading, the true translation of the 48 development low-overlap
+        pairs was the best overlay peak in 19 and among the best 8 in 36.  Free space
+        seen by both is evidence too, and conflicts weigh more once it counts.  Best peak
+        / best 8 peaks (low 48, drifted 48, standard 80 pairs): ``4, 0`` 19/36, 41/47,
+        75/79; ``12, 1`` 26/44, 42/48, 76/80; ``24, 0.5`` 33/47, 37/40, 80/80.  Drifted
+        maps conflict where they drift, so these weights rank only the extra finalists;
+        the ``finalists`` stay ranked by walls alone.
+    search_finalists : finalists more, the best by the search evidence among the
+        hypotheses that beat every walls-ranked finalist by it (:func:`_finalists`),
+        proposed from the overlay peaks and slides by that evidence too.  Off (0) by
+        default: on the development bench (``python -m bench.merge --methods pgvd
+        pgvd-search --no-scaling``, then ``python -m bench.recall --method
+        pgvd-search``), 4 find the pose in 135 of 182 pairs instead of 129 (low overlap
+        20/48 instead of 15) and succeed on 107 instead of 106 (standard 74, low 15
+        instead of 12, drifted 18 instead of 20), but with today's decision accept 2
+        fr079-log low-overlap pairs near the truth and just beyond the success bounds
+        (3.6 and 3.7 cells, margins 1.20 and 1.71) and 1 negative (willow against
+        ritsumeikan_cc4f, margin 0.78).  Without the bar (every hypothesis may be one of
+        the extra finalists) they find 138 but succeed on 98: the extra finalists are
+        strong rivals of true winners.  14 % slower (median over 63 pairs, interleaved
+        with the default in one process).
+    finalists : best coarse hypotheses (by walls only, ``agree - disagreement_weight *
+        disagree``) refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
     fine_points : wall cells per map, at most, of the winner's full-resolution stages (its
         last point-to-point refinement, the overlay score, the residual distortion): an
@@ -211,11 +251,14 @@ class MergeParams:
     distortion_block: float = 5.0
     drift_shift: float = 0.75
     disagreement_weight: float = 4.0
+    search_conflict_weight: float = 24.0
+    search_free_weight: float = 0.5
     heading_span: float = 0.0
     heading_step: float = 3.0
     search_headings: int = 6
     overlay_peaks: int = 5
     finalists: int = 8
+    search_finalists: int = 0
     refine_points: int = 1500
     fine_points: int = 20000
     occupied: float = OCCUPIED
@@ -225,6 +268,11 @@ class MergeParams:
     gamma_ranking: bool = True
     heading_blur: bool = True
     diagnostics: bool = True
+
+    @property
+    def search_weights(self) -> OverlayWeights:
+        """The coarse overlay's evidence (``search_conflict_weight``, ``search_free_weight``)."""
+        return OverlayWeights(self.search_conflict_weight, self.search_free_weight)
 
 
 @dataclass
@@ -305,7 +353,8 @@ class MergeResult:
 class _Hypothesis:
     heading: HeadingCandidate
     coarse_matrix: np.ndarray  # coarse B -> A's coarse crop
-    evidence: float
+    evidence: float  # agree - disagreement_weight * disagree (walls only)
+    search_evidence: float  # MergeParams.search_weights
     ratio: float
     support: int
     passing: np.ndarray
@@ -469,7 +518,7 @@ def _overlay_evidence(
     rb = warp(cb, rot, shape, order=1, cval=0.5)
     rows, cols = _known_box(rb)
     view = MapView(rb[rows, cols], params.occupied, params.free, 1)
-    return scores.overlay(view).best_evidence(params.disagreement_weight)
+    return scores.overlay(view).best_evidence(_weights(params)[0])
 
 
 def _refined_heading(
@@ -522,9 +571,9 @@ def _with_refined(
     return out
 
 
-def _ranked(turned: list[_Rotated], weight: float) -> list[_Rotated]:
+def _ranked(turned: list[_Rotated], weights: OverlayWeights) -> list[_Rotated]:
     """Rotated B's, best whole-map overlay evidence first."""
-    return sorted(turned, key=lambda r: -r.overlay.best_evidence(weight))
+    return sorted(turned, key=lambda r: -r.overlay.best_evidence(weights))
 
 
 def _search_heading(
@@ -563,7 +612,9 @@ def _search_heading(
     # The whole-map overlay's own peaks propose too: with a small overlap the
     # edge pairs that cross it are few and their correlation peaks (29) can all
     # fall elsewhere; the rho test (32) at the translation still has to pass.
-    proposals += overlay.peaks(params.overlay_peaks, radius, params.disagreement_weight)
+    rankings = _weights(params)
+    for weights in rankings:
+        proposals += overlay.peaks(params.overlay_peaks, radius, weights)
     clock.lap("gamma")
     out: list[_Hypothesis] = []
     if not proposals:
@@ -572,9 +623,8 @@ def _search_heading(
     thresh = rho_threshold(graph_a.edges, graph_b.edges, params.rho)
     # A straight edge pair fixes the translation only across the corridor:
     # slide each proposal to the best whole-map agreement nearby.
-    refined = dict.fromkeys(
-        overlay.best_near(t, radius, params.disagreement_weight) for t in proposals
-    )
+    # (by each ranking's evidence: each ranking's finalists come from its own slides)
+    refined = dict.fromkeys(overlay.best_near(t, radius, w) for w in rankings for t in proposals)
     for tx, ty in refined:
         ok = pairs.correlation((tx, ty)) > thresh
         support = pair_support(ok) if params.rho_veto else params.min_pairs
@@ -583,7 +633,8 @@ def _search_heading(
             _Hypothesis(
                 heading=heading,
                 coarse_matrix=_translation(tx, ty) @ rot,
-                evidence=agreement.agree - params.disagreement_weight * agreement.disagree,
+                evidence=overlay.evidence_at((tx, ty), rankings[0]),
+                search_evidence=overlay.evidence_at((tx, ty), rankings[-1]),
                 ratio=agreement.ratio,
                 support=support,
                 passing=ok,
@@ -597,27 +648,74 @@ def _search_heading(
     return out
 
 
-def _finalists(hyps: list[_Hypothesis], n: int) -> list[_Hypothesis]:
-    """The ``n`` best hypotheses by evidence, skipping near-duplicates of better ones."""
+def _weights(params: MergeParams) -> tuple[OverlayWeights, ...]:
+    """The rankings of the coarse hypotheses: walls only (``agree - disagreement_weight *
+    disagree``), then, with ``search_finalists``, ``params.search_weights``."""
+    walls = OverlayWeights(params.disagreement_weight)
+    return (walls, params.search_weights) if params.search_finalists > 0 else (walls,)
+
+
+def _near(h: _Hypothesis, chosen: list[_Hypothesis]) -> bool:
+    """True when ``h`` is within 2 degrees and 3 coarse cells of one of ``chosen``."""
+    return any(
+        abs(np.angle(np.exp(1j * (h.heading.psi - o.heading.psi)))) < np.radians(2.0)
+        and np.hypot(*(h.coarse_matrix[:2, 2] - o.coarse_matrix[:2, 2])) < 3.0
+        for o in chosen
+    )
+
+
+def _best(
+    hyps: list[_Hypothesis],
+    n: int,
+    key: Callable[[_Hypothesis], float],
+    chosen: tuple[_Hypothesis, ...] = (),
+) -> list[_Hypothesis]:
+    """The ``n`` best hypotheses by ``key``, skipping near-duplicates of better ones and
+    of ``chosen``."""
     out: list[_Hypothesis] = []
-    for h in sorted(hyps, key=lambda h: (-h.evidence, -h.ratio)):
-        same = any(
-            abs(np.angle(np.exp(1j * (h.heading.psi - o.heading.psi)))) < np.radians(2.0)
-            and np.hypot(*(h.coarse_matrix[:2, 2] - o.coarse_matrix[:2, 2])) < 3.0
-            for o in out
-        )
-        if not same:
-            out.append(h)
+    for h in sorted(hyps, key=lambda h: (-key(h), -h.ratio)):
         if len(out) == n:
             break
+        if not _near(h, [*chosen, *out]):
+            out.append(h)
     return out
 
 
-def _decided(hyps: list[_Hypothesis], params: MergeParams, bound: float) -> bool:
-    """True when ``params.finalists`` supported hypotheses all score above ``bound``."""
+def _rankings(params: MergeParams) -> list[tuple[int, Callable[[_Hypothesis], float]]]:
+    """How many finalists each ranking chooses, and its key."""
+    out = [(params.finalists, lambda h: h.evidence)]
+    if params.search_finalists > 0:
+        out.append((params.search_finalists, lambda h: h.search_evidence))
+    return out
+
+
+def _finalists(hyps: list[_Hypothesis], params: MergeParams) -> list[_Hypothesis]:
+    """The ``finalists`` best by walls-only evidence, then the ``search_finalists`` best by
+    the search evidence (``search_weights``) among those that beat every walls-ranked
+    finalist by it.
+
+    The search evidence finds small, consistent overlaps that look-alikes with more
+    walls outrank; the walls-only evidence keeps those look-alikes among the
+    finalists, where the decision weighs the winner against them (:mod:`pgvd.decision`).
+    The bar keeps the extra finalists to pairs where the two rankings disagree: where
+    the walls' best is also the search's, more finalists would only be more rivals.
+    """
+    out: list[_Hypothesis] = []
+    for n, key in _rankings(params):
+        bar = max((key(h) for h in out), default=-np.inf)
+        out += _best([h for h in hyps if key(h) > bar], n, key, tuple(out))
+    return out
+
+
+def _decided(hyps: list[_Hypothesis], params: MergeParams, bounds: tuple[float, ...]) -> bool:
+    """True when, by each ranking (:func:`_rankings`), as many supported hypotheses as it
+    chooses all score above that ranking's bound in ``bounds``."""
     good = [h for h in hyps if h.support >= params.min_pairs]
-    chosen = _finalists(good, params.finalists)
-    return len(chosen) == params.finalists and chosen[-1].evidence > bound
+    for (n, key), bound in zip(_rankings(params), bounds, strict=True):
+        chosen = _best(good, n, key)
+        if len(chosen) < n or key(chosen[-1]) <= bound:
+            return False
+    return True
 
 
 def score_hypothesis(
@@ -729,7 +827,10 @@ def _decide(
     """
     sub_b = subsample(fine_b.walls, params.refine_points)
     starts = [to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k)) for h in finalists]
-    refined = [refine(fine_a, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=3) for m in starts]
+    refined = [
+        refine(fine_a, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=FINALIST_ICP_ITERATIONS)
+        for m in starts
+    ]
     index, decision, matrix = decide_finalists(refined, fine_a, fine_b, params, res)
     return finalists[index], decision, matrix
 
@@ -907,7 +1008,9 @@ def merge(
     clock.lap("graph")
     if not graph_a.edges:
         return _rejected(f"map A has no GVD edge of {params.min_edge_length} m or more", clock)
-    scores = OverlayScores(MapView(ca, params.occupied, params.free, 1))
+    scores = OverlayScores(
+        MapView(ca, params.occupied, params.free, 1), free=params.search_finalists > 0
+    )
     correlator = EdgeCorrelator(graph_a.edges, params.edge_tolerance)
     radius = max(1, round(params.search_radius / coarse_res))
     clock.lap("verify")
@@ -915,17 +1018,21 @@ def merge(
     clock.lap("rotation")
     canvases: dict[float, np.ndarray] = {}
     turned = _ranked(
-        [_rotate(h, cb, scores, params, canvases) for h in headings], params.disagreement_weight
+        [_rotate(h, cb, scores, params, canvases) for h in headings], _weights(params)[0]
     )
     clock.lap("verify")
     hyps: list[_Hypothesis] = []
     searched: tuple[float, ...] = ()
-    for t in turned[: params.search_headings]:
+    turned = turned[: params.search_headings]
+    for i, t in enumerate(turned):
         # A heading's hypotheses score at most its best overlay evidence, and the
         # finalists are the best by evidence: once that many supported ones beat
-        # everything this heading (and the weaker ones after it) could offer, it
-        # cannot change the outcome, so its PGVD/Gamma stages are skipped.
-        if _decided(hyps, params, t.overlay.best_evidence(params.disagreement_weight)):
+        # everything this heading and the ones after it could offer, by either
+        # ranking, they cannot change the outcome, so their PGVD/Gamma stages are skipped.
+        bounds = tuple(
+            max(r.overlay.best_evidence(w) for r in turned[i:]) for w in _weights(params)
+        )
+        if _decided(hyps, params, bounds):
             break
         searched += (float(np.degrees(t.heading.psi)),)
         hyps += _search_heading(t, graph_a, correlator, params, min_len, radius, clock)
@@ -941,7 +1048,7 @@ def merge(
     fine_b = WallMap(pb, params.occupied, params.free)
     clock.lap("verify")
     to_fine = _scale(k) @ off_a
-    finalists = _finalists(good, params.finalists)
+    finalists = _finalists(good, params)
     best, decision, matrix = _decide(finalists, fine_a, fine_b, to_fine, k, params, a.resolution)
     clock.lap("refine")
     agreement = map_agreement(fine_a, fine_b, matrix, max_points=params.fine_points, scaled=True)

@@ -15,6 +15,7 @@ from pgvd.matching import (
     EdgeCorrelator,
     MapView,
     OverlayScores,
+    OverlayWeights,
     PairSupport,
     WallMap,
     alignment_covariance,
@@ -112,7 +113,7 @@ def test_dense_overlay_scores_equal_direct_counts(intel):
     c = coarsen(intel, 4)
     va = MapView(c, 0.65, 0.3, 1)
     vb = MapView(c[10:90, 20:100], 0.65, 0.3, 1)
-    ov = OverlayScores(va).overlay(vb)
+    ov = OverlayScores(va, free=True).overlay(vb)
     agree, disagree = ov.agree, ov.disagree
     size = agree.shape
     for tx, ty in [(20, 10), (23, 8), (-5, 40)]:
@@ -126,6 +127,18 @@ def test_dense_overlay_scores_equal_direct_counts(intel):
             direct_dis += int(dst.clear[r[ok], col[ok]].sum())
         assert ov.at((tx, ty)).agree == direct_agree
         assert ov.at((tx, ty)).disagree == direct_dis
+        # cells free in both: B's free cells looked up in A, counted once
+        rf, cf = np.nonzero(vb.free)
+        r, col = rf + ty, cf + tx
+        ok = (r >= 0) & (r < va.shape[0]) & (col >= 0) & (col < va.shape[1])
+        direct_free = int(va.free[r[ok], col[ok]].sum())
+        weights = OverlayWeights(conflict=12.0, free=0.5)
+        expected = direct_agree + 0.5 * direct_free - 12.0 * direct_dis
+        assert ov.evidence_at((tx, ty), weights) == pytest.approx(expected)
+    walls_only = OverlayScores(va).overlay(vb)
+    np.testing.assert_array_equal(walls_only.evidence(), ov.evidence())
+    with pytest.raises(ValueError, match="free space was not counted"):
+        walls_only.evidence(OverlayWeights(free=0.5))
     # the true offset of the crop is the best agreement, up to the one-cell tolerance
     best = np.unravel_index(np.argmax(agree - disagree), size)
     assert abs(int(best[0]) - 10) <= 1 and abs(int(best[1]) - 20) <= 1

@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pgvd.grid import heading, relative_matrix, rigid_matrix
+from bench.capture import Finalists
+from pgvd.grid import Grid, heading, relative_matrix, rigid_matrix
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, _known_box, _with_refined, coarsen
+from pgvd.matching import MapView, OverlayScores, OverlayWeights
+from pgvd.merge import MergeParams, _known_box, _with_refined, coarsen, merge
 from pgvd.rotation import HeadingCandidate
 from pgvd.transform import warp
 
@@ -55,3 +57,51 @@ def test_a_candidate_at_the_truth_stays_and_span_zero_turns_the_refinement_off(i
     assert _with_refined([right], ca, cb, ON) == [right]
     off = HeadingCandidate(psi + np.radians(4.0), 1e-4, 0.9)
     assert _with_refined([off], ca, cb, MergeParams(heading_span=0.0)) == [off]
+
+
+@pytest.fixture(scope="module")
+def map312_parts(shared):
+    """Two parts of fr079_albertB's map312 sharing 15 % of its height, and B's true offset."""
+    p = read_map(shared / "maps" / "fr079_albertB" / "map312.yaml").probability()
+    h = p.shape[0]
+    cut_a, cut_b = round(0.575 * h), round(0.425 * h)
+    return p[:cut_a], p[cut_b:], cut_b
+
+
+def _peak_rank(overlay, weights, t: tuple[int, int]) -> int:
+    """Rank of ``t`` (within a coarse cell) among the overlay's peaks by ``weights``."""
+    peaks = overlay.peaks(50, 12, weights)
+    return next(i for i, (x, y) in enumerate(peaks, 1) if abs(x - t[0]) + abs(y - t[1]) <= 2)
+
+
+def test_free_space_and_heavier_conflicts_rank_a_small_true_overlap_first(shared):
+    # Two parts of fr079_albertB's map312 (coarse, 0.2 m) sharing 15 % of its height, a
+    # stretch of corridor: walls alone prefer look-alike slides with more walls and a few
+    # conflicts (MergeParams.search_conflict_weight's measurement).
+    p = read_map(shared / "maps" / "fr079_albertB" / "map312.yaml").probability()
+    c = coarsen(p, round(MergeParams().coarse_resolution / 0.05))
+    c = c[_known_box(c)]
+    cut_a, cut_b = round(0.575 * c.shape[0]), round(0.425 * c.shape[0])
+    overlay = OverlayScores(MapView(c[:cut_a], 0.65, 0.3, 1), free=True).overlay(
+        MapView(c[cut_b:], 0.65, 0.3, 1)
+    )
+    walls = OverlayWeights(MergeParams().disagreement_weight)
+    assert _peak_rank(overlay, walls, (0, cut_b)) > 1
+    assert _peak_rank(overlay, MergeParams().search_weights, (0, cut_b)) == 1
+
+
+def test_no_search_finalist_where_both_rankings_agree(map312_parts):
+    # This cut's true translation is the best by walls alone too: the option must then
+    # add no rival to the decision and return the default's pose.
+    pa, pb, cut_b = map312_parts
+    a, b = Grid.from_probability(pa, 0.05), Grid.from_probability(pb, 0.05)
+    truth = rigid_matrix(0.0, 0.0, float(cut_b))
+    found = []
+    for extra in (0, 4):
+        finalists = Finalists()
+        with finalists.watching():
+            result = merge(a, b, MergeParams(diagnostics=False, search_finalists=extra))
+        assert len(finalists.matrices) == 8
+        assert result.accepted and np.abs(result.matrix - truth).max() < 1.0, result.reason
+        found.append(result.matrix)
+    np.testing.assert_allclose(found[0], found[1])
