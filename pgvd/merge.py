@@ -201,17 +201,16 @@ class MergeParams:
     search_finalists : finalists more, the best by the search evidence among the
         hypotheses that beat every walls-ranked finalist by it (:func:`_finalists`),
         proposed from the overlay peaks and slides by that evidence too.  Off (0) by
-        default: on the development bench (``python -m bench.merge --methods pgvd
-        pgvd-search --no-scaling``, then ``python -m bench.recall --method
+        default: on the development bench with the decision as it is now (``python -m
+        bench.merge``, every method, then ``python -m bench.recall --method
         pgvd-search``), 4 find the pose in 135 of 182 pairs instead of 129 (low overlap
-        20/48 instead of 15) and succeed on 107 instead of 106 (standard 74, low 15
-        instead of 12, drifted 18 instead of 20), but with today's decision accept 2
-        fr079-log low-overlap pairs near the truth and just beyond the success bounds
-        (3.6 and 3.7 cells, margins 1.20 and 1.71) and 1 negative (willow against
-        ritsumeikan_cc4f, margin 0.78).  Without the bar (every hypothesis may be one of
-        the extra finalists) they find 138 but succeed on 98: the extra finalists are
-        strong rivals of true winners.  14 % slower (median over 63 pairs, interleaved
-        with the default in one process).
+        19/48 instead of 15) but succeed on 105 instead of 106 (standard 75, low 12,
+        drifted 18 instead of 19): the extra finalists are rivals too, and lower true
+        winners' margins.  They also accept fr079-log's low-overlap ov05 3.6 cells off
+        (margin 0.88) and a disjoint pair of the intel log (margin 0.83).  Without the
+        bar (every hypothesis may be one of the extra finalists) they found 138 but
+        succeeded on 98 with the decision before its noise term.  14 % slower (median
+        over 63 pairs, interleaved with the default in one process).
     finalists : best coarse hypotheses (by walls only, ``agree - disagreement_weight *
         disagree``) refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.
