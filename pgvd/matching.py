@@ -351,6 +351,10 @@ class OverlayWeights:
     free: float = 0.0
 
 
+#: ``agree - disagree``: walls only, each conflict weighed as one agreeing wall.
+WALLS_ONLY = OverlayWeights()
+
+
 @dataclass(frozen=True)
 class Overlay:
     """Agreement and disagreement counts of B on A for every integer translation.
@@ -371,7 +375,7 @@ class Overlay:
         default_factory=dict, repr=False, compare=False
     )
 
-    def evidence(self, weights: OverlayWeights = OverlayWeights()) -> np.ndarray:
+    def evidence(self, weights: OverlayWeights = WALLS_ONLY) -> np.ndarray:
         """``agree + free free_agree - conflict disagree`` for every translation (kept per
         weights)."""
         if weights not in self._evidence:
@@ -392,16 +396,16 @@ class Overlay:
         idx = self._index(t)
         return Agreement(int(self.agree[idx]), int(self.disagree[idx]))
 
-    def evidence_at(self, t: tuple[int, int], weights: OverlayWeights = OverlayWeights()) -> float:
+    def evidence_at(self, t: tuple[int, int], weights: OverlayWeights = WALLS_ONLY) -> float:
         """The evidence of :meth:`evidence` at the translation ``t = (tx, ty)``."""
         return float(self.evidence(weights)[self._index(t)])
 
-    def best_evidence(self, weights: OverlayWeights = OverlayWeights()) -> float:
+    def best_evidence(self, weights: OverlayWeights = WALLS_ONLY) -> float:
         """Largest evidence (:meth:`evidence`) over all translations."""
         return float(np.max(self.evidence(weights)))
 
     def peaks(
-        self, n: int, radius: int, weights: OverlayWeights = OverlayWeights()
+        self, n: int, radius: int, weights: OverlayWeights = WALLS_ONLY
     ) -> list[tuple[int, int]]:
         """Translations of the largest overlay evidence that are local maxima.
 
@@ -434,7 +438,7 @@ class Overlay:
         return out
 
     def best_near(
-        self, t: tuple[int, int], radius: int, weights: OverlayWeights = OverlayWeights()
+        self, t: tuple[int, int], radius: int, weights: OverlayWeights = WALLS_ONLY
     ) -> tuple[int, int]:
         """The translation ``(tx, ty)`` within ``radius`` of ``t`` of largest evidence
         (:meth:`evidence`)."""
