@@ -199,6 +199,26 @@ def load_scans(spec: SourceSpec) -> list[LaserScan]:
     return read_carmen(spec.path)
 
 
+class ReplayClock:
+    """The recording's time that is due at a monotonic ``now``, replayed at ``speed``.
+
+    Shared by the log and bag replays: the clock starts at the first :meth:`horizon`,
+    at the record the replay resumes from, so a restarted agent goes on where it stopped
+    instead of jumping ahead by the time it was down.
+    """
+
+    def __init__(self, speed: float) -> None:
+        self.speed = speed
+        self._t0: float | None = None
+
+    def horizon(self, now: float, first: float, resume: float) -> float:
+        """Recording time due at ``now``; ``first`` is the recording's first stamp and
+        ``resume`` the stamp of the record the replay starts (or resumes) at."""
+        if self._t0 is None:
+            self._t0 = now - (resume - first) / self.speed
+        return first + (now - self._t0) * self.speed
+
+
 class CarmenSource:
     """Replays laser scans into a growing local map, in the robot's own frame.
 
@@ -230,14 +250,13 @@ class CarmenSource:
             raise ValueError(f"{spec.path}: segment {spec.segment} holds no scans")
         self.spec = spec
         self.frame = frame
-        self.speed = speed
         self.map_frame = frame_for(self.scans, resolution, se2(*frame))
         self.cursor = 0
         self.logodds = np.zeros(self.map_frame.shape, dtype=np.float32)
         if resume is not None and resume[0].shape == self.logodds.shape:
             self.logodds = resume[0].astype(np.float32, copy=True)
             self.cursor = min(int(resume[1]), len(self.scans))
-        self._t0: float | None = None
+        self._clock = ReplayClock(speed)
 
     @property
     def done(self) -> bool:
@@ -250,10 +269,7 @@ class CarmenSource:
         if self.done:
             return False
         stamps = self._stamps()
-        if self._t0 is None:
-            # Resume mid-log: the replay clock starts at the next scan.
-            self._t0 = now - (stamps[self.cursor] - stamps[0]) / self.speed
-        horizon = stamps[0] + (now - self._t0) * self.speed
+        horizon = self._clock.horizon(now, stamps[0], stamps[self.cursor])
         start = self.cursor
         while self.cursor < len(self.scans) and stamps[self.cursor] <= horizon:
             integrate_scan(self.logodds, self.scans[self.cursor], self.map_frame)
@@ -448,7 +464,6 @@ class RosbagGridSource:
 
         assert spec.path is not None and spec.topic is not None
         self.spec = spec
-        self.speed = speed
         self.recorded = read_rosbag_grids(spec.path, spec.topic)
         if not self.recorded:
             raise ValueError(f"{spec.path}: no map recorded on {spec.topic}")
@@ -456,7 +471,7 @@ class RosbagGridSource:
         self.refused = 0
         self.last_error: str | None = None
         self._map: RosMap | None = None
-        self._t0: float | None = None
+        self._clock = ReplayClock(speed)
 
     @property
     def done(self) -> bool:
@@ -468,11 +483,7 @@ class RosbagGridSource:
 
         if self.done:
             return False
-        first = self.recorded[0][0]
-        if self._t0 is None:
-            # Resume mid-bag: the replay clock starts at the next map.
-            self._t0 = now - (self.recorded[self.cursor][0] - first) / self.speed
-        horizon = first + (now - self._t0) * self.speed
+        horizon = self._clock.horizon(now, self.recorded[0][0], self.recorded[self.cursor][0])
         due = self.cursor
         while due < len(self.recorded) and self.recorded[due][0] <= horizon:
             due += 1
