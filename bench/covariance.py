@@ -1,7 +1,7 @@
 """Calibration of the merge covariance (issue 10, item 5) on real development pairs.
 
     python3 -m bench.covariance collect [--pairs 120] [--seed 10]   # merges, slow
-    python3 -m bench.covariance fit                                 # fit + report, quick
+    python3 -m bench.covariance fit [--splits 20]                   # fit + report
 
 ``collect`` cuts overlapping pairs from the intel and freiburg-079 logs
 (:func:`bench.pairs.make_pairs`, each map in its own random frame, distinct
@@ -16,8 +16,10 @@ first half only, and reports on the second half only: the mean NEES
 against the 95 % band of the mean of n chi2(3) (mean 3, variance 6/n), the
 share of errors inside the 95 % ellipsoid, and the same for the heading
 alone (chi2(1)).  The Laplace covariance the merge used to report is
-evaluated on the same half for comparison.  Writes ``covariance.md`` and
-``covariance.json`` in ``bench/results/``.
+evaluated on the same half for comparison.  ``--splits n`` refits the
+models chosen before and with the heading scale on ``n`` random halvings
+and says how often each target is met on the held-out half (minutes).
+Writes ``covariance.md`` and ``covariance.json`` in ``bench/results/``.
 
 Gross failures (heading error above 2 degrees or B's walls more than 3 cells
 off: the bench's definition of a wrong merge) are no Gaussian error; they are
@@ -136,9 +138,21 @@ def _covs(recs: list[dict], model: CovarianceModel) -> np.ndarray:
 
 
 #: Constants of a model that are not fitted (the Laplace covariance, no floor).
-FIXED = {"correlation": 1.0, "misfit_power": 1.0, "floor_m": 0.0, "floor_rad": 0.0}
+FIXED = {
+    "correlation": 1.0,
+    "misfit_power": 1.0,
+    "floor_m": 0.0,
+    "floor_rad": 0.0,
+    "heading_scale": 1.0,
+}
 #: Where the search of each fitted constant starts.
-START = {"correlation": 20.0, "misfit_power": 2.0, "floor_m": 0.01, "floor_rad": 1e-4}
+START = {
+    "correlation": 20.0,
+    "misfit_power": 2.0,
+    "floor_m": 0.01,
+    "floor_rad": 1e-4,
+    "heading_scale": 1.0,
+}
 
 
 def fit_model(recs: list[dict], free: tuple[str, ...]) -> CovarianceModel:
@@ -182,13 +196,19 @@ def consistency(errors: np.ndarray, covs: np.ndarray) -> dict:
 
 
 #: The model whose constants are ``pgvd.matching.CALIBRATED``.
-CHOSEN = "calibrated (misfit + floor)"
+CHOSEN = "calibrated (misfit + floor + heading scale)"
 #: Models compared in the report: the free constants of each (see :func:`fit_model`).
 MODELS = {
     "laplace, correlation fitted": ("correlation",),
     "misfit": ("correlation", "misfit_power"),
-    "calibrated (misfit + floor)": ("correlation", "misfit_power", "floor_m", "floor_rad"),
+    "misfit + floor": ("correlation", "misfit_power", "floor_m", "floor_rad"),
+    "misfit + heading scale": ("correlation", "misfit_power", "heading_scale"),
+    CHOSEN: ("correlation", "misfit_power", "floor_m", "floor_rad", "heading_scale"),
 }
+
+
+#: Models refitted on random halvings (``fit --splits``): chosen before and with the heading scale.
+RESPLIT = ("misfit + floor", CHOSEN)
 
 
 def split(records: list[dict]) -> tuple[list[dict], list[dict]]:
@@ -199,8 +219,55 @@ def split(records: list[dict]) -> tuple[list[dict], list[dict]]:
     return usable[0::2], usable[1::2]
 
 
-def report(pairs_file: Path, out: Path) -> int:
-    """Fit on the first half, evaluate on the second; write covariance.md/json."""
+def _targets_met(row: dict) -> dict[str, bool]:
+    """Issue 10's targets on one held-out half: NEES in band, 90-98 % inside (3-D, heading)."""
+    return {
+        "full_in_band": row["band"][0] <= row["mean_nees"] <= row["band"][1],
+        "full_inside": 0.90 <= row["inside_95"] <= 0.98,
+        "heading_in_band": row["heading_band"][0]
+        <= row["heading_mean_nees"]
+        <= row["heading_band"][1],
+        "heading_inside": 0.90 <= row["heading_inside_95"] <= 0.98,
+    }
+
+
+def random_splits(records: list[dict], n: int, seed: int = 0) -> dict[str, dict]:
+    """Held-out figures of the :data:`RESPLIT` models over ``n`` random halvings.
+
+    The alternating split of :func:`split` is one halving of many; the spread
+    of the held-out mean NEES from one halving to another, and how often each
+    target is met, say how much one table can be read into.
+    """
+    usable = [r for half in split(records) for r in half]
+    rng = np.random.default_rng(seed)
+    rows: dict[str, list[dict]] = {name: [] for name in RESPLIT}
+    for _ in range(n):
+        order = rng.permutation(len(usable))
+        fit_half = [usable[i] for i in order[: (len(usable) + 1) // 2]]
+        test_half = [usable[i] for i in order[(len(usable) + 1) // 2 :]]
+        errors = np.array([r["error"] for r in test_half])
+        for name in RESPLIT:
+            model = fit_model(fit_half, MODELS[name])
+            rows[name].append(consistency(errors, _covs(test_half, model)))
+    out = {}
+    for name, held_out in rows.items():
+        met = [_targets_met(r) for r in held_out]
+        out[name] = {
+            "splits": n,
+            "mean_nees": [r["mean_nees"] for r in held_out],
+            "heading_mean_nees": [r["heading_mean_nees"] for r in held_out],
+            "met": {k: int(sum(m[k] for m in met)) for k in met[0]},
+            "all_met": int(sum(all(m.values()) for m in met)),
+        }
+    return out
+
+
+def report(pairs_file: Path, out: Path, splits: int = 0) -> int:
+    """Fit on the first half, evaluate on the second; write covariance.md/json.
+
+    With ``splits`` > 0 the :data:`RESPLIT` models are also refitted on that
+    many random halvings (:func:`random_splits`).
+    """
     doc = json.loads(pairs_file.read_text())
     records = doc["records"]
     fit_half, test_half = split(records)
@@ -228,6 +295,7 @@ def report(pairs_file: Path, out: Path) -> int:
         "chosen": CHOSEN,
         "models": fitted,
         "rows": rows,
+        "random_splits": random_splits(records, splits) if splits else {},
     }
     (out / "covariance.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "covariance.md").write_text(markdown(summary))
@@ -240,7 +308,12 @@ def markdown(summary: dict) -> str:
     lines = [
         "# Calibration of the merge covariance (issue 10, item 5)",
         "",
-        "`python3 -m bench.covariance collect && python3 -m bench.covariance fit`",
+        "`python3 -m bench.covariance collect && python3 -m bench.covariance fit"
+        + (
+            f" --splits {next(iter(summary['random_splits'].values()))['splits']}`"
+            if summary["random_splits"]
+            else "`"
+        ),
         "",
         f"{summary['pairs']} overlapping pairs of the intel and freiburg-079 logs (seed "
         f"{summary['seed']}), {summary['accepted']} accepted, {summary['gross']} of them gross "
@@ -269,12 +342,40 @@ def markdown(summary: dict) -> str:
         "NEES < chi2(3).ppf(0.95) = 7.81, and 3.84 for the heading alone.",
         "",
         "Fitted constants (`pgvd.matching.CovarianceModel`; constants not fitted are fixed "
-        "at correlation 1, misfit_power 1, no floor):",
+        "at correlation 1, misfit_power 1, no floor, heading_scale 1):",
         "",
     ]
     for name, m in summary["models"].items():
         lines.append(f"- {name}: " + ", ".join(f"{k} = {v:.4g}" for k, v in m.items()))
+    if summary["random_splits"]:
+        lines += ["", *split_table(summary["random_splits"])]
     return "\n".join(lines) + "\n"
+
+
+def split_table(resplit: dict[str, dict]) -> list[str]:
+    """Markdown of :func:`random_splits`: spread of the held-out figures, targets met."""
+    n = next(iter(resplit.values()))["splits"]
+    lines = [
+        f"Refitted on {n} random halvings of the same pairs (the split above is one halving): "
+        "held-out mean NEES min / median / max, and in how many halvings each target is met "
+        "(NEES inside its band; 90-98 % inside the 95 % ellipsoid or 3.84).",
+        "",
+        "| covariance | mean NEES | heading NEES | NEES in band | inside 90-98 % "
+        "| heading NEES in band | heading inside 90-98 % | all four |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, s in resplit.items():
+        spread = [
+            "/".join(f"{v:.2f}" for v in (min(x), float(np.median(x)), max(x)))
+            for x in (s["mean_nees"], s["heading_mean_nees"])
+        ]
+        met = s["met"]
+        lines.append(
+            f"| {name} | {spread[0]} | {spread[1]} | {met['full_in_band']}/{n} "
+            f"| {met['full_inside']}/{n} | {met['heading_in_band']}/{n} "
+            f"| {met['heading_inside']}/{n} | {s['all_met']}/{n} |"
+        )
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -287,10 +388,13 @@ def main(argv: list[str] | None = None) -> int:
     f = sub.add_parser("fit")
     f.add_argument("--pairs-file", type=Path, default=PAIRS_FILE)
     f.add_argument("--out", type=Path, default=RESULTS)
+    f.add_argument(
+        "--splits", type=int, default=0, help="also refit on this many random halvings (slow)"
+    )
     args = ap.parse_args(argv)
     if args.command == "collect":
         return collect(args.pairs, args.seed, args.out)
-    return report(args.pairs_file, args.out)
+    return report(args.pairs_file, args.out, args.splits)
 
 
 if __name__ == "__main__":

@@ -272,6 +272,33 @@ def test_calibrated_covariance_floor_acts_about_the_matched_walls() -> None:
     assert cov[0, 0] + cov[1, 1] == pytest.approx(2.0 + (np.hypot(*c) * 0.01) ** 2, rel=1e-6)
 
 
+def test_heading_scale_widens_the_heading_about_the_matched_walls(shared) -> None:
+    from pgvd.matching import alignment_fit, calibrated_covariance
+
+    g, wm = _walls(shared, "maps/intel_split_gt/intel_partA.yaml")
+    m = rigid_matrix(0.3, 40.0, -25.0)
+    walls_b = (wm.walls - m[:2, 2]) @ np.linalg.inv(m[:2, :2]).T  # A = m(B)
+    fit = alignment_fit(wm.tree, walls_b, m)
+    plain = calibrated_covariance(fit, g.resolution, CovarianceModel(5.0, 3.0, 0.0, 0.0))
+    wide = calibrated_covariance(fit, g.resolution, CovarianceModel(5.0, 3.0, 0.0, 0.0, 1.5))
+    assert wide[2, 2] == pytest.approx(1.5**2 * plain[2, 2], rel=1e-9)
+    # a heading error p about the centroid c moves B's origin by lever * p (eq. (1)),
+    # so the pose error at c is (t - lever * p, p)
+    h = 1e-7
+    lever = (
+        _f(np.array([0, 0, fit.psi]), fit.centroid)
+        - _f(np.array([0, 0, fit.psi + h]), fit.centroid)
+    ) / h
+    to_c = np.eye(3)
+    to_c[:2, 2] = -lever
+    plain_c, wide_c = to_c @ plain @ to_c.T, to_c @ wide @ to_c.T
+    # there only the heading is wider: the translation keeps its spread
+    np.testing.assert_allclose(wide_c[:2, :2], plain_c[:2, :2], rtol=1e-6)
+    np.testing.assert_allclose(wide_c[:2, 2], 1.5 * plain_c[:2, 2], rtol=1e-6, atol=1e-12)
+    # at B's origin the translation widens too, through the lever arm
+    assert wide[0, 0] + wide[1, 1] > plain[0, 0] + plain[1, 1]
+
+
 def test_merge_covariance_is_consistent_on_real_pairs(shared) -> None:
     from bench.covariance import nees, pose_error
     from bench.pairs import make_pairs
