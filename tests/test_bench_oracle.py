@@ -1,70 +1,94 @@
-"""bench.oracle: the merge searches the true heading it is given, beside the Radon candidates."""
+"""bench.oracle: the truth handed to one stage of a real merge, and the report of what it buys."""
 
 from __future__ import annotations
 
 from unittest import mock
 
 import numpy as np
+import pytest
 
-from bench.oracle import _MERGE_MODULE, markdown, with_truth
+from bench.merge import evaluate
+from bench.oracle import (
+    _MERGE_MODULE,
+    markdown,
+    search_misses,
+    true_finalist,
+    with_truth,
+)
+from bench.pairs import MapPair
+from pgvd.grid import relative_matrix
 from pgvd.io import read_map
 from pgvd.merge import MergeParams, merge
 from pgvd.rotation import estimate_headings
 
 
-def test_with_truth_adds_the_heading_after_the_radon_candidates(shared):
+@pytest.fixture(scope="module")
+def intel_split(shared) -> MapPair:
     a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
     b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
-    pa, pb = a.probability(), b.probability()
+    return MapPair(a, b, relative_matrix(a, b), 0.5, "intel-split")
+
+
+def test_with_truth_adds_the_heading_after_the_radon_candidates(intel_split):
+    pa, pb = intel_split.a.probability(), intel_split.b.probability()
     radon = estimate_headings(pa, pb, 6)
     got = with_truth(1.0)(pa, pb, 6)
     assert [h.psi for h in got[:-1]] == [h.psi for h in radon] and got[-1].psi == 1.0
     # the merge takes it as a candidate: 1 rad is searched, and no Radon candidate is near it
     assert all(abs(np.angle(np.exp(1j * (h.psi - 1.0)))) > np.radians(5) for h in radon)
     with mock.patch.object(_MERGE_MODULE, "estimate_headings", with_truth(1.0)):
-        result = merge(a, b, MergeParams(diagnostics=False))
+        result = merge(intel_split.a, intel_split.b, MergeParams(diagnostics=False))
     assert any(abs(d - np.degrees(1.0)) < 1e-6 for d in result.headings_deg)
+
+
+def test_true_finalist_finds_the_supported_hypothesis_at_the_truth(intel_split):
+    seen: dict = {}
+    with true_finalist(intel_split, seen):
+        result = merge(intel_split.a, intel_split.b, MergeParams(diagnostics=False))
+    # the split maps merge right on their own: the truth's hypothesis is a finalist already
+    assert seen["coarse_err"] < 2.0 and seen["was_finalist"]
+    assert evaluate(intel_split, result.accepted, result.matrix)["success"]
+    # and the merge's private functions are restored afterwards
+    assert _MERGE_MODULE._finalists.__name__ == "_finalists"
+
+
+def test_search_misses_selects_pose_not_found_at_a_searched_heading():
+    base = {"set": "low", "success": False, "truth_heading_deg": 10.0, "searched_deg": [10.5]}
+    assert search_misses({**base, "finalist_success": [False, False]})
+    assert not search_misses({**base, "finalist_success": [False, True]})
+    assert not search_misses({**base, "searched_deg": [14.0], "finalist_success": [False]})
+    assert not search_misses({**base, "set": "negative", "finalist_success": []})
+
+
+def _row(pair: str, set_: str, success: bool, accepted: bool, **extra) -> dict:
+    return {
+        "pair": pair,
+        "set": set_,
+        "gap": 4.0,
+        "margin": 0.8 if accepted else -0.2,
+        "success": success,
+        "accepted": accepted,
+        "heading_deg": 0.8,
+        "cell_err": 11.0,
+        "cell_tolerance": 7.0,
+        **extra,
+    }
 
 
 def test_markdown_counts_right_and_wrong_per_set():
     rows = [
-        {
-            "pair": "s0",
-            "set": "standard",
-            "gap": 3.2,
-            "margin": 0.9,
-            "success": True,
-            "accepted": True,
-            "heading_deg": 0.1,
-            "cell_err": 0.5,
-            "cell_tolerance": 7.0,
-        },
-        {
-            "pair": "d0",
-            "set": "drifted",
-            "gap": 5.0,
-            "margin": 0.8,
-            "success": False,
-            "accepted": True,
-            "heading_deg": 0.8,
-            "cell_err": 11.0,
-            "cell_tolerance": 7.0,
-        },
-        {
-            "pair": "d1",
-            "set": "drifted",
-            "gap": 4.0,
-            "margin": -0.2,
-            "success": False,
-            "accepted": False,
-            "heading_deg": 40.0,
-            "cell_err": 300.0,
-            "cell_tolerance": 7.0,
-        },
+        _row("s0", "standard", True, True),
+        _row("d0", "drifted", False, True),
+        _row("d1", "drifted", False, False),
     ]
-    text = markdown(rows, "python3 -m bench.oracle")
+    text = markdown(rows, "heading", "python3 -m bench.oracle")
     assert "| drifted | 2 | 0 | 1 |" in text and "| standard | 1 | 1 | 0 |" in text
-    assert (
-        "accepted, wrong (0.80 deg, 11.0 cells, tolerance 7.0)" in text
-        and "| d1 | 4.0 | rejected |" in text
-    )
+    assert "accepted, wrong (0.80 deg, 11.0 cells, tolerance 7.0)" in text
+    assert "| d1 | 4.0 | rejected | -0.20 |" in text
+    rows = [
+        _row("l0", "low", False, False, coarse_err=1.2, was_finalist=False),
+        _row("l1", "low", True, True, coarse_err=0.4, was_finalist=False),
+        _row("l2", "low", False, False, coarse_err=40.0, was_finalist=True),
+    ]
+    text = markdown(rows, "finalist", "python3 -m bench.oracle --stage finalist")
+    assert "| low | 3 | 1 | 0 | 2 |" in text and "| l2 | 40.0 | yes | rejected | -0.20 |" in text
