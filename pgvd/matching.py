@@ -13,11 +13,10 @@
 * :func:`map_agreement` overlays the whole maps: walls of one map that fall
   on walls of the other agree, walls that fall on clear free space disagree.
 * :func:`refine` aligns the wall cells at full resolution (trimmed ICP);
-  :func:`alignment_covariance` reads the covariance from the curvature of the
-  alignment cost at its minimum (a Laplace approximation), and
-  :func:`calibrated_covariance` inflates it by the residual misfit and widens
-  its heading, with constants fitted on real pairs, so that it matches the
-  errors the merge makes.
+  :func:`alignment_fit` gives the curvature of the alignment cost at its
+  minimum, and :func:`calibrated_covariance` turns it into a covariance (a
+  Laplace approximation inflated by the residual misfit, its heading widened,
+  with constants fitted on real pairs) that matches the errors the merge makes.
 """
 
 from __future__ import annotations
@@ -898,7 +897,7 @@ def refine_point_to_line(
     straight corridors, where a wall cell may slide along the wall at no cost.
     Here each B wall cell within ``radius`` of A's walls pulls only along A's
     wall normal ``n_i`` (residual ``r_i = n_i . (R x_i + t - y_i)``, Jacobian as
-    in :func:`alignment_covariance`, eqs. (1)-(2)), and Gauss-Newton steps
+    in :func:`alignment_fit`, eqs. (1)-(2)), and Gauss-Newton steps
     weigh it by the Cauchy weight ``1 / (1 + (r_i / scale)^2)``: a drifted map
     has no single rigid fit, and the robust loss lets the consistent part of
     the overlap decide instead of averaging the misfit over all of it.
@@ -957,7 +956,7 @@ def residual_distortion(
     ``block``-pixel squares (A's frame) and each square's own translation
     ``d`` is fitted point-to-line, ``min sum (n_i . (d - r_i))^2`` over the
     residuals ``r_i`` of B's walls within ``radius`` of A's (``n_i`` A's wall
-    normals, as in :func:`alignment_covariance`).  Squares whose walls run one
+    normals, as in :func:`alignment_fit`).  Squares whose walls run one
     way only (the fit along the wall is free) or with fewer than
     ``min_points`` walls are skipped.
 
@@ -1100,52 +1099,6 @@ def alignment_fit(
     )
 
 
-def alignment_covariance(
-    walls_a: Walls,
-    walls_b: np.ndarray,
-    matrix: np.ndarray,
-    radius: float = 2.0,
-    max_points: int = 4000,
-    correlation_length: float = 1.0,
-) -> np.ndarray:
-    """Laplace covariance of ``(tx, ty, psi)`` of ``matrix`` from :func:`alignment_fit`.
-
-    The Gauss-Newton curvature of the agreement peak gives
-    ``Sigma = sigma^2 (J^T J)^-1`` with ``sigma^2`` the residual variance
-    (at least the variance of grid quantisation, 1/12 cell^2).  Along a
-    featureless corridor ``J^T J`` is nearly singular and the variance large.
-
-    Neighbouring wall cells are not independent observations; the variance
-    is multiplied by ``correlation_length``, the number of consecutive wall
-    cells counted as one observation.  This is the noise of the residuals
-    only: it misses the bias that map content puts into the fit, which
-    :func:`calibrated_covariance` adds.
-
-    Parameters
-    ----------
-    walls_a, walls_b, matrix, radius, max_points
-        As for :func:`alignment_fit`.
-    correlation_length : float, optional
-        Consecutive wall cells counted as one observation.
-
-    Returns
-    -------
-    numpy.ndarray
-        3x3 covariance over ``(tx px, ty px, psi rad)``, eq. (3); infinite
-        variances when fewer than 3 cells of B land near A's walls.
-
-    References
-    ----------
-    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
-       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (3), (7).
-    """
-    fit = alignment_fit(walls_a, walls_b, matrix, radius, max_points)
-    if fit is None:
-        return np.diag([np.inf, np.inf, np.inf])
-    cov = correlation_length * fit.sigma2 * np.linalg.inv(fit.info)
-    return 0.5 * (cov + cov.T)
-
-
 @dataclass(frozen=True)
 class CovarianceModel:
     """Constants of :func:`calibrated_covariance`.
@@ -1196,7 +1149,7 @@ def calibrated_covariance(
         Sigma = A^-1 (D A L A^T D + diag(f^2, f^2, f_psi^2)) A^-T,
         D = diag(1, 1, heading_scale)
 
-    * ``L`` is the Laplace approximation of :func:`alignment_covariance`
+    * ``L`` is the Laplace approximation ``sigma^2 (J^T J)^-1`` of the fit
       (noise of the residuals, shrinking as one over the matched walls, with
       the shape of ``S``: a corridor stays uncertain along its length),
       inflated as the residuals grow beyond quantisation.  On real pairs the

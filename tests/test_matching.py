@@ -18,7 +18,8 @@ from pgvd.matching import (
     OverlayWeights,
     PairSupport,
     WallMap,
-    alignment_covariance,
+    alignment_fit,
+    calibrated_covariance,
     map_agreement,
     refine,
     refine_point_to_line,
@@ -151,7 +152,7 @@ def test_refine_and_covariance_on_real_walls(intel):
     walls_b = (wm.walls - truth[:2, 2]) @ np.linalg.inv(truth[:2, :2]).T  # A = truth(B)
     m = refine(wm.tree, walls_b, np.eye(3))
     np.testing.assert_allclose(m, truth, atol=0.02)
-    cov = alignment_covariance(wm.tree, walls_b, m)
+    cov = calibrated_covariance(alignment_fit(wm.tree, walls_b, m), 0.05)
     assert np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0)
     assert np.sqrt(cov[0, 0]) < 1.0 and np.sqrt(cov[2, 2]) < np.radians(0.5)
 
@@ -189,7 +190,7 @@ def test_covariance_is_large_along_a_corridor():
     )
     from scipy.spatial import cKDTree
 
-    cov = alignment_covariance(cKDTree(walls), walls, np.eye(3))
+    cov = calibrated_covariance(alignment_fit(cKDTree(walls), walls, np.eye(3)), 0.05)
     # two straight parallel walls fix y and the heading, not x
     assert cov[0, 0] > 1e3 * cov[1, 1]
     assert np.sqrt(cov[1, 1]) < 0.1
@@ -201,7 +202,7 @@ def test_refine_and_covariance_of_an_empty_wall_set(intel):
     empty = np.empty((0, 2))
     start = rigid_matrix(0.2, 5.0, -3.0)
     np.testing.assert_array_equal(refine(wm.tree, empty, start), start)
-    cov = alignment_covariance(wm.tree, empty, start)
+    cov = calibrated_covariance(alignment_fit(wm.tree, empty, start), 0.05)
     assert np.all(np.isinf(np.diag(cov)))
     blank = WallMap(np.full((40, 50), 0.5), 0.65, 0.3)  # all unknown: no walls, nothing free
     assert blank.walls.shape == (0, 2)
