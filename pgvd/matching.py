@@ -582,21 +582,25 @@ class WallMap:
         # column make its right and lower neighbours valid cells too
         col = np.clip(np.floor(px), 0, w - 2).astype(np.intp)
         row = np.clip(np.floor(py), 0, h - 2).astype(np.intp)
-        # the four candidates of every point side by side, one gather each, squared
-        # distances in place, then the first of equals, as a scan of the corners would keep
-        corners = (row * w + col)[:, None] + np.array([0, 1, w, w + 1])
-        cand = table.ravel()[corners].astype(np.intp)
+        # the four candidates of every point, one corner a row (contiguous), squared
+        # distances in place, then a scan of the corners that keeps the first of equals
+        # (argmin's choice, without its per-point loop over a short axis)
+        corners = np.array([0, 1, w, w + 1])[:, None] + (row * w + col)
+        cand = table.ravel()[corners]
         d2 = self._x[cand]
-        d2 -= px[:, None]
+        d2 -= px
         d2 *= d2
         dy = self._y[cand]
-        dy -= py[:, None]
+        dy -= py
         dy *= dy
         d2 += dy
-        each = np.arange(len(points))
-        best = d2.argmin(axis=1)
-        idx = cand[each, best]
-        dist = np.sqrt(d2[each, best])
+        best, idx = d2[0], cand[0]
+        for k in (1, 2, 3):
+            closer = d2[k] < best
+            best = np.where(closer, d2[k], best)
+            idx = np.where(closer, cand[k], idx)
+        idx = idx.astype(np.intp)
+        dist = np.sqrt(best)
         far = dist > reach
         dist[far], idx[far] = np.inf, n
         return dist, idx
