@@ -139,8 +139,9 @@ class EdgeCorrelator:
         mats_b = [e.matrix for e in edges_b]
         groups_b = _groups(mats_b)
         # Peaks are written in size-class order, where every block is a plain
-        # slice, and put back in edge order once at the end.
-        peak, u, v = np.zeros((na, nb)), np.zeros((na, nb)), np.zeros((na, nb))
+        # slice, and put back in edge order once at the end; so are the flat
+        # indices of the peaks, turned into shifts once for all blocks.
+        peak, at = np.zeros((na, nb)), np.zeros((na, nb), dtype=np.intp)
         b0 = 0
         for kb, ib in groups_b.items():
             stack_b = _stack(mats_b, ib, kb)
@@ -156,13 +157,21 @@ class EdgeCorrelator:
                     flat = corr.reshape(corr.shape[0], len(ib), -1)
                     rows = slice(a0 + start, a0 + start + corr.shape[0])
                     # the value at the first maximum is the maximum: one pass, not two
-                    at = flat.argmax(axis=2)
-                    peak[rows, cols] = np.take_along_axis(flat, at[..., None], axis=2)[..., 0]
-                    du, dv = np.divmod(at, size[1])
-                    u[rows, cols] = np.where(du < ka[0], du, du - size[0])
-                    v[rows, cols] = np.where(dv < ka[1], dv, dv - size[1])
+                    best = flat.argmax(axis=2)
+                    at[rows, cols] = best
+                    peak[rows, cols] = np.take_along_axis(flat, best[..., None], axis=2)[..., 0]
                 a0 += len(ia)
             b0 += len(ib)
+        # the size class of every row (A's edges) and column (B's), in size-class order:
+        # a block's FFT size is the sum of the two
+        class_a, class_b = (
+            np.array([k for k, idx in g.items() for _ in idx]).reshape(-1, 2)
+            for g in (self.groups, groups_b)
+        )
+        size0, size1 = class_a[:, :1] + class_b[:, 0], class_a[:, 1:] + class_b[:, 1]
+        du, dv = np.divmod(at, size1)
+        u = np.where(du < class_a[:, :1], du, du - size0)
+        v = np.where(dv < class_a[:, 1:], dv, dv - size1)
         order = np.ix_(*(np.concatenate(list(g.values())) for g in (self.groups, groups_b)))
         gamma[order], shift[..., 0][order], shift[..., 1][order] = peak, v, u
         org_b = np.array([e.origin for e in edges_b], dtype=float)
