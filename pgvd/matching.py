@@ -1033,11 +1033,14 @@ def _wall_normals(walls_a: Walls, idx: np.ndarray) -> np.ndarray:
 def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
     """Unit wall normals at ``points``: the minor axis of the ``k`` nearest cells of the tree."""
     _, idx = tree.query(points, k=k)
-    nb = tree.data[idx]
-    nb -= nb.mean(axis=1, keepdims=True)
-    sxx = np.mean(nb[..., 0] ** 2, axis=1)
-    syy = np.mean(nb[..., 1] ** 2, axis=1)
-    sxy = np.mean(nb[..., 0] * nb[..., 1], axis=1)
+    # x and y of the neighbours as two contiguous (N, k) arrays: the same sums, in the
+    # same order, as over the (N, k, 2) gather, without its strided passes
+    x, y = tree.data[:, 0][idx], tree.data[:, 1][idx]
+    x -= x.mean(axis=1, keepdims=True)
+    y -= y.mean(axis=1, keepdims=True)
+    sxx = np.mean(x * x, axis=1)
+    syy = np.mean(y * y, axis=1)
+    sxy = np.mean(x * y, axis=1)
     # closed-form eigenvector of the smaller eigenvalue of [[sxx, sxy], [sxy, syy]]
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy) + np.pi / 2
     return np.column_stack([np.cos(theta), np.sin(theta)])
