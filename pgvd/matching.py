@@ -289,14 +289,29 @@ class PairSupport:
 
     def correlation(self, t: tuple[int, int]) -> np.ndarray:
         """(N1, N2) matrix of ``E_(i1,i2)`` evaluated at the translation ``t = (tx, ty)``."""
+        return self.correlations([t])[0]
+
+    def correlations(self, ts: list[tuple[int, int]]) -> np.ndarray:
+        """(T, N1, N2): :meth:`correlation` at each translation of ``ts``, in one pass.
+
+        One bincount for all translations instead of one each; every sum adds the
+        same terms in the same order, so each matrix is the one :meth:`correlation`
+        returns alone.
+        """
         h, w = self.value.shape
-        r, c = self.rows + t[1], self.cols + t[0]
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-        lab = self.label[r[inside], c[inside]]
+        t = np.asarray(ts, dtype=np.int64).reshape(-1, 2)
+        r, c = self.rows + t[:, 1:], self.cols + t[:, :1]
+        # (translation, cell) of every B cell that lands on an edge of A, translation by
+        # translation and each in cell order
+        which, cell = np.nonzero((r >= 0) & (r < h) & (c >= 0) & (c < w))
+        r, c = r[which, cell], c[which, cell]
+        lab = self.label[r, c]
         hit = lab >= 0
-        keys = lab[hit] * self.nb + self.owner[inside][hit]
-        vals = self.weight[inside][hit] * self.value[r[inside][hit], c[inside][hit]]
-        return np.bincount(keys, vals, self.na * self.nb).reshape(self.na, self.nb)
+        which, cell, r, c = which[hit], cell[hit], r[hit], c[hit]
+        pairs = self.na * self.nb
+        keys = which * pairs + lab[hit] * self.nb + self.owner[cell]
+        vals = self.weight[cell] * self.value[r, c]
+        return np.bincount(keys, vals, len(t) * pairs).reshape(len(t), self.na, self.nb)
 
 
 def pair_support(passing: np.ndarray) -> int:
