@@ -577,24 +577,31 @@ class WallMap:
         return self.tree.normals(idx)
 
     def _nearest_table(self) -> np.ndarray:
-        """(H, W) index into :attr:`walls` of each cell's nearest wall cell (built once)."""
+        """(H + 1, W + 1) index into :attr:`walls` of each cell's nearest wall cell (built
+        once); the last row and column repeat the ones before."""
         if self._table is None:
             import cv2
 
-            shape = self.free.shape
-            open_cells = np.ones(shape, np.uint8)
+            h, w = self.free.shape
+            open_cells = np.ones((h, w), np.uint8)
             open_cells.flat[self._flat] = 0
+            # one more row and column (copies of the last) so that every point has four
+            # cells around it in the table.  The labels are written straight into the
+            # table and made to count from 0 in place: no map-sized copy (17 MB at 2000^2)
+            table = np.empty((h + 1, w + 1), np.int32)
+            inner = table[:h, :w]
             # each wall cell is its own label, numbered from 1 in row-major order: the
             # order of self.walls.  The 5x5 chamfer transform finds a nearest wall to
             # within a few per cent of the distance; nearest() measures it exactly.
             _, label = cv2.distanceTransformWithLabels(
-                open_cells, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+                open_cells, cv2.DIST_L2, 5, labels=inner, labelType=cv2.DIST_LABEL_PIXEL
             )
-            # one more row and column (copies of the last) so that every point has
-            # four cells around it in the table; labels from 0, in place (one map-sized
-            # temporary less: 17 MB at 2000^2 cells)
-            np.subtract(label, 1, out=label)
-            self._table = np.pad(label, ((0, 1), (0, 1)), mode="edge")
+            if not np.shares_memory(label, table):  # an OpenCV that returned a new array
+                inner[...] = label
+            np.subtract(inner, 1, out=inner)
+            table[:h, w] = table[:h, w - 1]
+            table[h] = table[h - 1]
+            self._table = table
         return self._table
 
     def nearest(self, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
