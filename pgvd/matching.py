@@ -465,14 +465,35 @@ class Overlay:
     ) -> tuple[int, int]:
         """The translation ``(tx, ty)`` within ``radius`` of ``t`` of largest evidence
         (:meth:`evidence`)."""
+        return self.best_near_each([t], radius, weights)[0]
+
+    def best_near_each(
+        self, ts: list[tuple[int, int]], radius: int, weights: OverlayWeights = WALLS_ONLY
+    ) -> list[tuple[int, int]]:
+        """:meth:`best_near` of every translation of ``ts``, all windows read at once.
+
+        A window's translations beyond the overlap (none of B on A) are skipped; the
+        first largest in row-major order wins, as in the window cut to the overlap.  A
+        ``t`` whose window has none within the overlap is returned as it is.
+        """
+        if not ts:
+            return []
         (ha, wa), (hb, wb) = self.shape_a, self.shape_b
-        ty = np.arange(max(t[1] - radius, 1 - hb), min(t[1] + radius, ha - 1) + 1)
-        tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
-        if ty.size == 0 or tx.size == 0:
-            return t
-        window = self.evidence(weights)[np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])]
-        i, j = np.unravel_index(int(np.argmax(window)), window.shape)
-        return int(tx[j]), int(ty[i])
+        t = np.asarray(ts, dtype=np.int64).reshape(-1, 2)
+        step = np.arange(-radius, radius + 1)
+        ty, tx = t[:, 1:] + step, t[:, :1] + step
+        rows_in, cols_in = (ty >= 1 - hb) & (ty <= ha - 1), (tx >= 1 - wb) & (tx <= wa - 1)
+        inside = rows_in[:, :, None] & cols_in[:, None, :]
+        ev = self.evidence(weights)
+        window = ev[(ty % ev.shape[0])[:, :, None], (tx % ev.shape[1])[:, None, :]]
+        window = np.where(inside, window, -np.inf).reshape(len(t), -1)
+        i, j = np.divmod(window.argmax(axis=1), step.size)
+        rows = np.arange(len(t))
+        found = inside.reshape(len(t), -1).any(axis=1)
+        return [
+            (int(x), int(y)) if ok else (int(t0[0]), int(t0[1]))
+            for x, y, ok, t0 in zip(tx[rows, j], ty[rows, i], found, t, strict=True)
+        ]
 
 
 def _wrapped_max(values: np.ndarray, radius: int) -> np.ndarray:

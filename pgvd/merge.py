@@ -626,7 +626,7 @@ def _search_heading(
     # slide each proposal to the best whole-map agreement nearby.
     # (by each ranking's evidence: each ranking's finalists come from its own slides)
     refined = list(
-        dict.fromkeys(overlay.best_near(t, radius, w) for w in rankings for t in proposals)
+        dict.fromkeys(t for w in rankings for t in overlay.best_near_each(proposals, radius, w))
     )
     for (tx, ty), corr in zip(refined, pairs.correlations(refined), strict=True):
         ok = corr > thresh
