@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from pgvd.graph import Edge
@@ -139,8 +138,9 @@ class EdgeCorrelator:
         mats_b = [e.matrix for e in edges_b]
         groups_b = _groups(mats_b)
         # Peaks are written in size-class order, where every block is a plain
-        # slice, and put back in edge order once at the end.
-        peak, u, v = np.zeros((na, nb)), np.zeros((na, nb)), np.zeros((na, nb))
+        # slice, and put back in edge order once at the end; so are the flat
+        # indices of the peaks, turned into shifts once for all blocks.
+        peak, at = np.zeros((na, nb)), np.zeros((na, nb), dtype=np.intp)
         b0 = 0
         for kb, ib in groups_b.items():
             stack_b = _stack(mats_b, ib, kb)
@@ -156,13 +156,21 @@ class EdgeCorrelator:
                     flat = corr.reshape(corr.shape[0], len(ib), -1)
                     rows = slice(a0 + start, a0 + start + corr.shape[0])
                     # the value at the first maximum is the maximum: one pass, not two
-                    at = flat.argmax(axis=2)
-                    peak[rows, cols] = np.take_along_axis(flat, at[..., None], axis=2)[..., 0]
-                    du, dv = np.divmod(at, size[1])
-                    u[rows, cols] = np.where(du < ka[0], du, du - size[0])
-                    v[rows, cols] = np.where(dv < ka[1], dv, dv - size[1])
+                    best = flat.argmax(axis=2)
+                    at[rows, cols] = best
+                    peak[rows, cols] = np.take_along_axis(flat, best[..., None], axis=2)[..., 0]
                 a0 += len(ia)
             b0 += len(ib)
+        # the size class of every row (A's edges) and column (B's), in size-class order:
+        # a block's FFT size is the sum of the two
+        class_a, class_b = (
+            np.array([k for k, idx in g.items() for _ in idx]).reshape(-1, 2)
+            for g in (self.groups, groups_b)
+        )
+        size0, size1 = class_a[:, :1] + class_b[:, 0], class_a[:, 1:] + class_b[:, 1]
+        du, dv = np.divmod(at, size1)
+        u = np.where(du < class_a[:, :1], du, du - size0)
+        v = np.where(dv < class_a[:, 1:], dv, dv - size1)
         order = np.ix_(*(np.concatenate(list(g.values())) for g in (self.groups, groups_b)))
         gamma[order], shift[..., 0][order], shift[..., 1][order] = peak, v, u
         org_b = np.array([e.origin for e in edges_b], dtype=float)
@@ -280,14 +288,29 @@ class PairSupport:
 
     def correlation(self, t: tuple[int, int]) -> np.ndarray:
         """(N1, N2) matrix of ``E_(i1,i2)`` evaluated at the translation ``t = (tx, ty)``."""
+        return self.correlations([t])[0]
+
+    def correlations(self, ts: list[tuple[int, int]]) -> np.ndarray:
+        """(T, N1, N2): :meth:`correlation` at each translation of ``ts``, in one pass.
+
+        One bincount for all translations instead of one each; every sum adds the
+        same terms in the same order, so each matrix is the one :meth:`correlation`
+        returns alone.
+        """
         h, w = self.value.shape
-        r, c = self.rows + t[1], self.cols + t[0]
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-        lab = self.label[r[inside], c[inside]]
+        t = np.asarray(ts, dtype=np.int64).reshape(-1, 2)
+        r, c = self.rows + t[:, 1:], self.cols + t[:, :1]
+        # (translation, cell) of every B cell that lands on an edge of A, translation by
+        # translation and each in cell order
+        which, cell = np.nonzero((r >= 0) & (r < h) & (c >= 0) & (c < w))
+        r, c = r[which, cell], c[which, cell]
+        lab = self.label[r, c]
         hit = lab >= 0
-        keys = lab[hit] * self.nb + self.owner[inside][hit]
-        vals = self.weight[inside][hit] * self.value[r[inside][hit], c[inside][hit]]
-        return np.bincount(keys, vals, self.na * self.nb).reshape(self.na, self.nb)
+        which, cell, r, c = which[hit], cell[hit], r[hit], c[hit]
+        pairs = self.na * self.nb
+        keys = which * pairs + lab[hit] * self.nb + self.owner[cell]
+        vals = self.weight[cell] * self.value[r, c]
+        return np.bincount(keys, vals, len(t) * pairs).reshape(len(t), self.na, self.nb)
 
 
 def pair_support(passing: np.ndarray) -> int:
@@ -426,7 +449,7 @@ class Overlay:
         if n <= 0:
             return []
         ev = self.evidence(weights)
-        top = ndi.maximum_filter(ev, size=2 * radius + 1, mode="wrap")
+        top = _wrapped_max(ev, radius)
         rows, cols = np.nonzero((ev == top) & (ev > 0))
         order = np.argsort(-ev[rows, cols], kind="stable")[:n]
         (ha, wa), h, w = self.shape_a, *ev.shape
@@ -442,14 +465,49 @@ class Overlay:
     ) -> tuple[int, int]:
         """The translation ``(tx, ty)`` within ``radius`` of ``t`` of largest evidence
         (:meth:`evidence`)."""
+        return self.best_near_each([t], radius, weights)[0]
+
+    def best_near_each(
+        self, ts: list[tuple[int, int]], radius: int, weights: OverlayWeights = WALLS_ONLY
+    ) -> list[tuple[int, int]]:
+        """:meth:`best_near` of every translation of ``ts``, all windows read at once.
+
+        A window's translations beyond the overlap (none of B on A) are skipped; the
+        first largest in row-major order wins, as in the window cut to the overlap.  A
+        ``t`` whose window has none within the overlap is returned as it is.
+        """
+        if not ts:
+            return []
         (ha, wa), (hb, wb) = self.shape_a, self.shape_b
-        ty = np.arange(max(t[1] - radius, 1 - hb), min(t[1] + radius, ha - 1) + 1)
-        tx = np.arange(max(t[0] - radius, 1 - wb), min(t[0] + radius, wa - 1) + 1)
-        if ty.size == 0 or tx.size == 0:
-            return t
-        window = self.evidence(weights)[np.ix_(ty % self.agree.shape[0], tx % self.agree.shape[1])]
-        i, j = np.unravel_index(int(np.argmax(window)), window.shape)
-        return int(tx[j]), int(ty[i])
+        t = np.asarray(ts, dtype=np.int64).reshape(-1, 2)
+        step = np.arange(-radius, radius + 1)
+        ty, tx = t[:, 1:] + step, t[:, :1] + step
+        rows_in, cols_in = (ty >= 1 - hb) & (ty <= ha - 1), (tx >= 1 - wb) & (tx <= wa - 1)
+        inside = rows_in[:, :, None] & cols_in[:, None, :]
+        ev = self.evidence(weights)
+        window = ev[(ty % ev.shape[0])[:, :, None], (tx % ev.shape[1])[:, None, :]]
+        window = np.where(inside, window, -np.inf).reshape(len(t), -1)
+        i, j = np.divmod(window.argmax(axis=1), step.size)
+        rows = np.arange(len(t))
+        found = inside.reshape(len(t), -1).any(axis=1)
+        return [
+            (int(x), int(y)) if ok else (int(t0[0]), int(t0[1]))
+            for x, y, ok, t0 in zip(tx[rows, j], ty[rows, i], found, t, strict=True)
+        ]
+
+
+def _wrapped_max(values: np.ndarray, radius: int) -> np.ndarray:
+    """The largest value within ``radius`` cells (a square) of each cell, the array wrapping
+    around (``scipy.ndimage.maximum_filter(values, 2 radius + 1, mode="wrap")``).
+
+    OpenCV's dilation of the wrap-padded array: a maximum is exact whichever way it
+    is taken, and this one costs about half as much on the overlays of a merge.
+    """
+    import cv2
+
+    padded = np.pad(values, radius, mode="wrap")
+    top = cv2.dilate(padded, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8))
+    return top[radius : radius + values.shape[0], radius : radius + values.shape[1]]
 
 
 class OverlayScores:
@@ -540,24 +598,31 @@ class WallMap:
         return self.tree.normals(idx)
 
     def _nearest_table(self) -> np.ndarray:
-        """(H, W) index into :attr:`walls` of each cell's nearest wall cell (built once)."""
+        """(H + 1, W + 1) index into :attr:`walls` of each cell's nearest wall cell (built
+        once); the last row and column repeat the ones before."""
         if self._table is None:
             import cv2
 
-            shape = self.free.shape
-            open_cells = np.ones(shape, np.uint8)
+            h, w = self.free.shape
+            open_cells = np.ones((h, w), np.uint8)
             open_cells.flat[self._flat] = 0
+            # one more row and column (copies of the last) so that every point has four
+            # cells around it in the table.  The labels are written straight into the
+            # table and made to count from 0 in place: no map-sized copy (17 MB at 2000^2)
+            table = np.empty((h + 1, w + 1), np.int32)
+            inner = table[:h, :w]
             # each wall cell is its own label, numbered from 1 in row-major order: the
             # order of self.walls.  The 5x5 chamfer transform finds a nearest wall to
             # within a few per cent of the distance; nearest() measures it exactly.
             _, label = cv2.distanceTransformWithLabels(
-                open_cells, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+                open_cells, cv2.DIST_L2, 5, labels=inner, labelType=cv2.DIST_LABEL_PIXEL
             )
-            # one more row and column (copies of the last) so that every point has
-            # four cells around it in the table; labels from 0, in place (one map-sized
-            # temporary less: 17 MB at 2000^2 cells)
-            np.subtract(label, 1, out=label)
-            self._table = np.pad(label, ((0, 1), (0, 1)), mode="edge")
+            if not np.shares_memory(label, table):  # an OpenCV that returned a new array
+                inner[...] = label
+            np.subtract(inner, 1, out=inner)
+            table[:h, w] = table[:h, w - 1]
+            table[h] = table[h - 1]
+            self._table = table
         return self._table
 
     def nearest(self, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
@@ -582,21 +647,25 @@ class WallMap:
         # column make its right and lower neighbours valid cells too
         col = np.clip(np.floor(px), 0, w - 2).astype(np.intp)
         row = np.clip(np.floor(py), 0, h - 2).astype(np.intp)
-        # the four candidates of every point side by side, one gather each, squared
-        # distances in place, then the first of equals, as a scan of the corners would keep
-        corners = (row * w + col)[:, None] + np.array([0, 1, w, w + 1])
-        cand = table.ravel()[corners].astype(np.intp)
+        # the four candidates of every point, one corner a row (contiguous), squared
+        # distances in place, then a scan of the corners that keeps the first of equals
+        # (argmin's choice, without its per-point loop over a short axis)
+        corners = np.array([0, 1, w, w + 1])[:, None] + (row * w + col)
+        cand = table.ravel()[corners]
         d2 = self._x[cand]
-        d2 -= px[:, None]
+        d2 -= px
         d2 *= d2
         dy = self._y[cand]
-        dy -= py[:, None]
+        dy -= py
         dy *= dy
         d2 += dy
-        each = np.arange(len(points))
-        best = d2.argmin(axis=1)
-        idx = cand[each, best]
-        dist = np.sqrt(d2[each, best])
+        best, idx = d2[0], cand[0]
+        for k in (1, 2, 3):
+            closer = d2[k] < best
+            best = np.where(closer, d2[k], best)
+            idx = np.where(closer, cand[k], idx)
+        idx = idx.astype(np.intp)
+        dist = np.sqrt(best)
         far = dist > reach
         dist[far], idx[far] = np.inf, n
         return dist, idx
@@ -1020,11 +1089,14 @@ def _wall_normals(walls_a: Walls, idx: np.ndarray) -> np.ndarray:
 def _normals(tree: cKDTree, points: np.ndarray, k: int = 8) -> np.ndarray:
     """Unit wall normals at ``points``: the minor axis of the ``k`` nearest cells of the tree."""
     _, idx = tree.query(points, k=k)
-    nb = tree.data[idx]
-    nb -= nb.mean(axis=1, keepdims=True)
-    sxx = np.mean(nb[..., 0] ** 2, axis=1)
-    syy = np.mean(nb[..., 1] ** 2, axis=1)
-    sxy = np.mean(nb[..., 0] * nb[..., 1], axis=1)
+    # x and y of the neighbours as two contiguous (N, k) arrays: the same sums, in the
+    # same order, as over the (N, k, 2) gather, without its strided passes
+    x, y = tree.data[:, 0][idx], tree.data[:, 1][idx]
+    x -= x.mean(axis=1, keepdims=True)
+    y -= y.mean(axis=1, keepdims=True)
+    sxx = np.mean(x * x, axis=1)
+    syy = np.mean(y * y, axis=1)
+    sxy = np.mean(x * y, axis=1)
     # closed-form eigenvector of the smaller eigenvalue of [[sxx, sxy], [sxy, syy]]
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy) + np.pi / 2
     return np.column_stack([np.cos(theta), np.sin(theta)])

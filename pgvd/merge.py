@@ -625,9 +625,11 @@ def _search_heading(
     # A straight edge pair fixes the translation only across the corridor:
     # slide each proposal to the best whole-map agreement nearby.
     # (by each ranking's evidence: each ranking's finalists come from its own slides)
-    refined = dict.fromkeys(overlay.best_near(t, radius, w) for w in rankings for t in proposals)
-    for tx, ty in refined:
-        ok = pairs.correlation((tx, ty)) > thresh
+    refined = list(
+        dict.fromkeys(t for w in rankings for t in overlay.best_near_each(proposals, radius, w))
+    )
+    for (tx, ty), corr in zip(refined, pairs.correlations(refined), strict=True):
+        ok = corr > thresh
         support = pair_support(ok) if params.rho_veto else params.min_pairs
         agreement = overlay.at((tx, ty))
         out.append(

@@ -82,6 +82,24 @@ def test_sparse_pair_support_matches_fft_gamma(graphs):
         assert e[i, j] == pytest.approx(sim.gamma[i, j], rel=1e-5)
 
 
+def test_pair_support_at_many_translations_is_each_one_alone(intel):
+    from pgvd.gvd import pgvd
+
+    c = coarsen(intel, 4)
+    ga = build_graph(*pgvd(c), min_edge_length=5)
+    gb = build_graph(*pgvd(c[10:90, 20:100]), min_edge_length=5)
+    assert len(ga.edges) > 5 and len(gb.edges) > 5
+    pairs = PairSupport(EdgeCorrelator(ga.edges, 1), c.shape, gb.edges)
+    # the crop's true offset, translations beside it and some off the map
+    ts = [(20, 10), (21, 10), (23, 8), (-5, 40), (500, -300), (20, 10)]
+    batch = pairs.correlations(ts)
+    assert batch.shape == (len(ts), len(ga.edges), len(gb.edges))
+    for t, e in zip(ts, batch, strict=True):
+        np.testing.assert_array_equal(e, pairs.correlation(t))
+    assert batch[0].sum() > batch[3].sum() and not batch[4].any()
+    assert pairs.correlations([]).shape == (0, len(ga.edges), len(gb.edges))
+
+
 def test_rho_test_rejects_a_weak_match():
     a = np.zeros((60, 60), bool)
     a[30, 10:50] = True  # horizontal
@@ -144,6 +162,27 @@ def test_dense_overlay_scores_equal_direct_counts(intel):
     best = np.unravel_index(np.argmax(agree - disagree), size)
     assert abs(int(best[0]) - 10) <= 1 and abs(int(best[1]) - 20) <= 1
     assert ov.best_near((17, 13), 5) == (int(best[1]), int(best[0]))
+
+
+@pytest.mark.parametrize("radius", [0, 3, 12, 200])
+def test_overlay_peaks_are_the_wrapped_local_maxima(intel, radius):
+    from scipy import ndimage
+
+    c = coarsen(intel, 4)
+    ov = OverlayScores(MapView(c, 0.65, 0.3, 1)).overlay(MapView(c[10:90, 20:100], 0.65, 0.3, 1))
+    ev = ov.evidence(OverlayWeights(4.0))
+    # the definition: largest evidence within the radius, the overlay wrapping around
+    top = ndimage.maximum_filter(ev, size=2 * radius + 1, mode="wrap")
+    rows, cols = np.nonzero((ev == top) & (ev > 0))
+    order = np.argsort(-ev[rows, cols], kind="stable")[:5]
+    (ha, wa), (h, w) = ov.shape_a, ev.shape
+    expected = [
+        (int(c_) if c_ < wa else int(c_) - w, int(r) if r < ha else int(r) - h)
+        for r, c_ in zip(rows[order], cols[order], strict=True)
+    ]
+    assert ov.peaks(5, radius, OverlayWeights(4.0)) == expected
+    # the best peak is the crop's true offset (20, 10), up to the one-cell tolerance
+    assert abs(expected[0][0] - 20) <= 1 and abs(expected[0][1] - 10) <= 1
 
 
 def test_refine_and_covariance_on_real_walls(intel):
