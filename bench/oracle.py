@@ -202,8 +202,9 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError) as exc:
         parser.error(f"cannot read bench records from {args.json}: {exc}")
     records = [r for r in records if r["method"] == args.method]
-    rows = rerun(records, args.stage, args.cache, args.seed)
     out = args.out or RESULTS / f"oracle-{args.stage}.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rows = rerun(records, args.stage, args.cache, args.seed)
     command = "python3 -m bench.oracle " + " ".join(argv if argv is not None else sys.argv[1:])
     out.write_text(markdown(rows, args.stage, command.strip()))
     print(f"wrote {out}")

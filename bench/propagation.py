@@ -245,6 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=20)
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
+    # made before the long run, so that a path that cannot be written fails at once
+    args.out.mkdir(parents=True, exist_ok=True)
     records = run(args.logs, args.hops, args.starts, args.seed)
     summary = summarise(records)
     command = "python3 -m bench.propagation " + " ".join(argv if argv is not None else sys.argv[1:])
