@@ -9,7 +9,7 @@ One scenario (3 agents replaying overlapping Intel segments, lease 2 s):
    After each kill its state must load without a single error, hold every r3 version a peer
    holds, and the next start must remove the half-written copy;
 3. the network is split into {r1} and {r2, r3} until each side sees the other gone, while every
-   robot keeps mapping; then the split heals;
+   robot with scans left keeps mapping (each half must have one); then the split heals;
 4. everybody must end with the same global map, the three true links, every final version.
 """
 
@@ -38,7 +38,8 @@ pytestmark = [pytest.mark.netns, pytest.mark.fleet, pytest.mark.slow]
 LEASE_MS = 2000
 ARGS = [
     "--speed",
-    "60",
+    # 40, not 60: at 60 r2's segment was at times replayed to its end before the split
+    "40",
     "--link-timeout",
     "3",
     "--lease-ms",
@@ -144,12 +145,16 @@ def scenario(record_testsuite_property) -> dict:
         # 3. split {r1} | {r2, r3}, both halves keep mapping, then heal
         lab.partition([0], [1, 2])
         before = {r: published(fleet, r) for r in SOURCES}
+        # A robot whose log segment is replayed to its end has nothing left to publish: only
+        # the others can show that their half keeps mapping.
+        out["replaying_at_split"] = [r for r in SOURCES if progress(fleet, r) < 1.0]
         out["split_detected_s"] = wait(
             lambda: sees(fleet, "r1", "r2") is False and sees(fleet, "r2", "r1") is False, 20
         )
         # Until every robot has published during the split (not a fixed second: on a loaded
         # machine a robot's next version can take longer than that), bounded.
-        wait(lambda: all(published(fleet, r) > before[r] for r in SOURCES), 20)
+        replaying = out["replaying_at_split"]
+        wait(lambda: all(published(fleet, r) > before[r] for r in replaying), 20)
         out["versions_during_split"] = {r: published(fleet, r) - before[r] for r in SOURCES}
         lab.heal()
         # 45 s, not 20: a TCP connect begun during the split resends its SYN with backoff
@@ -175,7 +180,10 @@ def test_a_frozen_agent_is_declared_gone_after_the_lease_and_rejoins(scenario: d
 
 def test_both_halves_keep_mapping_through_a_partition_that_heals(scenario: dict) -> None:
     assert scenario["split_detected_s"] is not None, "the split was never noticed"
-    assert all(n > 0 for n in scenario["versions_during_split"].values()), scenario
+    replaying = scenario["replaying_at_split"]
+    # each half still had scans to map, or the scenario would show nothing
+    assert "r1" in replaying and {"r2", "r3"} & set(replaying), scenario
+    assert all(scenario["versions_during_split"][r] > 0 for r in replaying), scenario
     assert scenario["heal_s"] is not None
 
 
