@@ -127,7 +127,14 @@ def rerun(records: list[dict], stage: str, cache: Path, seed: int) -> list[dict]
         with oracle(pair, seen):
             result = merge(pair.a, pair.b, MergeParams(diagnostics=False))
         row = evaluate(pair, result.accepted, result.matrix)
-        row.update(seen, pair=pair.name, set=entry.set, gap=nearest_gap(rec), margin=result.margin)
+        row.update(
+            seen,
+            pair=pair.name,
+            set=entry.set,
+            gap=nearest_gap(rec),
+            margin=result.margin,
+            before=bool(rec["success"]),
+        )
         mark = "ok" if row["success"] else "ACC" if row["accepted"] else "rej"
         print(f"[oracle] {pair.name}: {mark} margin {result.margin:.2f}", flush=True)
         out.append(row)
@@ -157,16 +164,21 @@ def markdown(rows: list[dict], stage: str, command: str) -> str:
         "heading": "The heading misses with the true heading searched",
         "finalist": "The search misses with the nearest hypothesis to the truth as a finalist",
     }[stage]
-    head = "| set | pairs | right with the truth handed in | accepted at a wrong pose |"
+    head = (
+        "| set | pairs | right in the run | right with the truth handed in "
+        "| of them new | accepted at a wrong pose |"
+    )
     extra = " true translation proposed |" if finalist else ""
     lines = [f"# {title}", "", f"`{command}`", "", head + extra]
-    lines.append("|---" * (4 + finalist) + "|")
+    lines.append("|---" * (6 + finalist) + "|")
     for s in sorted({r["set"] for r in rows}):
         group = [r for r in rows if r["set"] == s]
+        before = sum(r["before"] for r in group)
         right = sum(r["success"] for r in group)
+        new = sum(r["success"] and not r["before"] for r in group)
         wrong = sum(r["accepted"] and not r["success"] for r in group)
         cells = f" {sum(r['coarse_err'] <= PROPOSED_CELLS for r in group)} |" if finalist else ""
-        lines.append(f"| {s} | {len(group)} | {right} | {wrong} |{cells}")
+        lines.append(f"| {s} | {len(group)} | {before} | {right} | {new} | {wrong} |{cells}")
     lines.append("")
     if finalist:
         lines += [

@@ -60,8 +60,11 @@ def test_search_misses_selects_pose_not_found_at_a_searched_heading():
     assert not search_misses({**base, "set": "negative", "finalist_success": []})
 
 
-def _row(pair: str, set_: str, success: bool, accepted: bool, **extra) -> dict:
+def _row(
+    pair: str, set_: str, success: bool, accepted: bool, before: bool = False, **extra
+) -> dict:
     return {
+        "before": before,
         "pair": pair,
         "set": set_,
         "gap": 4.0,
@@ -78,11 +81,13 @@ def _row(pair: str, set_: str, success: bool, accepted: bool, **extra) -> dict:
 def test_markdown_counts_right_and_wrong_per_set():
     rows = [
         _row("s0", "standard", True, True),
+        _row("s1", "standard", True, True, before=True),
         _row("d0", "drifted", False, True),
         _row("d1", "drifted", False, False),
     ]
     text = markdown(rows, "heading", "python3 -m bench.oracle")
-    assert "| drifted | 2 | 0 | 1 |" in text and "| standard | 1 | 1 | 0 |" in text
+    assert "| drifted | 2 | 0 | 0 | 0 | 1 |" in text
+    assert "| standard | 2 | 1 | 2 | 1 | 0 |" in text
     assert "accepted, wrong (0.80 deg, 11.0 cells, tolerance 7.0)" in text
     assert "| d1 | 4.0 | rejected | -0.20 |" in text
     rows = [
@@ -91,4 +96,7 @@ def test_markdown_counts_right_and_wrong_per_set():
         _row("l2", "low", False, False, coarse_err=40.0, was_finalist=True),
     ]
     text = markdown(rows, "finalist", "python3 -m bench.oracle --stage finalist")
-    assert "| low | 3 | 1 | 0 | 2 |" in text and "| l2 | 40.0 | yes | rejected | -0.20 |" in text
+    assert (
+        "| low | 3 | 0 | 1 | 1 | 0 | 2 |" in text
+        and "| l2 | 40.0 | yes | rejected | -0.20 |" in text
+    )
