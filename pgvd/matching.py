@@ -266,7 +266,7 @@ def rho_test(gamma: np.ndarray, edges_a: list[Edge], edges_b: list[Edge], rho: f
 
 
 class PairSupport:
-    """Evaluates the correlation of every edge pair at a given translation, sparsely.
+    """Evaluates the correlation of every edge pair at given translations, sparsely.
 
     ``E_(i1,i2)(t)`` of (26) at one ``t`` is a sum over B's edge cells, so
     all pairs are computed at once by looking B's cells up in A's dilated
@@ -286,16 +286,13 @@ class PairSupport:
         )
         self.na, self.nb = len(correlator.mats), len(edges_b)
 
-    def correlation(self, t: tuple[int, int]) -> np.ndarray:
-        """(N1, N2) matrix of ``E_(i1,i2)`` evaluated at the translation ``t = (tx, ty)``."""
-        return self.correlations([t])[0]
-
     def correlations(self, ts: list[tuple[int, int]]) -> np.ndarray:
-        """(T, N1, N2): :meth:`correlation` at each translation of ``ts``, in one pass.
+        """(T, N1, N2): the matrix of ``E_(i1,i2)`` at each translation ``t = (tx, ty)`` of
+        ``ts``, in one pass.
 
         One bincount for all translations instead of one each; every sum adds the
-        same terms in the same order, so each matrix is the one :meth:`correlation`
-        returns alone.
+        same terms in the same order, so each matrix is the one a list of that
+        translation alone gives.
         """
         h, w = self.value.shape
         t = np.asarray(ts, dtype=np.int64).reshape(-1, 2)
@@ -460,17 +457,11 @@ class Overlay:
             out.append((tx, ty))
         return out
 
-    def best_near(
-        self, t: tuple[int, int], radius: int, weights: OverlayWeights = WALLS_ONLY
-    ) -> tuple[int, int]:
-        """The translation ``(tx, ty)`` within ``radius`` of ``t`` of largest evidence
-        (:meth:`evidence`)."""
-        return self.best_near_each([t], radius, weights)[0]
-
     def best_near_each(
         self, ts: list[tuple[int, int]], radius: int, weights: OverlayWeights = WALLS_ONLY
     ) -> list[tuple[int, int]]:
-        """:meth:`best_near` of every translation of ``ts``, all windows read at once.
+        """For every translation ``t`` of ``ts``, the translation ``(tx, ty)`` within
+        ``radius`` of it of largest evidence (:meth:`evidence`), all windows read at once.
 
         A window's translations beyond the overlap (none of B on A) are skipped; the
         first largest in row-major order wins, as in the window cut to the overlap.  A

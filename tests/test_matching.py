@@ -76,7 +76,7 @@ def test_sparse_pair_support_matches_fft_gamma(graphs):
     ga, gb = graphs
     sim = similarity(ga.edges, gb.edges, 1)
     pairs = PairSupport(EdgeCorrelator(ga.edges, 1), ga.labels.shape, gb.edges)
-    e = pairs.correlation((-7, 4))
+    e = pairs.correlations([(-7, 4)])[0]
     for i in range(3):
         j = int(np.argmax(sim.gamma[i]))
         assert e[i, j] == pytest.approx(sim.gamma[i, j], rel=1e-5)
@@ -95,7 +95,7 @@ def test_pair_support_at_many_translations_is_each_one_alone(intel):
     batch = pairs.correlations(ts)
     assert batch.shape == (len(ts), len(ga.edges), len(gb.edges))
     for t, e in zip(ts, batch, strict=True):
-        np.testing.assert_array_equal(e, pairs.correlation(t))
+        np.testing.assert_array_equal(e, pairs.correlations([t])[0])
     assert batch[0].sum() > batch[3].sum() and not batch[4].any()
     assert pairs.correlations([]).shape == (0, len(ga.edges), len(gb.edges))
 
@@ -161,7 +161,7 @@ def test_dense_overlay_scores_equal_direct_counts(intel):
     # the true offset of the crop is the best agreement, up to the one-cell tolerance
     best = np.unravel_index(np.argmax(agree - disagree), size)
     assert abs(int(best[0]) - 10) <= 1 and abs(int(best[1]) - 20) <= 1
-    assert ov.best_near((17, 13), 5) == (int(best[1]), int(best[0]))
+    assert ov.best_near_each([(17, 13)], 5) == [(int(best[1]), int(best[0]))]
 
 
 @pytest.mark.parametrize("radius", [0, 3, 12, 200])
