@@ -48,8 +48,8 @@ Stages (``timings_ms`` keys):
     point-to-line alignment that does not stop short along corridors.
 ``covariance``
     covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
-    curvature plus a bias and a floor calibrated on real pairs
-    (:func:`pgvd.matching.calibrated_covariance`).
+    curvature, inflated by the misfit and its heading widened, calibrated on real
+    pairs (:func:`pgvd.matching.pose_covariance`).
 """
 
 from __future__ import annotations
@@ -72,11 +72,10 @@ from pgvd.matching import (
     OverlayWeights,
     PairSupport,
     WallMap,
-    alignment_fit,
-    calibrated_covariance,
     local_agreement,
     map_agreement,
     pair_support,
+    pose_covariance,
     refine,
     refine_point_to_line,
     residual_distortion,
@@ -1091,7 +1090,7 @@ def merge(
             agreement.ratio,
             **extra,
         )
-    cov = calibrated_covariance(alignment_fit(fine_a.tree, fine_b.walls, matrix), a.resolution)
+    cov = pose_covariance(fine_a, fine_b, matrix, a.resolution)
     clock.lap("covariance")
     diag = (
         _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))

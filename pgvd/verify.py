@@ -17,8 +17,8 @@ the cost:
    metres of agreeing walls (:func:`pgvd.matching.map_agreement`), and the merge's own
    test (:mod:`pgvd.decision`): the refined pose must stand out from itself shifted by a
    few metres by ``min_margin`` (:func:`pgvd.merge.weigh`, the same drift-tolerant evidence);
-4. ``covariance``: as the merge computes it, calibrated on real pairs
-   (:func:`pgvd.matching.calibrated_covariance`).
+4. ``covariance``: the merge's own, calibrated on real pairs
+   (:func:`pgvd.matching.pose_covariance`).
 
 A rejected result carries the refined matrix for diagnosis only; a prediction is never
 accepted as it stands, only the refined transform once it passed every check.
@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from pgvd.grid import Grid, matrix_to_pose
-from pgvd.matching import WallMap, alignment_fit, calibrated_covariance, map_agreement, refine
+from pgvd.matching import WallMap, map_agreement, pose_covariance, refine
 from pgvd.merge import MergeParams, MergeResult, score_hypothesis, weigh
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
@@ -173,6 +173,6 @@ def verify(
             f"{params.min_margin} (best shifted pose {decision.rival:.0f})"
         )
         return result(False, why, matrix, agreement.ratio, nan, decision.margin)
-    cov = calibrated_covariance(alignment_fit(fine_a.tree, fine_b.walls, matrix), a.resolution)
+    cov = pose_covariance(fine_a, fine_b, matrix, a.resolution)
     lap("covariance")
     return result(True, "accepted", matrix, agreement.ratio, cov, decision.margin)
