@@ -177,6 +177,12 @@ def summarise(records: list[dict]) -> dict:
     return out
 
 
+def gain(record: dict) -> float:
+    """Per cent by which (8) lowers a chain's cross-entropy (negative: raises it)."""
+    ce = record["cross_entropy"]
+    return 100 * (1 - ce["with"]["all"] / ce["without"]["all"])
+
+
 #: Bins (pixels) of the composed pose's translation error for :func:`by_error`.
 ERROR_BINS_PX = (0.0, 1.0, 2.0, np.inf)
 
@@ -198,10 +204,7 @@ def by_error(records: list[dict]) -> list[str]:
         group = [r for r in done if lo <= np.hypot(*r["error"][:2]) < hi]
         if not group:
             continue
-        ce = [
-            (r["cross_entropy"]["with"]["all"], r["cross_entropy"]["without"]["all"]) for r in group
-        ]
-        gains = [100 * (1 - w / wo) for w, wo in ce]
+        gains = [gain(r) for r in group]
         label = f"{lo:g} or more" if np.isinf(hi) else f"{lo:g}-{hi:g}"
         improved = sum(g > 0 for g in gains)
         rows.append(f"| {label} | {len(group)} | {np.mean(gains):.1f} % | {improved} |")
@@ -218,10 +221,9 @@ def chain_rows(records: list[dict]) -> list[str]:
     for r in records:
         if not r["accepted"]:
             continue
-        ce, e = r["cross_entropy"], r["error"]
-        gain = 100 * (1 - ce["with"]["all"] / ce["without"]["all"])
+        e = r["error"]
         rows.append(
-            f"| {r['log']} | {r['hops']} | {r['start']} | {gain:.1f} % "
+            f"| {r['log']} | {r['hops']} | {r['start']} | {gain(r):.1f} % "
             f"| {np.hypot(e[0], e[1]):.2f} | {np.degrees(abs(e[2])):.3f} "
             f"| {np.degrees(r['sigma'][2]):.3f} |"
         )
@@ -258,9 +260,9 @@ def markdown(summary: dict, records: list[dict], command: str) -> str:
     lines.append("")
     for hops, r in summary.items():
         if "all" in r:
-            gain = 100 * (1 - r["all"]["with"] / r["all"]["without"])
+            mean_gain = 100 * (1 - r["all"]["with"] / r["all"]["without"])
             lines.append(
-                f"- {hops} hops: propagation lowers the mean cross-entropy by {gain:.1f} % "
+                f"- {hops} hops: propagation lowers the mean cross-entropy by {mean_gain:.1f} % "
                 f"(negative: raises it); it is lower with (8) in {r['improved']} of "
                 f"{r['composed']} chains."
             )
