@@ -59,12 +59,16 @@ def test_a_candidate_at_the_truth_stays_and_span_zero_turns_the_refinement_off(i
     assert _with_refined([off], ca, cb, MergeParams(heading_span=0.0)) == [off]
 
 
+#: Where map312 is cut (fractions of its height): the parts share 15 % of it.
+CUT_A, CUT_B = 0.575, 0.425
+
+
 @pytest.fixture(scope="module")
 def map312_parts(shared):
     """Two parts of fr079_albertB's map312 sharing 15 % of its height, and B's true offset."""
     p = read_map(shared / "maps" / "fr079_albertB" / "map312.yaml").probability()
     h = p.shape[0]
-    cut_a, cut_b = round(0.575 * h), round(0.425 * h)
+    cut_a, cut_b = round(CUT_A * h), round(CUT_B * h)
     return p[:cut_a], p[cut_b:], cut_b
 
 
@@ -81,7 +85,7 @@ def test_free_space_and_heavier_conflicts_rank_a_small_true_overlap_first(shared
     p = read_map(shared / "maps" / "fr079_albertB" / "map312.yaml").probability()
     c = coarsen(p, round(MergeParams().coarse_resolution / 0.05))
     c = c[_known_box(c)]
-    cut_a, cut_b = round(0.575 * c.shape[0]), round(0.425 * c.shape[0])
+    cut_a, cut_b = round(CUT_A * c.shape[0]), round(CUT_B * c.shape[0])
     overlay = OverlayScores(MapView(c[:cut_a], 0.65, 0.3, 1), free=True).overlay(
         MapView(c[cut_b:], 0.65, 0.3, 1)
     )
