@@ -60,6 +60,33 @@ def grow_max(values: np.ndarray, cells: int = 1) -> np.ndarray:
     return out
 
 
+def surface(mask: np.ndarray) -> np.ndarray:
+    """The cells of ``mask`` with a 4-neighbour outside it: the faces of its regions.
+
+    A range sensor sees a wall only where it borders the space in front of it;
+    the inside of a thick wall (a map image drawn with 3-10 px walls, an area
+    filled in as occupied) is never observed.  Cells beyond the array's edge
+    count as inside ``mask``, so a region cut by the edge has no face there.
+
+    Parameters
+    ----------
+    mask : (H, W) array, read as bool.
+
+    Returns
+    -------
+    (H, W) bool array (a new one).
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"morphology needs a 2-D array, got shape {mask.shape}")
+    inside = mask.copy()
+    inside[1:] &= mask[:-1]
+    inside[:-1] &= mask[1:]
+    inside[:, 1:] &= mask[:, :-1]
+    inside[:, :-1] &= mask[:, 1:]
+    return mask & ~inside
+
+
 def drop_small(mask: np.ndarray, max_size: int) -> np.ndarray:
     """``mask`` without its 4-connected components of at most ``max_size`` cells.
 

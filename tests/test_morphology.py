@@ -1,4 +1,5 @@
-"""grow and grow_max equal scipy's dilations; drop_small removes what scikit-image removes."""
+"""grow and grow_max equal scipy's dilations; surface is a mask less its erosion; drop_small
+removes what scikit-image removes."""
 
 import inspect
 
@@ -10,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 from scipy import ndimage as ndi
 
 from pgvd.io import read_map
-from pgvd.morphology import drop_small, grow, grow_max
+from pgvd.morphology import drop_small, grow, grow_max, surface
 
 
 @settings(max_examples=60, deadline=None)
@@ -68,3 +69,22 @@ def test_drop_small_removes_what_skimage_removes(shared, building: str, max_size
     np.testing.assert_array_equal(drop_small(free, max_size), expected)
     holes = morphology.remove_small_holes(free, max_size=max_size)
     np.testing.assert_array_equal(~drop_small(~free, max_size), holes)
+
+
+@settings(max_examples=60, deadline=None)
+@given(mask=arrays(bool, st.tuples(st.integers(1, 24), st.integers(1, 24))))
+def test_surface_is_the_mask_less_its_erosion(mask):
+    # the edge counts as inside: erode with a border of True
+    cross = ndi.generate_binary_structure(2, 1)
+    expected = mask & ~ndi.binary_erosion(mask, cross, border_value=1)
+    assert np.array_equal(surface(mask), expected)
+
+
+def test_surface_of_a_thick_wall_is_its_two_faces():
+    wall = np.zeros((9, 12), bool)
+    wall[3:8, :] = True  # five cells thick, running off both ends
+    faces = surface(wall)
+    assert np.array_equal(np.flatnonzero(faces.any(axis=1)), [3, 7])
+    assert faces[3].all() and faces[7].all()
+    with pytest.raises(ValueError, match="2-D"):
+        surface(np.ones(3, bool))
