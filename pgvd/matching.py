@@ -579,8 +579,11 @@ class WallMap:
         # only the faces of walls: inside a thick wall every cell has a wall cell at
         # distance 0, so the alignment cost is flat there and a refinement stops
         # wherever it enters (a map overlaid on itself with 5-cell walls came out
-        # 1.7 px off); thin walls, as a laser draws them, are all face
-        self._flat = np.flatnonzero(surface(prob > occupied))
+        # 1.7 px off); thin walls, as a laser draws them, are all face.  A map that
+        # is wall from edge to edge has no face: its wall cells are all it has.
+        walls = prob > occupied
+        faces = surface(walls)
+        self._flat = np.flatnonzero(faces if faces.any() else walls)
         r, c = np.divmod(self._flat, prob.shape[1])
         self.walls = np.column_stack([c, r]).astype(float)
         self._x, self._y = c.astype(float), r.astype(float)

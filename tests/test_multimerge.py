@@ -75,15 +75,22 @@ def test_a_map_that_overlaps_nothing_is_a_component_of_its_own(shared: Path, int
 
 
 def test_matrices_map_pixels_of_the_files_as_read(intel: tuple) -> None:
-    """B at half the resolution is resampled to A's; its matrix includes the scale."""
+    """B at half the resolution is resampled to A's; its matrix includes the scale.
+
+    A scale left out would put the corners hundreds of pixels off.  B's walls,
+    0.2 m blocks after the round trip, leave a few pixels of error at the
+    corners of this 100 m box: over random frames of the intel and freiburg-079
+    halves treated so, 0.5-1.6 px (median 1.0), and 2.5 px on the intel link
+    here (0.14 degrees, 7 cm across the map), so the bound is 6 px.
+    """
     a, b = intel
     coarse = resample(b, 0.2)
     doc = merge_many([a, coarse, a]).report(["A", "B coarse", "A again"])
     assert [m["component"] for m in doc["maps"]] == [0, 0, 0]
-    assert corner_gap(doc["maps"][1]["matrix"], relative_matrix(a, coarse)) < 4.0
+    assert corner_gap(doc["maps"][1]["matrix"], relative_matrix(a, coarse)) < 6.0
     assert corner_gap(doc["maps"][2]["matrix"], np.eye(3)) < 1.0
     link_ab = doc["links"][0]
-    assert corner_gap(link_ab["matrix"], relative_matrix(a, coarse)) < 4.0
+    assert corner_gap(link_ab["matrix"], relative_matrix(a, coarse)) < 6.0
 
 
 def test_a_false_link_is_reported_unused(intel: tuple) -> None:
