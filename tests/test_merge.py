@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
+from bench.mapimages import random_framed as _random_frame
+from bench.mapimages import thickened
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.merge import MergeParams, MergeResult, merge
-from pgvd.transform import resample, warp
+from pgvd.transform import resample
 
 SPLITS = {
     "intel": ("intel_split_gt/intel_partA.yaml", "intel_split_gt/intel_partB.yaml"),
@@ -20,20 +21,6 @@ SPLITS = {
 def _load(shared, rel: str) -> Grid:
     g = read_map(shared / "maps" / rel)
     return g if np.isclose(g.resolution, 0.05) else resample(g, 0.05)
-
-
-def _random_frame(g: Grid, rng: np.random.Generator) -> tuple[Grid, np.ndarray]:
-    """``g`` turned by a random angle and shifted, on a canvas padded so nothing is cut.
-
-    Returns the new grid and the matrix from ``g``'s pixels to the new pixels.
-    """
-    h, w = g.shape
-    side = int(np.ceil(np.hypot(h, w))) + 60
-    m = rigid_matrix(rng.uniform(0.0, 2 * np.pi), 0.0, 0.0)
-    shift = rng.uniform(-25.0, 25.0, size=2)
-    m[:2, 2] = (side - 1) / 2.0 + shift - m[:2, :2] @ np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-    p = warp(g.probability(), m, (side, side), order=0, cval=0.5)
-    return Grid.from_probability(p, g.resolution), m
 
 
 def _errors(result: MergeResult, truth: np.ndarray, b: Grid) -> tuple[float, float]:
@@ -180,9 +167,7 @@ def test_thick_walls_align_to_the_cell(shared, name):
     on all wall cells stopped wherever it entered: this pair came out 1.7 px
     off; on the walls' faces it lands on the exact shift.
     """
-    p = _load(shared, name).probability()
-    thick = ndimage.binary_dilation(p > 0.65, iterations=2)
-    p = np.where(thick, 0.95, p)
+    p = thickened(_load(shared, name).probability(), 2)
     cut = p.shape[1] // 4
     a = Grid.from_probability(p, 0.05)
     b = Grid.from_probability(p[:, cut:], 0.05)

@@ -1,0 +1,152 @@
+"""Merging saved map images directly, with walls drawn thin and thick.
+
+The merge bench drives a simulated laser through the development map images,
+so its maps have the thin walls a laser draws.  A user with two saved maps
+(map_server PGM + YAML, a cleaned map, an inflated one) merges the images as
+they are, and many draw walls several cells thick.  For each development map
+image (the ``*-sim`` sources of :mod:`bench.sources`), two parts of 62 % of
+its width (24 % of it shared) are cut, B is put in ``--frames`` random frames,
+the walls of both are grown by each of ``--grow`` cells on each side (0, 1,
+2: walls as drawn, 2 and 4 cells thicker), and each pair is merged and judged as the
+merge bench judges (:func:`bench.merge.evaluate`: accepted, heading within 2
+degrees, B's walls within 3 cells on average).
+
+    python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--out bench/results]
+
+Writes ``mapimages.md``: per growth, right / accepted pairs and the median and
+largest mean cell error of the right ones, and a row per map image.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bench.merge import RESULTS, evaluate
+from bench.pairs import MapPair
+from bench.sources import SHARED, SOURCES
+from pgvd.grid import Grid, rigid_matrix
+from pgvd.io import read_map
+from pgvd.merge import MergeParams, merge
+from pgvd.morphology import grow
+from pgvd.transform import resample, warp
+
+#: Cell size the maps are merged at (the development logs' and most images').
+RESOLUTION = 0.05
+#: Each part's share of the map's width; the two share ``2 PART - 1`` of it.
+PART = 0.62
+
+
+def random_framed(g: Grid, rng: np.random.Generator) -> tuple[Grid, np.ndarray]:
+    """``g`` turned by a random angle and shifted, on a canvas padded so nothing is cut.
+
+    Returns
+    -------
+    tuple of (Grid, numpy.ndarray)
+        The new grid and the 3x3 matrix from ``g``'s pixels to the new pixels.
+    """
+    h, w = g.shape
+    side = int(np.ceil(np.hypot(h, w))) + 60
+    m = rigid_matrix(rng.uniform(0.0, 2 * np.pi), 0.0, 0.0)
+    shift = rng.uniform(-25.0, 25.0, size=2)
+    m[:2, 2] = (side - 1) / 2.0 + shift - m[:2, :2] @ np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    p = warp(g.probability(), m, (side, side), order=0, cval=0.5)
+    return Grid.from_probability(p, g.resolution), m
+
+
+def thickened(p: np.ndarray, cells: int, occupied: float = 0.65) -> np.ndarray:
+    """Probabilities ``p`` with every wall grown by ``cells`` on each side (new walls 0.95)."""
+    return np.where(grow(p > occupied, cells), np.maximum(p, 0.95), p) if cells else p
+
+
+def part_pairs(
+    name: str, p: np.ndarray, frames: int, rng: np.random.Generator
+) -> list[MapPair]:
+    """The left and right parts of ``p`` (probabilities), B in ``frames`` random frames."""
+    w = p.shape[1]
+    cut_a, cut_b = round(PART * w), round((1 - PART) * w)
+    a = Grid.from_probability(p[:, :cut_a], RESOLUTION)
+    b = Grid.from_probability(p[:, cut_b:], RESOLUTION)
+    truth = rigid_matrix(0.0, float(cut_b), 0.0)
+    out = []
+    for i in range(frames):
+        bn, to_new = random_framed(b, rng)
+        out.append(MapPair(a, bn, truth @ np.linalg.inv(to_new), 2 * PART - 1, f"{name}-f{i}"))
+    return out
+
+
+def run(frames: int, growths: list[int], seed: int) -> list[dict]:
+    """Every map image's pairs at every growth, merged; one record each."""
+    records = []
+    for source in (s for s in SOURCES if s.simulated):
+        grid = read_map(SHARED / source.path)
+        if not np.isclose(grid.resolution, RESOLUTION):
+            grid = resample(grid, RESOLUTION)
+        for cells in growths:
+            # the same frames at every growth: only the walls differ
+            rng = np.random.default_rng(seed)
+            p = thickened(grid.probability(), cells)
+            for pair in part_pairs(source.name, p, frames, rng):
+                result = merge(pair.a, pair.b, MergeParams(diagnostics=False))
+                rec = evaluate(pair, result.accepted, result.matrix)
+                rec.update(source=source.name, grow=cells, pair=pair.name)
+                records.append(rec)
+                mark = "ok" if rec["success"] else ("ACC" if result.accepted else "rej")
+                print(
+                    f"[mapimages] grow {cells} {pair.name}: {mark} "
+                    f"{rec['cell_err']:.2f} cells, {rec['heading_deg']:.3f} deg",
+                    flush=True,
+                )
+    return records
+
+
+def _cell(records: list[dict]) -> str:
+    right = [r for r in records if r["success"]]
+    errs = [r["cell_err"] for r in right]
+    text = f"{len(right)}/{len(records)} right, {sum(r['accepted'] for r in records)} accepted"
+    return f"{text}; {np.median(errs):.2f} / {max(errs):.2f}" if errs else text
+
+
+def report(records: list[dict], command: str) -> str:
+    """Markdown: a column per growth, a row per map image and one for all."""
+    growths = sorted({r["grow"] for r in records})
+    head = " | ".join(f"walls grown by {g}" for g in growths)
+    lines = [
+        "# Saved map images merged directly, walls thin and thick",
+        "",
+        f"`{command}`",
+        "",
+        "Each cell: right / pairs, accepted; median / largest mean cell error of the right ones.",
+        "",
+        f"| map image | {head} |",
+        "|---" * (len(growths) + 1) + "|",
+    ]
+    for source in [*sorted({r["source"] for r in records}), None]:
+        mine = [r for r in records if source is None or r["source"] == source]
+        cells = " | ".join(_cell([r for r in mine if r["grow"] == g]) for g in growths)
+        lines.append(f"| {source or '**all**'} | {cells} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=3, help="random frames of B per image")
+    parser.add_argument("--grow", type=int, nargs="+", default=[0, 1, 2], help="cells")
+    parser.add_argument("--seed", type=int, default=21)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    if args.frames < 1 or min(args.grow) < 0:
+        parser.error("--frames must be >= 1 and --grow >= 0")
+    records = run(args.frames, args.grow, args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    command = "python3 -m bench.mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
+    (args.out / "mapimages.md").write_text(report(records, command.strip()))
+    print(f"wrote {args.out / 'mapimages.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
