@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import NEGATIVE, OVERLAP_SETS
+from bench.report import NEGATIVE, OVERLAP_SETS, pose_right
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CLASSES = ("right", "wrong", "negative")
@@ -56,8 +56,7 @@ def hypothesis_class(record: dict) -> str | None:
         return None
     if record["set"] == NEGATIVE:
         return "negative"
-    right = record["heading_deg"] <= 2.0 and record["cell_err"] <= record["cell_tolerance"]
-    return "right" if right else "wrong"
+    return "right" if pose_right(record) else "wrong"
 
 
 def margins(records: list[dict]) -> dict[str, list[tuple[dict, float]]]:

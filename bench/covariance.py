@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
+from bench.report import MAX_CELL_ERROR, MAX_HEADING_DEG
 from pgvd.grid import matrix_to_pose
 from pgvd.matching import AlignmentFit, CovarianceModel, calibrated_covariance
 
@@ -46,9 +47,6 @@ SHARED = ROOT.parent / "shared"
 RESULTS = ROOT / "bench" / "results"
 LOGS = {"intel": "intel-corrected.log.gz", "fr079": "freiburg-079-corrected.log.gz"}
 PAIRS_FILE = RESULTS / "covariance_pairs.json"
-#: The bench's thresholds of a wrong merge (bench/merge.py).
-MAX_HEADING_DEG = 2.0
-MAX_CELL_ERROR = 3.0
 
 
 def pose_error(truth: np.ndarray, estimate: np.ndarray) -> np.ndarray:

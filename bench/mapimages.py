@@ -27,6 +27,7 @@ import numpy as np
 
 from bench.merge import RESULTS, evaluate
 from bench.pairs import MapPair
+from bench.report import mark
 from bench.sources import SHARED, SOURCES
 from pgvd.grid import Grid, rigid_matrix
 from pgvd.io import read_map
@@ -62,9 +63,7 @@ def thickened(p: np.ndarray, cells: int, occupied: float = 0.65) -> np.ndarray:
     return np.where(grow(p > occupied, cells), np.maximum(p, 0.95), p) if cells else p
 
 
-def part_pairs(
-    name: str, p: np.ndarray, frames: int, rng: np.random.Generator
-) -> list[MapPair]:
+def part_pairs(name: str, p: np.ndarray, frames: int, rng: np.random.Generator) -> list[MapPair]:
     """The left and right parts of ``p`` (probabilities), B in ``frames`` random frames."""
     w = p.shape[1]
     cut_a, cut_b = round(PART * w), round((1 - PART) * w)
@@ -94,9 +93,9 @@ def run(frames: int, growths: list[int], seed: int) -> list[dict]:
                 rec = evaluate(pair, result.accepted, result.matrix)
                 rec.update(source=source.name, grow=cells, pair=pair.name)
                 records.append(rec)
-                mark = "ok" if rec["success"] else ("ACC" if result.accepted else "rej")
+                outcome = mark(rec["success"], rec["accepted"])
                 print(
-                    f"[mapimages] grow {cells} {pair.name}: {mark} "
+                    f"[mapimages] grow {cells} {pair.name}: {outcome} "
                     f"{rec['cell_err']:.2f} cells, {rec['heading_deg']:.3f} deg",
                     flush=True,
                 )

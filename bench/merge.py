@@ -61,6 +61,7 @@ import numpy as np
 from bench import acceptance, report
 from bench.capture import Finalists, SearchedHeadings, result_json, to_json
 from bench.pairs import MapPair, make_pair
+from bench.report import MAX_CELL_ERROR, mark, pose_right
 from bench.sets import (
     DRIFT,
     FULL,
@@ -78,9 +79,6 @@ from pgvd.grid import Grid, heading
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 CACHE = ROOT / "bench" / "cache"
-#: Success thresholds of issue 3.
-MAX_HEADING_DEG = 2.0
-MAX_CELL_ERROR = 3.0
 #: Cell size of the scaling pair: intel at 0.07 m is ~500 cells per side.
 SCALE_RESOLUTION = 0.07
 INTEL_LOG = ROOT.parent / "shared" / "logs" / "intel-corrected.log.gz"
@@ -187,16 +185,14 @@ def evaluate(pair: MapPair, accepted: bool, matrix: np.ndarray, cell_scale: floa
     """One row of the per-pair record: accept, errors (cells / ``cell_scale``) and success."""
     heading, cell = errors(pair, matrix)
     cell /= cell_scale
-    tolerance = cell_tolerance(pair)
-    overlapping = pair.overlap > 0
-    ok = accepted and overlapping and heading <= MAX_HEADING_DEG and cell <= tolerance
-    return {
+    rec = {
         "accepted": accepted,
         "heading_deg": heading,
         "cell_err": cell,
-        "cell_tolerance": tolerance,
-        "success": bool(ok),
+        "cell_tolerance": cell_tolerance(pair),
     }
+    rec["success"] = bool(accepted and pair.overlap > 0 and pose_right(rec))
+    return rec
 
 
 def _log(msg: str) -> None:
@@ -244,8 +240,7 @@ def run_pairs(entries: list[Entry], table: dict[str, Method]) -> list[dict]:
                 ]
             rec.update(method=name, seconds=seconds, matrix=matrix.tolist(), **extra)
             records.append(to_json(rec))
-            mark = "ok" if rec["success"] else ("ACC" if accepted else "rej")
-            line.append(f"{name} {mark} {seconds:.2f}s")
+            line.append(f"{name} {mark(rec['success'], accepted)} {seconds:.2f}s")
         elapsed = time.perf_counter() - t_start
         _log(
             f"[merge] {i}/{len(entries)} {pair.name} {entry.set}/{entry.kind} "

@@ -33,9 +33,10 @@ from unittest import mock
 
 import numpy as np
 
-from bench.merge import CACHE, MAX_HEADING_DEG, RESULTS, evaluate
+from bench.merge import CACHE, RESULTS, evaluate
 from bench.pairs import MapPair
 from bench.recall import nearest_gap
+from bench.report import MAX_HEADING_DEG, mark
 from bench.sets import FULL, build
 from pgvd.grid import heading
 from pgvd.merge import MergeParams, merge
@@ -135,8 +136,8 @@ def rerun(records: list[dict], stage: str, cache: Path, seed: int) -> list[dict]
             margin=result.margin,
             before=bool(rec["success"]),
         )
-        mark = "ok" if row["success"] else "ACC" if row["accepted"] else "rej"
-        print(f"[oracle] {pair.name}: {mark} margin {result.margin:.2f}", flush=True)
+        outcome = mark(row["success"], row["accepted"])
+        print(f"[oracle] {pair.name}: {outcome} margin {result.margin:.2f}", flush=True)
         out.append(row)
     return out
 

@@ -37,7 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.merge import MAX_HEADING_DEG, RESULTS
+from bench.merge import RESULTS
+from bench.report import MAX_HEADING_DEG, pose_right
 
 
 def angle_gap(a_deg: float, b_deg: float) -> float:
@@ -100,13 +101,6 @@ def pose_recall(records: list[dict]) -> tuple[int, int, int]:
     return len(found), len(known), sum(not r["success"] for r in found)
 
 
-def returned_right(record: dict) -> bool:
-    """Whether the returned pose, accepted or not, is within the success bounds."""
-    return (
-        record["heading_deg"] <= MAX_HEADING_DEG and record["cell_err"] <= record["cell_tolerance"]
-    )
-
-
 def _share(hits: int, total: int) -> str:
     return f"{hits}/{total} ({100 * hits / total:.1f} %)" if total else "-"
 
@@ -127,7 +121,7 @@ def table(records: list[dict], tolerance: float) -> list[str]:
         got = recall(mine, tolerance)
         found, known, lost = pose_recall(mine)
         success = _share(sum(r["success"] for r in mine), len(mine))
-        right = _share(sum(map(returned_right, mine)), len(mine))
+        right = _share(sum(map(pose_right, mine)), len(mine))
         miss = ", ".join(f"{p}: {g}" for p, g in got["misses"]) or "-"
         lines.append(
             f"| {value or '**all**'} | {success} | {right} | {_share(found, known)} "

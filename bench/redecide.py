@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.merge import CACHE, RESULTS, evaluate
+from bench.report import mark
 from bench.sets import FULL, Entry, build
 from bench.sources import SOURCES
 from pgvd.grid import Grid
@@ -114,10 +115,10 @@ def replay_run(
         }
         rows.append(row)
         if verbose:
-            mark = "ok" if right and got["accepted"] else ("ACC" if got["accepted"] else "rej")
             run = rec.get("result", {}).get("margin")
+            outcome = mark(right and got["accepted"], got["accepted"])
             print(
-                f"{mark:3} {rec['pair']:36} {rec['set']:8} right={int(right)} "
+                f"{outcome:3} {rec['pair']:36} {rec['set']:8} right={int(right)} "
                 f"margin {got['margin']:6.2f} (run {np.nan if run is None else run:6.2f}) "
                 f"rival {got['rival']:7.0f}",
                 flush=True,

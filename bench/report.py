@@ -21,6 +21,22 @@ NEGATIVE = "negative"
 NEGATIVE_KINDS = ("disjoint", "lookalike", "mirror", "cross")
 #: The paper's reported time per merge, seconds (10 to 13 s).
 PAPER_SECONDS = (10.0, 13.0)
+#: Success thresholds of issue 3: heading error (degrees) and mean cell error of B's walls
+#: (a drifted pair adds its own distortion: ``cell_tolerance`` of each record).
+MAX_HEADING_DEG = 2.0
+MAX_CELL_ERROR = 3.0
+
+
+def pose_right(record: dict) -> bool:
+    """Whether a record's returned pose, accepted or not, is within the success bounds."""
+    return (
+        record["heading_deg"] <= MAX_HEADING_DEG and record["cell_err"] <= record["cell_tolerance"]
+    )
+
+
+def mark(success: bool, accepted: bool) -> str:
+    """A pair's outcome in a progress line: ``ok``, ``ACC`` (accepted, wrong) or ``rej``."""
+    return "ok" if success else ("ACC" if accepted else "rej")
 
 
 def _frac(hits: int, n: int) -> str:

@@ -574,15 +574,16 @@ class WallMap:
     ) -> None:
         prob = np.asarray(prob)
         self.free = prob < free
-        # flat indices split by divmod: the same cells in the same (row-major) order as
-        # np.nonzero, which is ~8x slower on a full-resolution map
         # only the faces of walls: inside a thick wall every cell has a wall cell at
         # distance 0, so the alignment cost is flat there and a refinement stops
-        # wherever it enters (a map overlaid on itself with 5-cell walls came out
-        # 1.7 px off); thin walls, as a laser draws them, are all face.  A map that
-        # is wall from edge to edge has no face: its wall cells are all it has.
+        # wherever it enters (intel's map with 5-cell walls, merged onto a crop of
+        # itself, came out 2.5 px off); thin walls, as a laser draws them, are all
+        # face.  A map that is wall from edge to edge has no face: its wall cells
+        # are all it has.
         walls = prob > occupied
         faces = surface(walls)
+        # flat indices split by divmod: the same cells in the same (row-major) order as
+        # np.nonzero, which is ~8x slower on a full-resolution map
         self._flat = np.flatnonzero(faces if faces.any() else walls)
         r, c = np.divmod(self._flat, prob.shape[1])
         self.walls = np.column_stack([c, r]).astype(float)

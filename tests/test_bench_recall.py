@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.merge import MAX_HEADING_DEG
-from bench.recall import heading_z, pose_recall, recall, returned_right, sigma_line, table
+from bench.recall import heading_z, pose_recall, recall, sigma_line, table
+from bench.report import MAX_HEADING_DEG, pose_right
 
 
 def _record(success: bool, finalists: list[bool] | None, truth: float = 10.0) -> dict:
@@ -50,9 +50,9 @@ def test_heading_recall_and_sigma_read_the_nearest_searched_heading():
 
 def test_returned_pose_is_judged_by_the_success_bounds_accepted_or_not():
     ok = {"heading_deg": 0.5, "cell_err": 2.0, "cell_tolerance": 3.0, "accepted": False}
-    assert returned_right(ok)
-    assert not returned_right({**ok, "cell_err": 3.5})
-    assert not returned_right({**ok, "heading_deg": MAX_HEADING_DEG + 0.1})
+    assert pose_right(ok)
+    assert not pose_right({**ok, "cell_err": 3.5})
+    assert not pose_right({**ok, "heading_deg": MAX_HEADING_DEG + 0.1})
     # a method with no searched headings or finalists still gets its success and returned pose
     rows = table([{**_record(False, None), **ok, "set": "low", "source": "s"}], 2.0)
     assert rows[2].startswith("| low | 0/1 (0.0 %) | 1/1 (100.0 %) | - | - |")
