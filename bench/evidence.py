@@ -1,0 +1,220 @@
+"""What the maps say at the true pose, against the wrong poses that reached the decision.
+
+For every overlapping pair of a merge-bench run that failed, the true pose and
+every wrong finalist are counted as the decision counts hypotheses
+(:func:`pgvd.merge.score_hypothesis`: walls on walls ``agree``, walls on clear
+free space ``disagree``, both ways, each few-metre square re-aligned first), and
+the pair is put in one class:
+
+``margin``     the returned pose is right, but it did not stand out (rejected);
+``search``     with the truth among the finalists, the decision
+               (:func:`pgvd.merge.decide_finalists`: rivals, probes and the last
+               refinement included) picks it, returns a right pose and accepts it:
+               the search lost it;
+``faint``      the decision picks the truth and returns a right pose, but it does not
+               stand out (margin below the threshold);
+``refinement`` the decision picks the truth, but its last refinement leaves the
+               success bounds;
+``weighting``  a wrong finalist's evidence beats the truth's, but none of them
+               agrees as much *and* conflicts as little: another weight ``w`` of a
+               conflict would prefer the truth on this pair;
+``dominated``  a wrong finalist agrees at least as much and conflicts no more: no
+               weighting of the two counts prefers the truth.
+
+Pairs rejected before the decision (no supported translation) have no finalists:
+the truth is weighed against its probes alone.  The truth handed in is the
+exact one and, when it stays within the success bounds, the same after the
+finalists' short refinement: the better of the two by evidence.  It tells
+whether the remaining failures need a better search, a better decision, or
+evidence the two maps do not hold.
+
+    python3 -m bench.evidence [bench/results/merge.json] [--set low] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bench.merge import CACHE, RESULTS, evaluate
+from bench.pairs import MapPair
+from bench.sets import FULL, build
+from pgvd.matching import Agreement, WallMap, refine
+from pgvd.merge import MergeParams, decide_finalists, score_hypothesis
+from pgvd.sampling import subsample
+
+CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
+SETS = ("standard", "low", "drifted")
+
+
+def evidence(a: Agreement, weight: float) -> float:
+    """``agree - weight * disagree``, the decision's evidence (:mod:`pgvd.decision`)."""
+    return a.agree - weight * a.disagree
+
+
+def classify(
+    truth: Agreement,
+    wrong: list[Agreement],
+    weight: float,
+    returned_right: bool,
+    outcome: tuple[bool, float] | None,
+    threshold: float,
+) -> str:
+    """The class of a failed pair (module docstring).
+
+    Parameters
+    ----------
+    truth : Agreement
+        Counts at the true pose.
+    wrong : list of Agreement
+        Counts at each finalist outside the success bounds.
+    weight : float
+        Weight ``w`` of a conflict in the evidence.
+    returned_right : bool
+        Whether the pose the merge returned is within the success bounds.
+    outcome : tuple of (bool, float) or None
+        When the decision, handed the truth among the finalists, picks it: whether the
+        pose it returns is right, and its margin; None when it picks another pose.
+    threshold : float
+        The decision's acceptance threshold (``MergeParams.min_margin``).
+
+    Returns
+    -------
+    str
+        One of :data:`CLASSES`.
+    """
+    if returned_right:
+        return "margin"
+    if outcome is not None:
+        right, margin = outcome
+        if not right:
+            return "refinement"
+        return "search" if margin >= threshold else "faint"
+    if any(w.agree >= truth.agree and w.disagree <= truth.disagree for w in wrong):
+        return "dominated"
+    return "weighting"
+
+
+def assess(pair: MapPair, record: dict, params: MergeParams) -> dict:
+    """One failed pair: the counts at its truth and best wrong finalist, and its class.
+
+    Parameters
+    ----------
+    pair : MapPair
+        The pair, with its true B->A matrix.
+    record : dict
+        Its pgvd record of ``merge.json``: ``finalists`` (3x3 B->A matrices, may be
+        empty), ``matrix`` (the returned pose) and ``set``.
+    params : MergeParams
+        The decision's parameters.
+
+    Returns
+    -------
+    dict
+        ``pair``, ``set``, ``class``, ``truth`` and ``rival`` (``[agree, disagree]``
+        of the truth and of the wrong finalist of best evidence, or None).
+    """
+    res = pair.a.resolution
+    fine_a = WallMap(pair.a.probability(), params.occupied, params.free, lookup=True)
+    fine_b = WallMap(pair.b.probability(), params.occupied, params.free)
+    truths = [pair.truth]
+    near = refine(fine_a, subsample(fine_b.walls, params.refine_points), pair.truth, (3.0, 2.0))
+    if evaluate(pair, True, near)["success"]:
+        truths.append(near)
+    weight = params.disagreement_weight
+    truth = max(
+        (score_hypothesis(m, fine_a, fine_b, params, res) for m in truths),
+        key=lambda s: evidence(s.agreement, weight),
+    )
+    finalists = [np.asarray(f, dtype=float) for f in record.get("finalists") or []]
+    index, decision, matrix = decide_finalists(
+        [truth.matrix, *finalists], fine_a, fine_b, params, res
+    )
+    outcome = (evaluate(pair, True, matrix)["success"], decision.margin) if index == 0 else None
+    wrong = [
+        score_hypothesis(m, fine_a, fine_b, params, res).agreement
+        for m in finalists
+        if not evaluate(pair, True, m)["success"]
+    ]
+    returned = record.get("matrix")
+    right = returned is not None and evaluate(pair, True, np.asarray(returned))["success"]
+    rival = max(wrong, key=lambda a: evidence(a, weight), default=None)
+    return {
+        "pair": pair.name,
+        "set": record["set"],
+        "class": classify(truth.agreement, wrong, weight, right, outcome, params.min_margin),
+        "truth_margin": None if outcome is None else outcome[1],
+        "truth": [truth.agreement.agree, truth.agreement.disagree],
+        "rival": None if rival is None else [rival.agree, rival.disagree],
+    }
+
+
+def markdown(rows: list[dict], command: str) -> str:
+    """The report: failed pairs per set and class, then every pair."""
+    lines = ["# The failed pairs' truth against their wrong finalists", "", f"`{command}`", ""]
+    lines += ["| set | failed | " + " | ".join(CLASSES) + " |", "|---" * (2 + len(CLASSES)) + "|"]
+    for s in SETS:
+        group = [r for r in rows if r["set"] == s]
+        if group:
+            counts = " | ".join(str(sum(r["class"] == c for r in group)) for c in CLASSES)
+            lines.append(f"| {s} | {len(group)} | {counts} |")
+    lines += [
+        "",
+        "agree / disagree: walls on walls / walls on clear free space, both ways, on the "
+        "decision's subsample.",
+        "",
+        "| pair | class | truth agree / disagree | its margin if picked "
+        "| best wrong finalist agree / disagree |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        rival = "-" if r["rival"] is None else "{} / {}".format(*r["rival"])
+        margin = "-" if r["truth_margin"] is None else f"{r['truth_margin']:.2f}"
+        truth = "{} / {}".format(*r["truth"])
+        lines.append(f"| {r['pair']} | {r['class']} | {truth} | {margin} | {rival} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("json", nargs="?", type=Path, default=RESULTS / "merge.json")
+    parser.add_argument("--set", choices=SETS, help="only this set")
+    parser.add_argument("--method", default="pgvd", help="records of this bench method")
+    parser.add_argument("--seed", type=int, default=1, help="seed of the run's pairs")
+    parser.add_argument("--cache", type=Path, default=CACHE)
+    parser.add_argument("--out", type=Path, default=RESULTS / "evidence.md")
+    args = parser.parse_args(argv)
+    try:
+        records = json.loads(args.json.read_text())["records"]
+    except (OSError, ValueError, KeyError) as exc:
+        parser.error(f"cannot read bench records from {args.json}: {exc}")
+    failed = {
+        r["pair"]: r
+        for r in records
+        if r["method"] == args.method
+        and r["set"] in SETS
+        and not r["success"]
+        and args.set in (None, r["set"])
+    }
+    params = MergeParams(diagnostics=False)
+    rows = []
+    for entry in build(FULL, args.seed, args.cache):
+        record = failed.get(entry.pair.name)
+        if record is None:
+            continue
+        rows.append(assess(entry.pair, record, params))
+        got = rows[-1]["class"]
+        print(f"[evidence] {len(rows)}/{len(failed)} {entry.pair.name}: {got}", flush=True)
+    command = "python3 -m bench.evidence " + " ".join(argv if argv is not None else sys.argv[1:])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(markdown(rows, command.strip()))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
