@@ -21,6 +21,11 @@ the pair is put in one class:
 ``dominated``  a wrong finalist agrees at least as much and conflicts no more: no
                weighting of the two counts prefers the truth.
 
+Over every overlapping pair, failed or not, the report also counts those whose
+exact truth the merge's last refinement (:func:`pgvd.merge.final_refinement`)
+moves out of the success bounds: where the two maps' best fit is not the truth
+within the bounds, no search or decision can succeed.
+
 Pairs rejected before the decision (no supported translation) have no finalists:
 the truth is weighed against its probes alone.  The truth handed in is the
 exact one and, when it stays within the success bounds, the same after the
@@ -44,7 +49,7 @@ from bench.merge import CACHE, RESULTS, evaluate
 from bench.pairs import MapPair
 from bench.sets import FULL, build
 from pgvd.matching import Agreement, WallMap, refine
-from pgvd.merge import MergeParams, decide_finalists, score_hypothesis
+from pgvd.merge import MergeParams, decide_finalists, final_refinement, score_hypothesis
 from pgvd.sampling import subsample
 
 CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
@@ -99,7 +104,22 @@ def classify(
     return "weighting"
 
 
-def assess(pair: MapPair, record: dict, params: MergeParams) -> dict:
+def fine_maps(pair: MapPair, params: MergeParams) -> tuple[WallMap, WallMap]:
+    """A's and B's full-resolution maps, as the merge's decision reads them."""
+    return (
+        WallMap(pair.a.probability(), params.occupied, params.free, lookup=True),
+        WallMap(pair.b.probability(), params.occupied, params.free),
+    )
+
+
+def truth_stays(pair: MapPair, maps: tuple[WallMap, WallMap], params: MergeParams) -> bool:
+    """Whether the merge's last refinement, started at the exact truth, stays within the
+    success bounds."""
+    moved = final_refinement(pair.truth, *maps, params)
+    return bool(evaluate(pair, True, moved)["success"])
+
+
+def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: MergeParams) -> dict:
     """One failed pair: the counts at its truth and best wrong finalist, and its class.
 
     Parameters
@@ -109,6 +129,8 @@ def assess(pair: MapPair, record: dict, params: MergeParams) -> dict:
     record : dict
         Its pgvd record of ``merge.json``: ``finalists`` (3x3 B->A matrices, may be
         empty), ``matrix`` (the returned pose) and ``set``.
+    maps : tuple of WallMap
+        :func:`fine_maps` of the pair.
     params : MergeParams
         The decision's parameters.
 
@@ -119,8 +141,7 @@ def assess(pair: MapPair, record: dict, params: MergeParams) -> dict:
         of the truth and of the wrong finalist of best evidence, or None).
     """
     res = pair.a.resolution
-    fine_a = WallMap(pair.a.probability(), params.occupied, params.free, lookup=True)
-    fine_b = WallMap(pair.b.probability(), params.occupied, params.free)
+    fine_a, fine_b = maps
     truths = [pair.truth]
     near = refine(fine_a, subsample(fine_b.walls, params.refine_points), pair.truth, (3.0, 2.0))
     if evaluate(pair, True, near)["success"]:
@@ -153,15 +174,21 @@ def assess(pair: MapPair, record: dict, params: MergeParams) -> dict:
     }
 
 
-def markdown(rows: list[dict], command: str) -> str:
-    """The report: failed pairs per set and class, then every pair."""
+def markdown(rows: list[dict], stays: dict[str, list[bool]], command: str) -> str:
+    """The report: failed pairs per set and class, then every pair.
+
+    ``stays`` holds, per set, :func:`truth_stays` of every overlapping pair.
+    """
     lines = ["# The failed pairs' truth against their wrong finalists", "", f"`{command}`", ""]
-    lines += ["| set | failed | " + " | ".join(CLASSES) + " |", "|---" * (2 + len(CLASSES)) + "|"]
+    head = "| set | pairs | truth refined off the bounds | failed | " + " | ".join(CLASSES)
+    lines += [head + " |", "|---" * (4 + len(CLASSES)) + "|"]
     for s in SETS:
         group = [r for r in rows if r["set"] == s]
-        if group:
+        every = stays.get(s, [])
+        if every:
             counts = " | ".join(str(sum(r["class"] == c for r in group)) for c in CLASSES)
-            lines.append(f"| {s} | {len(group)} | {counts} |")
+            off = len(every) - sum(every)
+            lines.append(f"| {s} | {len(every)} | {off} | {len(group)} | {counts} |")
     lines += [
         "",
         "agree / disagree: walls on walls / walls on clear free space, both ways, on the "
@@ -192,26 +219,29 @@ def main(argv: list[str] | None = None) -> int:
         records = json.loads(args.json.read_text())["records"]
     except (OSError, ValueError, KeyError) as exc:
         parser.error(f"cannot read bench records from {args.json}: {exc}")
-    failed = {
+    chosen = {
         r["pair"]: r
         for r in records
-        if r["method"] == args.method
-        and r["set"] in SETS
-        and not r["success"]
-        and args.set in (None, r["set"])
+        if r["method"] == args.method and r["set"] in SETS and args.set in (None, r["set"])
     }
     params = MergeParams(diagnostics=False)
-    rows = []
+    rows: list[dict] = []
+    stays: dict[str, list[bool]] = {}
     for entry in build(FULL, args.seed, args.cache):
-        record = failed.get(entry.pair.name)
+        record = chosen.get(entry.pair.name)
         if record is None:
             continue
-        rows.append(assess(entry.pair, record, params))
-        got = rows[-1]["class"]
-        print(f"[evidence] {len(rows)}/{len(failed)} {entry.pair.name}: {got}", flush=True)
+        maps = fine_maps(entry.pair, params)
+        stays.setdefault(record["set"], []).append(truth_stays(entry.pair, maps, params))
+        got = "right"
+        if not record["success"]:
+            rows.append(assess(entry.pair, record, maps, params))
+            got = rows[-1]["class"]
+        done = sum(map(len, stays.values()))
+        print(f"[evidence] {done}/{len(chosen)} {entry.pair.name}: {got}", flush=True)
     command = "python3 -m bench.evidence " + " ".join(argv if argv is not None else sys.argv[1:])
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(markdown(rows, command.strip()))
+    args.out.write_text(markdown(rows, stays, command.strip()))
     print(f"wrote {args.out}")
     return 0
 

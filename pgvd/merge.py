@@ -767,6 +767,35 @@ def weigh(
     )
 
 
+def final_refinement(
+    matrix: np.ndarray, fine_a: WallMap, fine_b: WallMap, params: MergeParams
+) -> np.ndarray:
+    """The winner refined on all its wall cells: the pose a merge returns.
+
+    Point-to-point ICP at 3 and 2 cells on ``params.fine_points`` of B's walls,
+    then the robust point-to-line fit (:func:`pgvd.matching.refine_point_to_line`,
+    eqs. (1)-(2)) on all of them.
+
+    Parameters
+    ----------
+    matrix : numpy.ndarray
+        3x3 B pixel -> A pixel, the decision's winner.
+    fine_a, fine_b : WallMap
+        The two maps at full resolution.
+    params : MergeParams
+        The merge's parameters.
+
+    Returns
+    -------
+    numpy.ndarray
+        The refined 3x3 B pixel -> A pixel matrix.
+    """
+    start = refine(fine_a, subsample(fine_b.walls, params.fine_points), matrix, radii=(3.0, 2.0))
+    # the pose returned is fitted on A's exact nearest walls (the tree): the table's
+    # lookups at the four cells around a point miss the nearest wall for ~0.5 % of points
+    return refine_point_to_line(fine_a.tree, fine_b.walls, start)
+
+
 def decide_finalists(
     refined: list[np.ndarray], fine_a: WallMap, fine_b: WallMap, params: MergeParams, res: float
 ) -> tuple[int, Decision, np.ndarray]:
@@ -800,11 +829,7 @@ def decide_finalists(
     scored = [score_hypothesis(m, fine_a, fine_b, params, res) for m in refined]
     decision = weigh(scored, fine_a, fine_b, params, res)
     index = next(i for i, s in enumerate(scored) if s is decision.winner)
-    sub_fine = subsample(fine_b.walls, params.fine_points)
-    start = refine(fine_a, sub_fine, decision.winner.matrix, radii=(3.0, 2.0))
-    # the pose returned is fitted on A's exact nearest walls (the tree): the table's
-    # lookups at the four cells around a point miss the nearest wall for ~0.5 % of points
-    matrix = refine_point_to_line(fine_a.tree, fine_b.walls, start)
+    matrix = final_refinement(decision.winner.matrix, fine_a, fine_b, params)
     final = score_hypothesis(matrix, fine_a, fine_b, params, res)
     restated = restate(decision, final, params.disagreement_weight, params.margin_noise)
     return index, restated, matrix

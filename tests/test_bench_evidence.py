@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.evidence import assess, classify, markdown
+from bench.evidence import assess, classify, fine_maps, markdown, truth_stays
 from bench.pairs import MapPair
 from pgvd.grid import relative_matrix
 from pgvd.io import read_map
@@ -37,13 +37,16 @@ def test_assess_hands_the_truth_to_the_decision(intel_split):
     wrong = intel_split.truth.copy()
     wrong[0, 2] += 60.0
     record = {"set": "standard", "finalists": [wrong.tolist()], "matrix": wrong.tolist()}
-    row = assess(intel_split, record, MergeParams(diagnostics=False))
+    params = MergeParams(diagnostics=False)
+    maps = fine_maps(intel_split, params)
+    assert truth_stays(intel_split, maps, params)
+    row = assess(intel_split, record, maps, params)
     assert row["class"] == "search" and row["truth_margin"] >= 0.62
     truth_agree, truth_disagree = row["truth"]
     rival_agree, rival_disagree = row["rival"]
     assert truth_agree > rival_agree and truth_disagree < rival_disagree
     # no finalist at all: the truth is weighed against its probes alone
-    row = assess(intel_split, {**record, "finalists": []}, MergeParams(diagnostics=False))
+    row = assess(intel_split, {**record, "finalists": []}, maps, params)
     assert row["class"] == "search" and row["rival"] is None
 
 
@@ -56,9 +59,10 @@ def test_markdown_counts_each_class_per_set():
         {"pair": "d0", "set": "drifted", "class": "weighting", "truth": [900, 300],
          "truth_margin": None, "rival": [100, 20]},
     ]  # fmt: skip
-    text = markdown(rows, "python3 -m bench.evidence")
-    assert "| low | 2 | 0 | 1 | 1 | 0 | 0 | 0 |" in text
-    assert "| drifted | 1 | 0 | 0 | 0 | 0 | 1 | 0 |" in text
+    stays = {"low": [True, True, False, True], "drifted": [True, True]}
+    text = markdown(rows, stays, "python3 -m bench.evidence")
+    assert "| low | 4 | 1 | 2 | 0 | 1 | 1 | 0 | 0 | 0 |" in text
+    assert "| drifted | 2 | 0 | 1 | 0 | 0 | 0 | 0 | 1 | 0 |" in text
     assert "| l0 | faint | 200 / 0 | 0.30 | 400 / 60 |" in text
     assert "| d0 | weighting | 900 / 300 | - | 100 / 20 |" in text
     assert "standard" not in text.split("agree / disagree")[0]
