@@ -6,6 +6,10 @@ from pathlib import Path
 
 import pytest
 
+from bench.pairs import MapPair
+from pgvd.grid import relative_matrix
+from pgvd.io import read_map
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 
@@ -16,3 +20,11 @@ def shared() -> Path:
     if not (SHARED / "maps").is_dir():
         pytest.skip(f"shared data not found at {SHARED}")
     return SHARED
+
+
+@pytest.fixture(scope="module")
+def intel_split(shared: Path) -> MapPair:
+    """The Intel lab map split in two, each part in its own frame, with its true transform."""
+    a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
+    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
+    return MapPair(a, b, relative_matrix(a, b), 0.5, "intel-split")

@@ -2,21 +2,9 @@
 
 from __future__ import annotations
 
-import pytest
-
 from bench.evidence import assess, classify, fine_maps, markdown, truth_stays
-from bench.pairs import MapPair
-from pgvd.grid import relative_matrix
-from pgvd.io import read_map
 from pgvd.matching import Agreement
 from pgvd.merge import MergeParams
-
-
-@pytest.fixture(scope="module")
-def intel_split(shared) -> MapPair:
-    a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
-    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
-    return MapPair(a, b, relative_matrix(a, b), 0.5, "intel-split")
 
 
 def test_classify_orders_the_causes():

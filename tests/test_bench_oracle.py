@@ -5,7 +5,6 @@ from __future__ import annotations
 from unittest import mock
 
 import numpy as np
-import pytest
 
 from bench.merge import evaluate
 from bench.oracle import (
@@ -15,18 +14,8 @@ from bench.oracle import (
     true_finalist,
     with_truth,
 )
-from bench.pairs import MapPair
-from pgvd.grid import relative_matrix
-from pgvd.io import read_map
 from pgvd.merge import MergeParams, merge
 from pgvd.rotation import estimate_headings
-
-
-@pytest.fixture(scope="module")
-def intel_split(shared) -> MapPair:
-    a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
-    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
-    return MapPair(a, b, relative_matrix(a, b), 0.5, "intel-split")
 
 
 def test_with_truth_adds_the_heading_after_the_radon_candidates(intel_split):
