@@ -28,8 +28,8 @@ within the bounds, no search or decision can succeed.
 
 Pairs rejected before the decision (no supported translation) have no finalists:
 the truth is weighed against its probes alone.  The truth handed in is the
-exact one and, when it stays within the success bounds, the same after the
-finalists' short refinement: the better of the two by evidence.  It tells
+exact one and, when it stays within the success bounds, the same after a short
+ICP (3 and 2 cells): the better of the two by evidence.  It tells
 whether the remaining failures need a better search, a better decision, or
 evidence the two maps do not hold.
 
@@ -56,15 +56,9 @@ CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
 SETS = ("standard", "low", "drifted")
 
 
-def evidence(a: Agreement, weight: float) -> float:
-    """``agree - weight * disagree``, the decision's evidence (:mod:`pgvd.decision`)."""
-    return a.agree - weight * a.disagree
-
-
 def classify(
     truth: Agreement,
     wrong: list[Agreement],
-    weight: float,
     returned_right: bool,
     outcome: tuple[bool, float] | None,
     threshold: float,
@@ -77,8 +71,6 @@ def classify(
         Counts at the true pose.
     wrong : list of Agreement
         Counts at each finalist outside the success bounds.
-    weight : float
-        Weight ``w`` of a conflict in the evidence.
     returned_right : bool
         Whether the pose the merge returned is within the success bounds.
     outcome : tuple of (bool, float) or None
@@ -149,7 +141,7 @@ def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: M
     weight = params.disagreement_weight
     truth = max(
         (score_hypothesis(m, fine_a, fine_b, params, res) for m in truths),
-        key=lambda s: evidence(s.agreement, weight),
+        key=lambda s: s.evidence(weight),
     )
     finalists = [np.asarray(f, dtype=float) for f in record.get("finalists") or []]
     index, decision, matrix = decide_finalists(
@@ -157,20 +149,21 @@ def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: M
     )
     outcome = (evaluate(pair, True, matrix)["success"], decision.margin) if index == 0 else None
     wrong = [
-        score_hypothesis(m, fine_a, fine_b, params, res).agreement
+        score_hypothesis(m, fine_a, fine_b, params, res)
         for m in finalists
         if not evaluate(pair, True, m)["success"]
     ]
     returned = record.get("matrix")
     right = returned is not None and evaluate(pair, True, np.asarray(returned))["success"]
-    rival = max(wrong, key=lambda a: evidence(a, weight), default=None)
+    rival = max(wrong, key=lambda s: s.evidence(weight), default=None)
+    counts = [s.agreement for s in wrong]
     return {
         "pair": pair.name,
         "set": record["set"],
-        "class": classify(truth.agreement, wrong, weight, right, outcome, params.min_margin),
+        "class": classify(truth.agreement, counts, right, outcome, params.min_margin),
         "truth_margin": None if outcome is None else outcome[1],
         "truth": [truth.agreement.agree, truth.agreement.disagree],
-        "rival": None if rival is None else [rival.agree, rival.disagree],
+        "rival": None if rival is None else [rival.agreement.agree, rival.agreement.disagree],
     }
 
 

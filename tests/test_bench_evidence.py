@@ -10,13 +10,13 @@ from pgvd.merge import MergeParams
 def test_classify_orders_the_causes():
     truth = Agreement(200, 5)
     look_alike = Agreement(400, 60)  # more walls agree, more conflict: evidence 160 < 180
-    assert classify(truth, [look_alike], 4.0, True, None, 0.62) == "margin"
-    assert classify(truth, [look_alike], 4.0, False, (True, 0.9), 0.62) == "search"
-    assert classify(truth, [look_alike], 4.0, False, (True, 0.3), 0.62) == "faint"
-    assert classify(truth, [look_alike], 4.0, False, (False, 0.9), 0.62) == "refinement"
-    assert classify(truth, [look_alike], 4.0, False, None, 0.62) == "weighting"
+    assert classify(truth, [look_alike], True, None, 0.62) == "margin"
+    assert classify(truth, [look_alike], False, (True, 0.9), 0.62) == "search"
+    assert classify(truth, [look_alike], False, (True, 0.3), 0.62) == "faint"
+    assert classify(truth, [look_alike], False, (False, 0.9), 0.62) == "refinement"
+    assert classify(truth, [look_alike], False, None, 0.62) == "weighting"
     # a wrong pose that agrees as much and conflicts no more: no weight prefers the truth
-    assert classify(truth, [look_alike, Agreement(200, 5)], 4.0, False, None, 0.62) == "dominated"
+    assert classify(truth, [look_alike, Agreement(200, 5)], False, None, 0.62) == "dominated"
 
 
 def test_assess_hands_the_truth_to_the_decision(intel_split):
