@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
-from bench.pairs import MapPair
-from pgvd.grid import relative_matrix
-from pgvd.io import read_map
+if TYPE_CHECKING:
+    from bench.pairs import MapPair
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -25,6 +25,12 @@ def shared() -> Path:
 @pytest.fixture(scope="module")
 def intel_split(shared: Path) -> MapPair:
     """The Intel lab map split in two, each part in its own frame, with its true transform."""
+    # imported here, not at the top: importing scipy (bench.pairs) before foxglove makes
+    # test_agent_view's Foxglove client segfault at the lowest supported versions
+    from bench.pairs import MapPair
+    from pgvd.grid import relative_matrix
+    from pgvd.io import read_map
+
     a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
     b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
     return MapPair(a, b, relative_matrix(a, b), 0.5, "intel-split")
