@@ -211,7 +211,7 @@ def test_a_message_breaking_a_rule_is_dropped_for_that_reason(crops, reason: str
     assert r1.tick(at(9.0)) == [WriteStatus()]  # nothing to fetch, persist or publish
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(key=st.text(max_size=80), payload=st.binary(max_size=300))
 def test_whatever_arrives_is_dropped_with_a_known_reason_never_raised(
     key: str, payload: bytes

@@ -103,9 +103,7 @@ _line = st.one_of(
 )
 
 
-@settings(
-    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
-)
+@settings(max_examples=150, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(lines=st.lists(_line, max_size=8), gzipped=st.booleans())
 def test_fuzz_only_log_format_error(tmp_path, lines, gzipped):
     data = "\n".join([FLASER_3.strip(), *lines]).encode("utf-8")

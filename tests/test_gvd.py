@@ -22,7 +22,7 @@ def _brute_force(p: list[float]) -> np.ndarray:
     return out
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 @given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=9))
 def test_recursion_equals_enumeration(p):
     f = count_distribution(np.array([p]))[0]
@@ -30,7 +30,7 @@ def test_recursion_equals_enumeration(p):
     assert f.sum() == pytest.approx(1.0, abs=1e-12)  # Theorem 1
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=30)
 @given(st.integers(1, 9), st.integers(1, 40), st.integers(0, 2**31 - 1))
 def test_vectorised_rows_are_independent_and_padding_is_neutral(n, s, seed):
     rng = np.random.default_rng(seed)

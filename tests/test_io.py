@@ -284,7 +284,7 @@ _yaml_lines = st.lists(
 )
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=300)
 @given(_yaml_lines)
 def test_fuzz_yaml_parser_only_raises_map_format_error(lines: list[str]) -> None:
     try:
@@ -309,9 +309,7 @@ _headers = st.sampled_from(
 )
 
 
-@settings(
-    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
-)
+@settings(max_examples=300, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(header=_headers, body=st.binary(max_size=200), ext=st.sampled_from(["pgm", "png", "npy"]))
 def test_fuzz_read_map_on_random_bytes(
     tmp_path: Path, header: bytes, body: bytes, ext: str

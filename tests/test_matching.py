@@ -294,7 +294,7 @@ def test_nearest_wall_table_agrees_with_the_tree(intel):
         assert np.mean(found != np.isfinite(exact)) < 1e-3
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 @given(
     walls=arrays(bool, st.tuples(st.integers(1, 12), st.integers(1, 12))),
     points=arrays(float, (16, 2), elements=st.floats(-4.0, 16.0)),

@@ -14,7 +14,7 @@ from pgvd.io import read_map
 from pgvd.morphology import drop_small, grow, grow_max, surface
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 @given(
     mask=arrays(bool, st.tuples(st.integers(1, 24), st.integers(1, 24))),
     cells=st.integers(1, 3),
@@ -24,7 +24,7 @@ def test_grow_equals_scipy_square_dilation(mask, cells):
     assert np.array_equal(grow(mask, cells), expected)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 @given(
     values=arrays(
         np.float64,
@@ -71,7 +71,7 @@ def test_drop_small_removes_what_skimage_removes(shared, building: str, max_size
     np.testing.assert_array_equal(~drop_small(~free, max_size), holes)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 @given(mask=arrays(bool, st.tuples(st.integers(1, 24), st.integers(1, 24))))
 def test_surface_is_the_mask_less_its_erosion(mask):
     # the edge counts as inside: erode with a border of True

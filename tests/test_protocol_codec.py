@@ -234,7 +234,7 @@ def _paths(obj, path=()):
         yield from _paths(v, (*path, k))
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(data=st.data())
 def test_structurally_mutated_bodies_raise_protocol_error_only(data):
     """Any field of any kind replaced by any msgpack value: ProtocolError or a valid message."""

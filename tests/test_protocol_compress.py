@@ -50,7 +50,7 @@ def round_trip(cells_list: list[np.ndarray]) -> tuple[int, list[np.ndarray]]:
     return codec, out
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=150)
 @given(st.lists(tiles(), min_size=1, max_size=3))
 def test_layouts_and_codecs_are_exact(cells_list):
     codec, out = round_trip(cells_list)
@@ -58,7 +58,7 @@ def test_layouts_and_codecs_are_exact(cells_list):
     assert all(np.array_equal(a, b) for a, b in zip(out, cells_list, strict=True))
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=100)
 @given(st.lists(tiles(max_side=40), min_size=1, max_size=4), st.integers(0, 2**32 - 1))
 def test_arithmetic_coder_is_exact_on_sparse_layouts(cells_list, seed):
     rng = np.random.default_rng(seed)

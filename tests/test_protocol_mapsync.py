@@ -59,7 +59,7 @@ grids = st.tuples(
 )  # fmt: skip
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 @given(spec=grids, order=st.randoms(use_true_random=False), keyed=st.booleans())
 def test_full_map_round_trips_in_any_order(spec, order, keyed):
     h, w, ts, density, seed = spec
@@ -78,7 +78,7 @@ def test_full_map_round_trips_in_any_order(spec, order, keyed):
     assert reasm.version == 7
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40)
 @given(spec=grids, order=st.randoms(use_true_random=False), steps=st.integers(1, 5))
 def test_deltas_rebuild_every_version(spec, order, steps):
     h, w, ts, density, seed = spec
@@ -101,7 +101,7 @@ def test_deltas_rebuild_every_version(spec, order, steps):
         q = new
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40)
 @given(
     spec=grids, order=st.randoms(use_true_random=False), steps=st.integers(2, 5),
     delta_manifests=st.booleans(),

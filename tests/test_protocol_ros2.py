@@ -187,7 +187,7 @@ def test_truncated_and_foreign_cdr_is_refused() -> None:
         decode_occupancy_grid(tf)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=300)
 @given(st.binary(max_size=200))
 def test_garbage_is_refused_never_crashes(data: bytes) -> None:
     try:
@@ -198,7 +198,7 @@ def test_garbage_is_refused_never_crashes(data: bytes) -> None:
         assert ros.grid.logodds.size > 0
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 @given(st.data())
 def test_flipped_bytes_of_a_real_message_are_refused_or_decoded(data) -> None:
     cdr = bytearray(_cdr())
@@ -210,7 +210,7 @@ def test_flipped_bytes_of_a_real_message_are_refused_or_decoded(data) -> None:
         assert exc.reason in ("framing", "value", "limit")
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40)
 @given(
     st.integers(1, 12), st.integers(1, 12), st.floats(0.01, 1.0),
     st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(-3.1, 3.1), st.data(),

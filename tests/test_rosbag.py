@@ -73,7 +73,7 @@ def test_bad_bags_and_topics_get_one_clear_error(tmp_path, intel) -> None:
         read_rosbag_scans(tmp_path / "bag", "/front_scan")
 
 
-@settings(max_examples=80, deadline=None)
+@settings(max_examples=80)
 @given(
     st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), max_size=40),
     st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True),
