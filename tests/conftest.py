@@ -32,8 +32,8 @@ def shared() -> Path:
 @pytest.fixture(scope="module")
 def intel_split(shared: Path) -> MapPair:
     """The Intel lab map split in two, each part in its own frame, with its true transform."""
-    # imported here, not at the top: importing scipy (bench.pairs) before foxglove makes
-    # test_agent_view's Foxglove client segfault at the lowest supported versions
+    # imported here, not at the top: test modules that need neither bench nor the maps
+    # collect without loading scipy and OpenCV
     from bench.pairs import MapPair
     from pgvd.grid import relative_matrix
     from pgvd.io import read_map

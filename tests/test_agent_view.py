@@ -27,6 +27,13 @@ from google.protobuf import descriptor_pool, message_factory  # noqa: E402
 
 from agent.view import GRID_TOPIC, LINKS_TOPIC, TF_TOPIC, FoxgloveView, parse_endpoint  # noqa: E402
 
+# The message classes of every decoded schema, kept for the whole session.  protobuf's upb
+# runtime (4.22 at least) builds a nested message's class (the grid's Pose) on demand and does
+# not keep it alive; once the garbage collector frees it, reading that field segfaults
+# (protocolbuffers/protobuf#12047).  The lowest-versions CI job crashed here, at FromString,
+# in runs where a collection happened in between; a gc.collect() there crashes it every time.
+_CLASSES: list[dict] = []
+
 
 def _decoder(channel: dict):
     """A protobuf message class for an advertised channel, from its FileDescriptorSet."""
@@ -34,7 +41,9 @@ def _decoder(channel: dict):
     pool = descriptor_pool.DescriptorPool()
     for proto in files.file:
         pool.Add(proto)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+    classes = message_factory.GetMessageClassesForFiles([f.name for f in files.file], pool)
+    _CLASSES.append(classes)
+    return classes[channel["schemaName"]]
 
 
 async def _receive(port: int, show) -> dict[str, bytes]:
