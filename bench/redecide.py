@@ -21,6 +21,12 @@ it accepts none of them.  ``-v`` prints every pair.
 ``--method pgvd-heading`` replays the records of that bench method instead of
 ``pgvd``'s (its finalists; the decision's parameters are still ``MergeParams``
 with the ``--param`` overrides).
+
+``--frontier`` asks whether the decision's own statistics could be recalibrated
+into more successes: the winner's margin is split into its margin against the
+other poses and against its shifted copies, and the best pair of thresholds on
+the two that still accepts no wrong or negative winner is reported
+(:func:`frontier`).
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ from bench.merge import CACHE, RESULTS, evaluate
 from bench.report import mark
 from bench.sets import FULL, Entry, build
 from bench.sources import SOURCES
+from pgvd.decision import margin_against
 from pgvd.grid import Grid
 from pgvd.matching import WallMap
 from pgvd.merge import MergeParams, decide_finalists
@@ -78,8 +85,8 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
     Returns
     -------
     dict
-        ``winner`` (index in ``finalists``), ``margin``, ``rival``, ``accepted`` and
-        ``matrix`` (3x3 array).
+        ``winner`` (index in ``finalists``), ``margin``, ``rival``, ``accepted``,
+        ``matrix`` (3x3 array) and the whole ``decision`` (:class:`pgvd.decision.Decision`).
     """
     fine_a = WallMap(a.probability(), params.occupied, params.free, lookup=True)
     fine_b = WallMap(b.probability(), params.occupied, params.free)
@@ -91,6 +98,7 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
         "rival": decision.rival,
         "accepted": decision.margin >= params.min_margin,
         "matrix": matrix,
+        "decision": decision,
     }
 
 
@@ -112,6 +120,7 @@ def replay_run(
             "right": right,
             "accepted": got["accepted"],
             "margin": got["margin"],
+            "decision": got["decision"],
         }
         rows.append(row)
         if verbose:
@@ -120,7 +129,8 @@ def replay_run(
             print(
                 f"{outcome:3} {rec['pair']:36} {rec['set']:8} right={int(right)} "
                 f"margin {got['margin']:6.2f} (run {np.nan if run is None else run:6.2f}) "
-                f"rival {got['rival']:7.0f}",
+                f"rival {got['rival']:7.0f} (another pose {got['decision'].other:7.0f}, "
+                f"shifted {got['decision'].shifted:7.0f})",
                 flush=True,
             )
     return rows
@@ -149,6 +159,57 @@ def summary(rows: list[dict]) -> list[str]:
     return lines
 
 
+def split_margins(rows: list[dict], params: MergeParams) -> np.ndarray:
+    """Per row, the winner's margin against its other poses and against its shifted copies.
+
+    The decision takes the larger of the two rivals (:attr:`pgvd.decision.Decision.rival`);
+    measured apart, each has a margin of its own (:func:`pgvd.decision.margin_against`).
+    """
+    w, noise = params.disagreement_weight, params.margin_noise
+    return np.array(
+        [
+            [margin_against(d.winner, rival, w, noise) for rival in (d.other, d.shifted)]
+            for d in (r["decision"] for r in rows)
+        ]
+    ).reshape(-1, 2)
+
+
+def frontier(rows: list[dict], params: MergeParams, gap: float = 0.03) -> list[str]:
+    """The most right poses any pair of thresholds on the two split margins accepts.
+
+    A rule "margin against other poses >= t1 and against shifted copies >= t2" is
+    allowed when every wrong or negative winner is at least ``gap`` below one of its
+    thresholds (no bad accept, with room to spare); t1 and t2 run from 0 to 1.5 in
+    steps of 0.02.  The one threshold of the merge, ``min_margin`` on both, is the rule
+    ``t1 = t2 = min_margin``.  If no allowed rule accepts more right poses than the
+    best single threshold, the decision's statistics cannot be recalibrated into more
+    successes: what is rejected looks, to them, like what is wrong.
+    """
+    margins = split_margins(rows, params)
+    right = np.array([r["right"] for r in rows], bool)
+    sets = np.array([r["set"] for r in rows])
+    bad = margins[~right]
+    steps = np.round(np.arange(0.0, 1.5, 0.02), 2)
+    best = (-1, 0.0, 0.0)
+    for t1 in steps:
+        for t2 in steps:
+            if np.any((bad[:, 0] >= t1 - gap) & (bad[:, 1] >= t2 - gap)):
+                continue
+            n = int(np.sum(right & (margins[:, 0] >= t1) & (margins[:, 1] >= t2)))
+            best = max(best, (n, t1, t2), key=lambda b: b[0])
+    n, t1, t2 = best
+    if n < 0:
+        return [f"frontier: no pair of thresholds keeps every bad winner {gap} below"]
+    chosen = right & (margins[:, 0] >= t1) & (margins[:, 1] >= t2)
+    per_set = ", ".join(f"{k} {int(np.sum(chosen & (sets == k)))}" for k in SETS[:3])
+    single = int(np.sum(right & (margins.min(axis=1) >= params.min_margin)))
+    return [
+        f"frontier (gap {gap}): at most {n} right accepts ({per_set}), with t1 = {t1:.2f} "
+        f"against other poses and t2 = {t2:.2f} against shifted copies; min_margin "
+        f"{params.min_margin} on both accepts {single}"
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("json", nargs="?", type=Path, default=RESULTS / "merge.json")
@@ -158,6 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1, help="seed of the run's pairs")
     parser.add_argument("--cache", type=Path, default=CACHE)
     parser.add_argument("-v", "--verbose", action="store_true")
+    parser.add_argument(
+        "--frontier", action="store_true", help="best two-threshold rule on the split margins"
+    )
     args = parser.parse_args(argv)
     params = params_from(args.param)
     doc = json.loads(args.json.read_text())
@@ -172,6 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     entries = {e.pair.name: e for e in build(FULL, args.seed, args.cache, SOURCES)}
     rows = replay_run(records, entries, params, args.verbose)
     print("\n".join(summary(rows)))
+    if args.frontier:
+        print("\n".join(frontier(rows, params)))
     return 0
 
 

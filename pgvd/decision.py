@@ -94,20 +94,33 @@ class Decision:
     ----------
     winner : Scored
         The hypothesis of largest evidence.
-    rival : float
-        Best evidence of a hypothesis with another pose (``-inf`` when there is none).
     margin : float
         The statistic of the module docstring (0 or below when a rival scores as
         well as the winner, when the maps contradict the winner, or without overlap).
+    other : float
+        Best evidence of a finalist with another pose (a look-alike, a turn); ``-inf``
+        when there is none.
+    shifted : float
+        Best evidence of the winner's shifted copies (the probes); ``-inf`` without
+        probes.  Close to the winner's, the overlap does not pin the pose along that shift.
+    best : Scored or None
+        The rival of evidence :attr:`rival`, None without rivals.
     """
 
     winner: Scored
-    rival: float
     margin: float
+    other: float = -np.inf
+    shifted: float = -np.inf
+    best: Scored | None = None
+
+    @property
+    def rival(self) -> float:
+        """Best evidence of a hypothesis with another pose (``-inf`` when there is none)."""
+        return max(self.other, self.shifted)
 
 
-def same_pose(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray, deg: float, px: float) -> bool:
-    """Whether two B->A matrices are one pose.
+def pose_difference(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray) -> tuple[float, float]:
+    """Heading difference (degrees, absolute) and displacement of ``centre`` (pixels).
 
     Parameters
     ----------
@@ -115,6 +128,25 @@ def same_pose(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray, deg: float, px
         3x3 B pixel -> A pixel.
     centre : numpy.ndarray
         A point of B, ``(x, y)``, where the two are compared.
+
+    Returns
+    -------
+    tuple of float
+    """
+    dpsi = np.arctan2(m1[0, 1], m1[0, 0]) - np.arctan2(m2[0, 1], m2[0, 0])
+    c = np.array([centre[0], centre[1], 1.0])
+    return abs(float(np.degrees(np.angle(np.exp(1j * dpsi))))), float(
+        np.hypot(*((m1 - m2) @ c)[:2])
+    )
+
+
+def same_pose(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray, deg: float, px: float) -> bool:
+    """Whether two B->A matrices are one pose.
+
+    Parameters
+    ----------
+    m1, m2, centre : numpy.ndarray
+        As in :func:`pose_difference`.
     deg, px : float
         Largest heading difference (degrees) and displacement of ``centre`` (pixels).
 
@@ -123,11 +155,8 @@ def same_pose(m1: np.ndarray, m2: np.ndarray, centre: np.ndarray, deg: float, px
     bool
         True when both differences are within bounds.
     """
-    dpsi = np.arctan2(m1[0, 1], m1[0, 0]) - np.arctan2(m2[0, 1], m2[0, 0])
-    if abs(np.degrees(np.angle(np.exp(1j * dpsi)))) > deg:
-        return False
-    c = np.array([centre[0], centre[1], 1.0])
-    return bool(np.hypot(*((m1 - m2) @ c)[:2]) <= px)
+    turn, move = pose_difference(m1, m2, centre)
+    return turn <= deg and move <= px
 
 
 def shifted(matrix: np.ndarray, steps: tuple[float, ...]) -> list[np.ndarray]:
@@ -183,7 +212,7 @@ def decide(
         drops; where the overlap pins the pose they score far less.
     noise : float, optional
         The margin is lowered by ``noise / sqrt(agree_win + disagree_win)`` (see
-        :func:`_margin`).
+        :func:`margin_against`).
 
     Returns
     -------
@@ -198,21 +227,40 @@ def decide(
         raise ValueError("decide needs at least one scored hypothesis")
     ranked = sorted(scored, key=lambda s: (-s.evidence(weight), -s.agreement.ratio))
     win = ranked[0]
-    rivals = [
-        s.evidence(weight)
-        for s in [*ranked[1:], *(probes or [])]
-        if not same_pose(s.matrix, win.matrix, centre, deg, px)
-    ]
-    rival = float(max(rivals, default=-np.inf))
-    return Decision(win, rival, _margin(win, rival, weight, noise))
+
+    def best(group: list[Scored]) -> Scored | None:
+        rivals = [s for s in group if not same_pose(s.matrix, win.matrix, centre, deg, px)]
+        return max(rivals, key=lambda s: s.evidence(weight), default=None)
+
+    other, shift = best(ranked[1:]), best(probes or [])
+    other_ev, shift_ev = (-np.inf if s is None else s.evidence(weight) for s in (other, shift))
+    top = other if other_ev >= shift_ev else shift
+    margin = margin_against(win, max(other_ev, shift_ev), weight, noise)
+    return Decision(win, margin, other_ev, shift_ev, top)
 
 
-def _margin(win: Scored, rival: float, weight: float, noise: float) -> float:
-    """``(E_win - E_rival) / n - noise / sqrt(n)``, ``n = agree_win + disagree_win``;
-    ``E_rival`` 0 without a rival.
+def margin_against(win: Scored, rival: float, weight: float, noise: float) -> float:
+    """The margin of the module docstring: ``(E_win - E_rival) / n - noise / sqrt(n)``.
 
-    A winner with ``E_win <= 0`` gets ``E_win / n - noise / sqrt(n)``: a rival contradicted
-    by the maps counts for a winner only if the winner is not contradicted too.
+    ``n = agree_win + disagree_win``; ``E_rival`` 0 without a rival.  A winner with
+    ``E_win <= 0`` gets ``E_win / n - noise / sqrt(n)``: a rival contradicted by the
+    maps counts for a winner only if the winner is not contradicted too.
+
+    Parameters
+    ----------
+    win : Scored
+        The winner.
+    rival : float
+        The evidence it is measured against (``-inf``: none).
+    weight : float
+        The disagreement weight ``w`` of the evidence.
+    noise : float
+        The sampling-noise term's coefficient.
+
+    Returns
+    -------
+    float
+        0 without overlap.
     """
     points = win.agreement.agree + win.agreement.disagree
     if not points:
@@ -245,6 +293,34 @@ def restate(decision: Decision, final: Scored, weight: float, noise: float = 0.0
     Returns
     -------
     Decision
-        ``final`` as the winner, the same rival, and its margin.
+        ``final`` as the winner, the same rivals, and its margin.
     """
-    return Decision(final, decision.rival, _margin(final, decision.rival, weight, noise))
+    margin = margin_against(final, decision.rival, weight, noise)
+    return Decision(final, margin, decision.other, decision.shifted, decision.best)
+
+
+def describe_rival(decision: Decision, centre: np.ndarray, res: float) -> str:
+    """Where the best rival lies from the winner, for the reason of a rejection.
+
+    Parameters
+    ----------
+    decision : Decision
+        A decision with its rivals (:func:`decide`, :func:`restate`).
+    centre : numpy.ndarray
+        The point of B, ``(x, y)`` pixels, at which the poses were compared.
+    res : float
+        Cell size (m).
+
+    Returns
+    -------
+    str
+        ``"none"``; ``"the pose shifted 1.5 m"`` when a shifted copy of the winner is the
+        best rival (the overlap does not pin the pose along that shift); otherwise
+        ``"another pose 12.3 m and 91 deg away"`` (a look-alike or a turn).
+    """
+    if decision.best is None:
+        return "none"
+    turn, move = pose_difference(decision.winner.matrix, decision.best.matrix, centre)
+    if decision.shifted > decision.other:
+        return f"the pose shifted {move * res:.1f} m"
+    return f"another pose {move * res:.1f} m and {turn:.0f} deg away"

@@ -60,7 +60,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pgvd.decision import Decision, Scored, decide, restate, shifted
+from pgvd.decision import Decision, Scored, decide, describe_rival, restate, shifted
 from pgvd.graph import EdgeGraph, build_graph
 from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
@@ -1094,7 +1094,8 @@ def merge(
         evidence = decision.winner.evidence(params.disagreement_weight)
         return _rejected(
             f"the best pose does not stand out: margin {decision.margin:.2f} < "
-            f"{params.min_margin} (evidence {evidence:.0f}, best rival {decision.rival:.0f})",
+            f"{params.min_margin} (evidence {evidence:.0f}, best rival {decision.rival:.0f}: "
+            f"{describe_rival(decision, fine_b.walls.mean(axis=0), a.resolution)})",
             clock,
             matrix,
             agreement.ratio,

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from bench.capture import Finalists
-from bench.redecide import params_from, replay, summary
+from bench.redecide import frontier, params_from, replay, split_margins, summary
+from pgvd.decision import Decision, Scored
 from pgvd.io import read_map
+from pgvd.matching import Agreement
 from pgvd.merge import MergeParams, merge
 
 
@@ -67,3 +69,28 @@ def test_summary_counts_right_wrong_and_false_accepts():
     assert lines[0] == "standard: 1/2 right and accepted (run: 1), 1 wrong accepts"
     assert lines[1] == "negative: 0/1 right and accepted (run: 0), 0 false accepts"
     assert lines[2] == "largest margin of a wrong or negative winner: 0.800 (s1)"
+
+
+def _row(name: str, kind: str, right: bool, other: float, shift: float) -> dict:
+    # a winner with 100 walls on walls and none on free space: its evidence is 100
+    winner = Scored(np.eye(3), Agreement(100, 0))
+    decision = Decision(winner, 0.0, other, shift)
+    return {"pair": name, "set": kind, "right": right, "decision": decision}
+
+
+def test_frontier_finds_the_best_pair_of_thresholds_on_the_split_margins():
+    params = params_from(["margin_noise=0"])
+    rows = [
+        _row("close look-alike", "standard", True, 50.0, -np.inf),  # margins 0.5, 1.0
+        _row("corridor", "standard", True, 0.0, 60.0),  # 1.0, 0.4
+        _row("bad", "negative", False, 40.0, 40.0),  # 0.6, 0.6
+        _row("crisp", "standard", True, -np.inf, -np.inf),  # 1.0, 1.0
+    ]
+    assert split_margins(rows, params).tolist() == [[0.5, 1.0], [1.0, 0.4], [0.6, 0.6], [1.0, 1.0]]
+    # min_margin 0.62 on both accepts only the crisp pair; either margin may go lower as
+    # long as the other stays 0.03 above the bad winner's 0.6, which gains one pair
+    assert frontier(rows, params) == [
+        "frontier (gap 0.03): at most 2 right accepts (standard 2, low 0, drifted 0), with "
+        "t1 = 0.00 against other poses and t2 = 0.64 against shifted copies; min_margin "
+        "0.62 on both accepts 1"
+    ]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pgvd.decision import Scored, decide, restate, same_pose, shifted
+from pgvd.decision import Scored, decide, describe_rival, restate, same_pose, shifted
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.matching import Agreement, WallMap, local_agreement, map_agreement, residual_distortion
@@ -47,6 +47,32 @@ def test_true_pose_stands_out_and_a_rival_as_good_cancels_it(intel):
     # a look-alike: another pose scoring as well as the winner leaves no margin
     twin = Scored(_moved(truth, 200.0), true.agreement)
     assert decide([true, twin], WEIGHT, centre).margin == pytest.approx(0.0)
+
+
+def test_the_best_rival_is_kept_and_described(intel):
+    _, fine_b, truth = intel
+    centre = fine_b.walls.mean(axis=0)
+    true = _scored(intel, truth)
+    # a quarter turn about A's origin: B lands beside A, no wall on a wall and none on free
+    turned = _scored(intel, rigid_matrix(np.radians(90.0), 0.0, 0.0) @ truth)
+    probes = [_scored(intel, m) for m in shifted(truth, (30.0, 60.0))]
+    alone = decide([true], WEIGHT, centre)
+    assert alone.best is None and alone.rival == -np.inf
+    assert describe_rival(alone, centre, 0.05) == "none"
+    d = decide([true, turned], WEIGHT, centre)
+    assert d.best is turned and d.rival == d.other == turned.evidence(WEIGHT)
+    assert d.shifted == -np.inf
+    assert describe_rival(d, centre, 0.05) == "another pose 27.6 m and 90 deg away"
+    # the probes alone: the intel lab puts each shifted copy's walls on free space, and the
+    # least contradicted one (1.5 m) is the best rival
+    shift = decide([true], WEIGHT, centre, probes=probes)
+    assert shift.best is max(probes, key=lambda s: s.evidence(WEIGHT))
+    assert shift.rival == shift.shifted < 0 and shift.other == -np.inf
+    assert describe_rival(shift, centre, 0.05) == "the pose shifted 1.5 m"
+    # both kinds: the margin is measured against the larger evidence, the turned pose's
+    both = decide([true, turned], WEIGHT, centre, probes=probes)
+    assert (both.other, both.shifted, both.best) == (d.other, shift.shifted, turned)
+    assert both.margin == d.margin
 
 
 def test_shifted_probes_are_rivals_only(intel):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -109,7 +111,13 @@ def test_maps_of_different_buildings_rejected(shared, pair):
     bn, _ = _random_frame(b, np.random.default_rng(7))
     r = merge(a, bn, MergeParams(diagnostics=False))
     assert not r.accepted, r.to_json()
-    assert r.reason != "accepted"
+    # each is turned away by the margin, and the reason says what its best rival was
+    rival = r"none|the pose shifted [\d.]+ m|another pose [\d.]+ m and \d+ deg away"
+    assert re.fullmatch(
+        rf"the best pose does not stand out: margin -?[\d.]+ < [\d.]+ "
+        rf"\(evidence -?\d+, best rival -?(\d+|inf): ({rival})\)",
+        r.reason,
+    ), r.reason
 
 
 @pytest.mark.parametrize("name", ["intel/intel.yaml", "uos_avz/avz.yaml"])
