@@ -141,9 +141,9 @@ def merge_many(
     links = []
     for i, j in itertools.combinations(range(len(grids)), 2):
         res = register(work[i], work[j])
-        say(
-            f"maps {i} and {j}: {'accepted' if res.accepted else 'rejected'}, score {res.score:.3f}"
-        )
+        outcome = "accepted" if res.accepted else "rejected"
+        why = "" if res.accepted or not res.reason else f" ({res.reason})"
+        say(f"maps {i} and {j}: {outcome}, score {res.score:.3f}{why}")
         links.append(
             LinkRecord(
                 ids[i], 0, ids[j], 0, res.accepted, res.matrix, res.covariance, res.score, "merge"

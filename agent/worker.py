@@ -61,12 +61,17 @@ log = logging.getLogger("pgvd.agent")
 
 @dataclass(frozen=True)
 class Registration:
-    """What a pairwise registration decided; ``matrix`` maps B pixels to A pixels."""
+    """What a pairwise registration decided; ``matrix`` maps B pixels to A pixels.
+
+    ``reason`` says why, in the merge's words (:attr:`pgvd.merge.MergeResult.reason`): an
+    operator reading the agent's log sees why two robots' maps were not linked.
+    """
 
     accepted: bool
     matrix: np.ndarray
     covariance: np.ndarray
     score: float
+    reason: str = ""
 
 
 RegisterFn = Callable[[Grid, Grid], Registration]
@@ -115,15 +120,15 @@ def _merge_params(min_agreement: float | None) -> MergeParams:
 
 
 def _registration(
-    accepted: bool, matrix: np.ndarray, cov: np.ndarray, score: float
+    accepted: bool, matrix: np.ndarray, cov: np.ndarray, score: float, reason: str = ""
 ) -> Registration:
     """A merge or check result as a :class:`Registration`, finite whatever happened."""
     matrix = np.asarray(matrix, dtype=np.float64)
     cov = np.asarray(cov, dtype=np.float64)
     score = float(score) if np.isfinite(score) else 0.0
     if not (accepted and np.isfinite(matrix).all() and np.isfinite(cov).all()):
-        return Registration(False, *_REJECTED, score)
-    return Registration(True, matrix, cov, score)
+        return Registration(False, *_REJECTED, score, reason or "no finite pose or covariance")
+    return Registration(True, matrix, cov, score, reason)
 
 
 def merge_registration(min_agreement: float | None = None) -> RegisterFn:
@@ -139,7 +144,7 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
 
     def register(a: Grid, b: Grid) -> Registration:
         res = merge(a, b, params)
-        return _registration(res.accepted, res.matrix, res.covariance, res.score)
+        return _registration(res.accepted, res.matrix, res.covariance, res.score, res.reason)
 
     return register
 
@@ -168,13 +173,15 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         fine_a = WallMap(a.probability(), params.occupied, params.free)
         fine_b = WallMap(b.probability(), params.occupied, params.free)
         seen = map_agreement(fine_a, fine_b, predicted)
-        if 0.5 * (seen.agree + seen.disagree) * a.resolution < params.min_overlap:
-            return Registration(False, *_REJECTED, 0.0)
+        overlap_m = 0.5 * (seen.agree + seen.disagree) * a.resolution
+        if overlap_m < params.min_overlap:
+            why = f"the predicted pose overlaps {overlap_m:.1f} m of walls < {params.min_overlap} m"
+            return Registration(False, *_REJECTED, 0.0, why)
         if len(fine_b.walls) == 0:
             return None
         shift_px, turn_deg = basin_move(predicted, res.matrix, fine_b.walls)
         if shift_px * a.resolution <= BASIN_M and turn_deg <= BASIN_DEG:
-            return Registration(False, *_REJECTED, res.score)
+            return Registration(False, *_REJECTED, res.score, res.reason)
         return None
 
     return check
@@ -490,7 +497,7 @@ class FusionWorker:
                 res = self.register(snap.maps[a][1], snap.maps[b][1])
         except Exception as exc:  # bad maps are an outcome (rejected), not a crash
             log.warning("registration of %s v%d / %s v%d failed: %s", a, va, b, vb, exc)
-            res = Registration(False, *_REJECTED, 0.0)
+            res = Registration(False, *_REJECTED, 0.0, f"registration failed: {exc}")
         self.merges += 1
         self.merge_seconds += clock.elapsed()[0]
         self._record(a, va, b, vb, res, how, clock)
@@ -503,9 +510,9 @@ class FusionWorker:
         """Log the decision, cache it and publish it if it is the link of its epochs."""
         rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)
         log.info(
-            "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s, %.2f s CPU)",
+            "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s, %.2f s CPU)%s",
             a, va, b, vb, "accepted" if res.accepted else "rejected", res.score, how,
-            *clock.elapsed(),
+            *clock.elapsed(), "" if res.accepted or not res.reason else f": {res.reason}",
         )  # fmt: skip
         if self.book.add_link(rec):
             self.on_link(rec)

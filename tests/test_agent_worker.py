@@ -25,6 +25,7 @@ from agent.worker import (
 )
 from pgvd.grid import Grid, rigid_matrix, world_pose_to_pixel_matrix
 from pgvd.io import read_map
+from pgvd.merge import MergeParams, merge
 
 
 def V(epoch: int, minor: int = 0) -> int:
@@ -91,7 +92,8 @@ def test_a_received_link_saves_the_registration() -> None:
     assert h.globals[-1].settled and h.links == []
 
 
-def test_a_failing_registration_becomes_a_rejected_link() -> None:
+def test_a_failing_registration_becomes_a_rejected_link(caplog) -> None:
+    caplog.set_level("INFO", logger="pgvd.agent")
     h = Harness("r1")
 
     def boom(a: Grid, b: Grid) -> Registration:
@@ -102,6 +104,9 @@ def test_a_failing_registration_becomes_a_rejected_link() -> None:
     h.book.put_map("r2", V(1), tiny(2))
     h.worker.step(now=0.0)
     assert [ln.accepted for ln in h.links] == [False]
+    # the log says why the robots were not linked
+    (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("link r1")]
+    assert line.endswith("): registration failed: map without occupied cells"), line
     h.worker.step(now=0.1)
     assert [c.members for c in h.globals[-1].components] == [("r1",), ("r2",)]
 
@@ -315,11 +320,25 @@ def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
     far = rigid_matrix(0.0, 5000.0, 0.0) @ truth  # the chain puts B far outside A
     rejected = check(a, b, far)
     assert rejected is not None and not rejected.accepted and rejected.score == 0.0
+    assert rejected.reason == "the predicted pose overlaps 0.0 m of walls < 3.0 m"
     off = rigid_matrix(np.radians(20.0), 60.0, 0.0) @ truth  # overlapping, disagreeing
     verdict = check(a, b, off)
-    assert verdict is not None and not verdict.accepted
+    assert verdict is not None and not verdict.accepted and verdict.reason, verdict
     monkeypatch.setattr("pgvd.verify.BASIN_M", 1e-3)  # any correction leaves the basin
     assert verify_check()(a, b, off) is None
+
+
+def test_a_merge_registration_carries_the_merges_reason(intel_pair) -> None:
+    a, b, _ = intel_pair
+    register = merge_registration()
+    assert register(a, b).accepted
+    # B against its mirror image, a building that does not exist: rejected, and the
+    # registration says why in the merge's own words
+    mirrored = Grid(b.logodds[::-1].copy(), b.resolution, b.origin)
+    rejected = register(a, mirrored)
+    assert not rejected.accepted
+    assert rejected.reason == merge(a, mirrored, MergeParams(diagnostics=False)).reason
+    assert rejected.reason.startswith(("the best pose does not stand out", "no ")), rejected
 
 
 def test_a_later_wave_waits_for_the_first_and_becomes_a_check() -> None:

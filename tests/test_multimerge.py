@@ -60,8 +60,15 @@ def intel(shared: Path) -> tuple[Grid, Grid]:
 def test_a_map_that_overlaps_nothing_is_a_component_of_its_own(shared: Path, intel: tuple) -> None:
     a, b = intel
     other = resample(read_map(shared / "maps" / "uos_avz" / "avz.yaml"), 0.1)
-    res = merge_many([other, a, b])
+    lines: list[str] = []
+    res = merge_many([other, a, b], progress=lines.append)
     assert res.merged
+    # the progress says why each rejected pair was rejected, in the merge's words
+    assert [ln.split(",")[0] for ln in lines] == [
+        "maps 0 and 1: rejected", "maps 0 and 2: rejected", "maps 1 and 2: accepted",
+    ]
+    assert all(ln.endswith(")") and "(" in ln.split("score")[1] for ln in lines[:2]), lines
+    assert "(" not in lines[2], lines
     doc = res.report(["avz", "A", "B"])
     assert [m["component"] for m in doc["maps"]] == [0, 1, 1]
     assert [(ln["accepted"], ln["used"]) for ln in doc["links"]] == [
