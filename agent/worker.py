@@ -127,7 +127,8 @@ def _registration(
     cov = np.asarray(cov, dtype=np.float64)
     score = float(score) if np.isfinite(score) else 0.0
     if not (accepted and np.isfinite(matrix).all() and np.isfinite(cov).all()):
-        return Registration(False, *_REJECTED, score, reason or "no finite pose or covariance")
+        why = reason if reason and not accepted else "no finite pose or covariance"
+        return Registration(False, *_REJECTED, score, why)
     return Registration(True, matrix, cov, score, reason)
 
 

@@ -163,33 +163,41 @@ def split_margins(rows: list[dict], params: MergeParams) -> np.ndarray:
     """Per row, the winner's margin against its other poses and against its shifted copies.
 
     The decision takes the larger of the two rivals (:attr:`pgvd.decision.Decision.rival`);
-    measured apart, each has a margin of its own (:func:`pgvd.decision.margin_against`).
+    measured apart, each has a margin of its own (:func:`pgvd.decision.margin_against`),
+    and the smaller of the two is the decision's margin.  A kind with no rival while the
+    other has one puts no bound on it (``inf``): a missing rival counts as evidence 0, a
+    present one may be negative and count for the winner.
     """
     w, noise = params.disagreement_weight, params.margin_noise
-    return np.array(
-        [
-            [margin_against(d.winner, rival, w, noise) for rival in (d.other, d.shifted)]
-            for d in (r["decision"] for r in rows)
-        ]
-    ).reshape(-1, 2)
+    out = []
+    for d in (r["decision"] for r in rows):
+        out.append(
+            [
+                np.inf
+                if np.isneginf(rival) and np.isfinite(d.rival)
+                else margin_against(d.winner, rival, w, noise)
+                for rival in (d.other, d.shifted)
+            ]
+        )
+    return np.array(out, dtype=float).reshape(-1, 2)
 
 
 def frontier(rows: list[dict], params: MergeParams, gap: float = 0.03) -> list[str]:
     """The most right poses any pair of thresholds on the two split margins accepts.
 
     A rule "margin against other poses >= t1 and against shifted copies >= t2" is
-    allowed when every wrong or negative winner is at least ``gap`` below one of its
+    allowed when every wrong or negative winner is more than ``gap`` below one of its
     thresholds (no bad accept, with room to spare); t1 and t2 run from 0 to 1.5 in
-    steps of 0.02.  The one threshold of the merge, ``min_margin`` on both, is the rule
-    ``t1 = t2 = min_margin``.  If no allowed rule accepts more right poses than the
-    best single threshold, the decision's statistics cannot be recalibrated into more
+    steps of 0.02, and of equal rules the first (smallest t1, then t2) is reported.
+    The merge's own rule is ``t1 = t2 = min_margin``.  If no allowed rule accepts more
+    right poses than that, the decision's statistics cannot be recalibrated into more
     successes: what is rejected looks, to them, like what is wrong.
     """
     margins = split_margins(rows, params)
     right = np.array([r["right"] for r in rows], bool)
     sets = np.array([r["set"] for r in rows])
     bad = margins[~right]
-    steps = np.round(np.arange(0.0, 1.5, 0.02), 2)
+    steps = np.round(np.arange(0.0, 1.5 + 1e-9, 0.02), 2)
     best = (-1, 0.0, 0.0)
     for t1 in steps:
         for t2 in steps:

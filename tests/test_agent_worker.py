@@ -18,6 +18,7 @@ from agent.worker import (
     FusionWorker,
     GlobalState,
     Registration,
+    _registration,
     merge_registration,
     placements,
     predict,
@@ -339,6 +340,14 @@ def test_a_merge_registration_carries_the_merges_reason(intel_pair) -> None:
     assert not rejected.accepted
     assert rejected.reason == merge(a, mirrored, MergeParams(diagnostics=False)).reason
     assert rejected.reason.startswith(("the best pose does not stand out", "no ")), rejected
+
+
+def test_an_accepted_merge_without_a_finite_pose_is_rejected_with_its_own_reason() -> None:
+    nan = np.full((3, 3), np.nan)
+    res = _registration(True, nan, np.eye(3), 0.9, "accepted")
+    assert not res.accepted and res.reason == "no finite pose or covariance"
+    res = _registration(False, nan, nan, 0.4, "overlap too small")
+    assert not res.accepted and res.reason == "overlap too small"
 
 
 def test_a_later_wave_waits_for_the_first_and_becomes_a_check() -> None:

@@ -7,7 +7,7 @@ import pytest
 
 from bench.capture import Finalists
 from bench.redecide import frontier, params_from, replay, split_margins, summary
-from pgvd.decision import Decision, Scored
+from pgvd.decision import Decision, Scored, margin_against
 from pgvd.io import read_map
 from pgvd.matching import Agreement
 from pgvd.merge import MergeParams, merge
@@ -81,16 +81,23 @@ def _row(name: str, kind: str, right: bool, other: float, shift: float) -> dict:
 def test_frontier_finds_the_best_pair_of_thresholds_on_the_split_margins():
     params = params_from(["margin_noise=0"])
     rows = [
-        _row("close look-alike", "standard", True, 50.0, -np.inf),  # margins 0.5, 1.0
+        _row("close look-alike", "standard", True, 50.0, -np.inf),  # margins 0.5, no bound
         _row("corridor", "standard", True, 0.0, 60.0),  # 1.0, 0.4
         _row("bad", "negative", False, 40.0, 40.0),  # 0.6, 0.6
-        _row("crisp", "standard", True, -np.inf, -np.inf),  # 1.0, 1.0
+        _row("crisp", "standard", True, -np.inf, -np.inf),  # 1.0, 1.0: no rival at all
+        _row("contradicted copies", "low", True, -np.inf, -40.0),  # no bound, 1.4
     ]
-    assert split_margins(rows, params).tolist() == [[0.5, 1.0], [1.0, 0.4], [0.6, 0.6], [1.0, 1.0]]
-    # min_margin 0.62 on both accepts only the crisp pair; either margin may go lower as
-    # long as the other stays 0.03 above the bad winner's 0.6, which gains one pair
+    margins = split_margins(rows, params)
+    assert margins.tolist() == [[0.5, np.inf], [1.0, 0.4], [0.6, 0.6], [1.0, 1.0], [np.inf, 1.4]]
+    # the smaller split margin is the decision's own margin, against its larger rival
+    for row, pair in zip(rows, margins, strict=True):
+        d = row["decision"]
+        assert min(pair) == pytest.approx(margin_against(d.winner, d.rival, 4.0, 0.0))
+    # min_margin 0.62 on both accepts the crisp and the contradicted-copies pairs; either
+    # margin may go lower as long as the other stays more than 0.03 above the bad
+    # winner's 0.6, which gains one pair
     assert frontier(rows, params) == [
-        "frontier (gap 0.03): at most 2 right accepts (standard 2, low 0, drifted 0), with "
+        "frontier (gap 0.03): at most 3 right accepts (standard 2, low 1, drifted 0), with "
         "t1 = 0.00 against other poses and t2 = 0.64 against shifted copies; min_margin "
-        "0.62 on both accepts 1"
+        "0.62 on both accepts 2"
     ]

@@ -73,6 +73,8 @@ def test_the_best_rival_is_kept_and_described(intel):
     both = decide([true, turned], WEIGHT, centre, probes=probes)
     assert (both.other, both.shifted, both.best) == (d.other, shift.shifted, turned)
     assert both.margin == d.margin
+    # the copies alone, contradicted by the maps, count for the winner: a larger margin
+    assert shift.margin > both.margin
 
 
 def test_shifted_probes_are_rivals_only(intel):

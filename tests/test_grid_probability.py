@@ -35,8 +35,9 @@ def test_matches_the_float64_formula_to_float32_rounding(lo: np.ndarray) -> None
         p = logodds_to_probability(lo)
     assert p.dtype == np.float32 and p.shape == lo.shape
     # exp, the sum and the reciprocal each round: over a sweep of 2e7 log-odds in [-110, 110]
-    # the largest error was 3.5 float32 ulps (2.4e-7 relative); subnormal p has absolute error
-    np.testing.assert_allclose(p, exact, rtol=4e-7, atol=1e-38)
+    # the largest error was 3.5 float32 ulps (2.4e-7 relative) on this machine's SIMD exp;
+    # 5 ulps leaves room for numpy's other exp paths.  Subnormal p has absolute error.
+    np.testing.assert_allclose(p, exact, rtol=6e-7, atol=1e-38)
 
 
 def test_a_real_map_keeps_its_walls_free_space_and_unknown(shared) -> None:
