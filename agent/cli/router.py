@@ -83,7 +83,13 @@ def run_router(config: zenoh.Config, stop: threading.Event) -> None:
         listener = session.info.declare_transport_events_listener(
             _print_transport_event, history=True
         )
-        stop.wait()
+        # Polled, not one untimed wait: SIGTERM may be delivered to one of Zenoh's own
+        # threads, and then nothing interrupts the main thread's untimed wait, so the
+        # Python handler that sets ``stop`` never runs (the router hung on SIGTERM in 2
+        # of 20 tries with the CPU loaded).  Each timeout returns to the interpreter,
+        # which runs pending handlers.
+        while not stop.wait(0.2):
+            pass
         # A callback listener still declared when the session closes can hang the process.
         listener.undeclare()
 
