@@ -49,7 +49,13 @@ from bench.merge import CACHE, RESULTS, evaluate
 from bench.pairs import MapPair
 from bench.sets import FULL, build
 from pgvd.matching import Agreement, WallMap, refine
-from pgvd.merge import MergeParams, decide_finalists, final_refinement, score_hypothesis
+from pgvd.merge import (
+    MergeParams,
+    decide_finalists,
+    final_refinement,
+    fine_maps,
+    score_hypothesis,
+)
 from pgvd.sampling import subsample
 
 CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
@@ -96,14 +102,6 @@ def classify(
     return "weighting"
 
 
-def fine_maps(pair: MapPair, params: MergeParams) -> tuple[WallMap, WallMap]:
-    """A's and B's full-resolution maps, as the merge's decision reads them."""
-    return (
-        WallMap(pair.a.probability(), params.occupied, params.free, lookup=True),
-        WallMap(pair.b.probability(), params.occupied, params.free),
-    )
-
-
 def truth_stays(pair: MapPair, maps: tuple[WallMap, WallMap], params: MergeParams) -> bool:
     """Whether the merge's last refinement, started at the exact truth, stays within the
     success bounds."""
@@ -122,7 +120,7 @@ def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: M
         Its pgvd record of ``merge.json``: ``finalists`` (3x3 B->A matrices, may be
         empty), ``matrix`` (the returned pose) and ``set``.
     maps : tuple of WallMap
-        :func:`fine_maps` of the pair.
+        :func:`pgvd.merge.fine_maps` of the pair.
     params : MergeParams
         The decision's parameters.
 
@@ -224,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         record = chosen.get(entry.pair.name)
         if record is None:
             continue
-        maps = fine_maps(entry.pair, params)
+        maps = fine_maps(entry.pair.a.probability(), entry.pair.b.probability(), params)
         stays.setdefault(record["set"], []).append(truth_stays(entry.pair, maps, params))
         got = "right"
         if not record["success"]:

@@ -44,8 +44,7 @@ from bench.sets import FULL, Entry, build
 from bench.sources import SOURCES
 from pgvd.decision import margin_against
 from pgvd.grid import Grid
-from pgvd.matching import WallMap
-from pgvd.merge import MergeParams, decide_finalists
+from pgvd.merge import MergeParams, decide_finalists, fine_maps
 
 SETS = ("standard", "low", "drifted", "negative")
 
@@ -88,8 +87,7 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
         ``winner`` (index in ``finalists``), ``margin``, ``rival``, ``accepted``,
         ``matrix`` (3x3 array) and the whole ``decision`` (:class:`pgvd.decision.Decision`).
     """
-    fine_a = WallMap(a.probability(), params.occupied, params.free, lookup=True)
-    fine_b = WallMap(b.probability(), params.occupied, params.free)
+    fine_a, fine_b = fine_maps(a.probability(), b.probability(), params)
     mats = [np.asarray(m, dtype=float) for m in finalists]
     index, decision, matrix = decide_finalists(mats, fine_a, fine_b, params, a.resolution)
     return {

@@ -767,6 +767,18 @@ def weigh(
     )
 
 
+def fine_maps(pa: np.ndarray, pb: np.ndarray, params: MergeParams) -> tuple[WallMap, WallMap]:
+    """A's and B's full-resolution maps from their probabilities, as the decision reads them.
+
+    A gets the nearest-wall table (:class:`pgvd.matching.WallMap` ``lookup``): every
+    hypothesis is scored against it; B's walls are only counted once per hypothesis.
+    """
+    return (
+        WallMap(pa, params.occupied, params.free, lookup=True),
+        WallMap(pb, params.occupied, params.free),
+    )
+
+
 def final_refinement(
     matrix: np.ndarray, fine_a: WallMap, fine_b: WallMap, params: MergeParams
 ) -> np.ndarray:
@@ -1072,8 +1084,7 @@ def merge(
             else (f"no translation is supported by {params.min_pairs} edge pairs")
         )
         return _rejected(why, clock)
-    fine_a = WallMap(pa, params.occupied, params.free, lookup=True)
-    fine_b = WallMap(pb, params.occupied, params.free)
+    fine_a, fine_b = fine_maps(pa, pb, params)
     clock.lap("verify")
     to_fine = _scale(k) @ off_a
     finalists = _finalists(good, params)

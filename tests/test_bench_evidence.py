@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from bench.evidence import assess, classify, fine_maps, markdown, truth_stays
+from bench.evidence import assess, classify, markdown, truth_stays
 from pgvd.matching import Agreement
-from pgvd.merge import MergeParams
+from pgvd.merge import MergeParams, fine_maps
 
 
 def test_classify_orders_the_causes():
@@ -26,7 +26,7 @@ def test_assess_hands_the_truth_to_the_decision(intel_split):
     wrong[0, 2] += 60.0
     record = {"set": "standard", "finalists": [wrong.tolist()], "matrix": wrong.tolist()}
     params = MergeParams(diagnostics=False)
-    maps = fine_maps(intel_split, params)
+    maps = fine_maps(intel_split.a.probability(), intel_split.b.probability(), params)
     assert truth_stays(intel_split, maps, params)
     row = assess(intel_split, record, maps, params)
     assert row["class"] == "search" and row["truth_margin"] >= 0.62
