@@ -86,6 +86,7 @@ from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
 from pgvd.sampling import subsample
 from pgvd.transform import warp
 from pgvd.uncertainty import rotation_blur
+from pgvd.unexplored import restore_unexplored, unknown_share
 
 #: ICP iterations per correspondence radius when the finalists are refined (each stops
 #: early once it no longer moves).  With the decision as it was before its noise term,
@@ -222,6 +223,9 @@ class MergeParams:
         scaling pair at 2x and 4x the cells, the pose moved by at most 0.08 cells of the
         base map).
     occupied, free : probability thresholds of walls and free space.
+    min_unknown : a map with a smaller share of unknown cells is read with its free space
+        outside its walls' convex hull unknown: a map image whose unexplored area was
+        painted free (:func:`registration_probability`).
     probabilistic : False matches the plain GVD (every GVD cell certain), the paper's
         deterministic comparison Gamma_det of (41) (ablation: without PGVD weighting).
     rho_veto : False drops the existence test (32): every edge pair with a positive
@@ -264,6 +268,7 @@ class MergeParams:
     fine_points: int = 20000
     occupied: float = OCCUPIED
     free: float = 0.3
+    min_unknown: float = 0.01
     probabilistic: bool = True
     rho_veto: bool = True
     gamma_ranking: bool = True
@@ -408,6 +413,29 @@ def _rotation_about_centre(
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     rot[:2, 2] = (side - 1) / 2.0 - rot[:2, :2] @ centre
     return rot, (side, side)
+
+
+def registration_probability(
+    grid: Grid, params: MergeParams, say: Callable[[str], None] | None = None
+) -> np.ndarray:
+    """The probabilities (34) of ``grid`` that registration reads.
+
+    A map with less than ``params.min_unknown`` of its cells unknown (an image whose
+    unexplored area was painted free) gets its unexplored space back
+    (:func:`pgvd.unexplored.restore_unexplored`), and ``say`` is told so; any other map
+    is read as it is.
+    """
+    prob = grid.probability()
+    if unknown_share(prob, params.free, params.occupied) >= params.min_unknown:
+        return prob
+    if say is not None:
+        say("no unknown cells: free space outside the convex hull of its walls read as unknown")
+    return restore_unexplored(prob, params.free, params.occupied)
+
+
+def _labelled(progress: Callable[[str], None] | None, label: str) -> Callable[[str], None] | None:
+    """``progress`` with ``label`` before every line (None stays None)."""
+    return None if progress is None else (lambda line: progress(label + line))
 
 
 def _pgvd(prob: np.ndarray, params: MergeParams) -> tuple[np.ndarray, np.ndarray]:
@@ -1029,7 +1057,10 @@ def merge(
     """
     params = params or MergeParams()
     clock = _Clock(progress)
-    pa, pb = a.probability(), b.probability()
+    pa, pb = (
+        registration_probability(g, params, _labelled(progress, f"map {n}: "))
+        for n, g in (("A", a), ("B", b))
+    )
     _check_inputs(a, b, pa, pb, params)
     headings = estimate_headings(pa, pb, params.max_candidates)
     clock.lap("rotation")

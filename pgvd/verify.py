@@ -32,7 +32,13 @@ import numpy as np
 
 from pgvd.grid import Grid, matrix_to_pose
 from pgvd.matching import WallMap, map_agreement, pose_covariance, refine
-from pgvd.merge import MergeParams, MergeResult, score_hypothesis, weigh
+from pgvd.merge import (
+    MergeParams,
+    MergeResult,
+    registration_probability,
+    score_hypothesis,
+    weigh,
+)
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
 BASIN_M = 1.0
@@ -136,8 +142,9 @@ def verify(
         )  # fmt: skip
 
     nan = np.full((3, 3), np.nan)
-    fine_a = WallMap(a.probability(), params.occupied, params.free)
-    fine_b = WallMap(b.probability(), params.occupied, params.free)
+    fine_a, fine_b = (
+        WallMap(registration_probability(g, params), params.occupied, params.free) for g in (a, b)
+    )
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:
         return result(False, "a map has fewer than 10 wall cells", m0, 0.0, nan)
     matrix = refine(fine_a.tree, fine_b.walls, m0)

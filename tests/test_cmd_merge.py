@@ -224,3 +224,21 @@ def test_maps_that_overlap_nowhere_exit_3_and_bad_input_2(shared: Path, tmp_path
     proc = pgvd_merge(small[0], small[1], tmp_path / "missing.yaml")
     assert proc.returncode == 2
     assert proc.stderr.startswith("pgvd merge: error: ") and "Traceback" not in proc.stderr
+
+
+def test_map_images_painted_free_are_merged_and_the_user_told(tmp_path: Path, shared: Path):
+    """Two parts of intel's image, their unexplored area painted white, B in another frame."""
+    from bench.mapimages import part_pairs
+    from bench.pairs import painted_pair
+
+    p = read_map(shared / "maps/intel/intel.yaml").probability()
+    (pair,) = part_pairs("intel", p, 1, np.random.default_rng(21))
+    pair = painted_pair(pair)
+    write_map(tmp_path / "a.yaml", pair.a)
+    write_map(tmp_path / "b.yaml", pair.b)
+    proc = pgvd_merge(tmp_path / "a.yaml", tmp_path / "b.yaml", "--json", "-v")
+    assert proc.returncode == 0, proc.stderr
+    for name in "AB":
+        assert f"pgvd merge: map {name}: no unknown cells" in proc.stderr
+    err = np.array(json.loads(proc.stdout)["matrix"]) - pair.truth
+    assert np.abs(err[:2, 2]).max() < 3.0 and np.abs(err[:2, :2]).max() < 0.01
