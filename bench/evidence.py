@@ -54,6 +54,7 @@ from pgvd.merge import (
     decide_finalists,
     final_refinement,
     fine_maps,
+    registration_probability,
     score_hypothesis,
 )
 from pgvd.sampling import subsample
@@ -222,7 +223,9 @@ def main(argv: list[str] | None = None) -> int:
         record = chosen.get(entry.pair.name)
         if record is None:
             continue
-        maps = fine_maps(entry.pair.a.probability(), entry.pair.b.probability(), params)
+        maps = fine_maps(
+            *(registration_probability(g, params) for g in (entry.pair.a, entry.pair.b)), params
+        )
         stays.setdefault(record["set"], []).append(truth_stays(entry.pair, maps, params))
         got = "right"
         if not record["success"]:

@@ -11,10 +11,17 @@ the walls of both are grown by each of ``--grow`` cells on each side (0, 1,
 merge bench judges (:func:`bench.merge.evaluate`: accepted, heading within 2
 degrees, B's walls within 3 cells on average).
 
-    python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--out bench/results]
+    python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--unknown free] [--out bench/results]
 
-Writes ``mapimages.md``: per growth, right / accepted pairs and the median and
-largest mean cell error of the right ones, and a row per map image.
+``--unknown free`` paints every unknown cell of both parts free, the padding of
+B's frame included (:func:`bench.pairs.painted_free`): images whose unexplored
+area was painted white, as some editors and exports save them.  ``--ablation
+pgvd-as-drawn`` (any name of :data:`bench.merge.ABLATIONS`) merges with that stage
+off; the report's name gains the ablation's.
+
+Writes ``mapimages.md`` (``mapimages-painted.md`` with ``--unknown free``): per
+growth, right / accepted pairs and the median and largest mean cell error of the
+right ones, and a row per map image.
 """
 
 from __future__ import annotations
@@ -25,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.merge import RESULTS, evaluate
-from bench.pairs import MapPair
+from bench.merge import ABLATIONS, RESULTS, evaluate
+from bench.pairs import MapPair, painted_pair
 from bench.report import mark
 from bench.sources import SHARED, SOURCES
 from pgvd.grid import Grid, rigid_matrix
@@ -77,8 +84,13 @@ def part_pairs(name: str, p: np.ndarray, frames: int, rng: np.random.Generator) 
     return out
 
 
-def run(frames: int, growths: list[int], seed: int) -> list[dict]:
-    """Every map image's pairs at every growth, merged; one record each."""
+def run(
+    frames: int, growths: list[int], seed: int, painted: bool = False, ablation: str = ""
+) -> list[dict]:
+    """Every map image's pairs at every growth, merged; one record each (``painted``: with
+    :func:`bench.pairs.painted_pair`'s maps; ``ablation``: a key of
+    :data:`bench.merge.ABLATIONS`, the merge with that stage off)."""
+    params = MergeParams(diagnostics=False, **ABLATIONS.get(ablation, {}))
     records = []
     for source in (s for s in SOURCES if s.simulated):
         grid = read_map(SHARED / source.path)
@@ -89,7 +101,8 @@ def run(frames: int, growths: list[int], seed: int) -> list[dict]:
             rng = np.random.default_rng(seed)
             p = thickened(grid.probability(), cells)
             for pair in part_pairs(source.name, p, frames, rng):
-                result = merge(pair.a, pair.b, MergeParams(diagnostics=False))
+                pair = painted_pair(pair) if painted else pair
+                result = merge(pair.a, pair.b, params)
                 rec = evaluate(pair, result.accepted, result.matrix)
                 rec.update(source=source.name, grow=cells, pair=pair.name)
                 records.append(rec)
@@ -136,14 +149,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grow", type=int, nargs="+", default=[0, 1, 2], help="cells")
     parser.add_argument("--seed", type=int, default=21)
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument(
+        "--unknown",
+        choices=("drawn", "free"),
+        default="drawn",
+        help="free: unknown cells painted free (writes mapimages-painted.md)",
+    )
+    parser.add_argument(
+        "--ablation", choices=sorted(ABLATIONS), default="", help="merge with this stage off"
+    )
     args = parser.parse_args(argv)
     if args.frames < 1 or min(args.grow) < 0:
         parser.error("--frames must be >= 1 and --grow >= 0")
-    records = run(args.frames, args.grow, args.seed)
+    painted = args.unknown == "free"
+    records = run(args.frames, args.grow, args.seed, painted, args.ablation)
     args.out.mkdir(parents=True, exist_ok=True)
     command = "python3 -m bench.mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
-    (args.out / "mapimages.md").write_text(report(records, command.strip()))
-    print(f"wrote {args.out / 'mapimages.md'}")
+    name = (
+        "mapimages"
+        + ("-painted" if painted else "")
+        + (f"-{args.ablation}" if args.ablation else "")
+    )
+    out = args.out / f"{name}.md"
+    out.write_text(report(records, command.strip()))
+    print(f"wrote {out}")
     return 0
 
 

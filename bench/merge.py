@@ -14,10 +14,13 @@ Methods, all in this one process:
 ``pgvd``        this project's merge (:func:`pgvd.merge.merge`);
 ``pgvd-det``    the paper's deterministic variant (Gamma_det, plain GVD):
                 ``MergeParams(probabilistic=False)``;
-``pgvd-no-rho``, ``pgvd-no-gamma``, ``pgvd-no-blur``, ``pgvd-rigid``
+``pgvd-no-rho``, ``pgvd-no-gamma``, ``pgvd-no-blur``, ``pgvd-rigid``, ``pgvd-as-drawn``
                 ablations: without the rho veto (32), without Gamma's ranking (27),
                 without the heading blur (8), hypotheses scored on the rigid overlay
-                instead of the drift-tolerant one (``MergeParams.drift_shift = 0``);
+                instead of the drift-tolerant one (``MergeParams.drift_shift = 0``),
+                and ``pgvd-as-drawn``: a map without unknown cells read as drawn, its
+                free space that reaches the map's edge not made unknown
+                (``MergeParams.min_unknown = 0``, :mod:`pgvd.unexplored`);
 ``pgvd-heading`` an option that is off by default: the Radon candidates refined on
                 the whole-map overlay, ``MergeParams(heading_span=6)``
                 (``python -m bench.recall --method pgvd-heading`` shows what it finds);
@@ -35,6 +38,9 @@ and upsampled (nearest, x2 and x4, so the content is identical) to ~1000^2 and
 ~2000^2.  Every pair's record (truth, what the method exposes: for pgvd every
 MergeResult field, the headings searched and the finalists that reached the
 decision, each marked a success or not) is in ``merge.json``.
+
+``--unknown free`` paints every unknown cell of both maps of each pair free
+(:func:`bench.pairs.painted_free`): the maps as images with no unknown cell.
 
 Run from the project root::
 
@@ -60,7 +66,7 @@ import numpy as np
 
 from bench import acceptance, report
 from bench.capture import Finalists, SearchedHeadings, result_json, to_json
-from bench.pairs import MapPair, make_pair
+from bench.pairs import MapPair, make_pair, painted_pair
 from bench.report import MAX_CELL_ERROR, mark, pose_right
 from bench.sets import (
     DRIFT,
@@ -127,6 +133,7 @@ ABLATIONS = {
     "pgvd-no-gamma": {"gamma_ranking": False},
     "pgvd-no-blur": {"heading_blur": False},
     "pgvd-rigid": {"drift_shift": 0.0},
+    "pgvd-as-drawn": {"min_unknown": 0.0},
 }
 #: Options of pgvd that are off by default, measured beside it: MergeParams overrides.
 OPTIONS = {"pgvd-heading": {"heading_span": 6.0}, "pgvd-search": {"search_finalists": 4}}
@@ -317,6 +324,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=Path, default=CACHE, help="generated runs and pairs")
     parser.add_argument("--no-cache", action="store_true")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument(
+        "--unknown",
+        choices=("drawn", "free"),
+        default="drawn",
+        help="free: every pair's unknown cells painted free, as a map image without unknown",
+    )
     args = parser.parse_args(argv)
     command = "python3 -m bench.merge " + " ".join(argv if argv is not None else sys.argv[1:])
     names = tuple(args.methods or (("pgvd",) if args.quick else ("pgvd", "m-explore", "hough")))
@@ -326,6 +339,8 @@ def main(argv: list[str] | None = None) -> int:
     sources = tuple(s for s in SOURCES if args.sources is None or s.name in args.sources)
     cache = None if args.no_cache else args.cache
     entries = build(counts, args.seed, cache, sources, gmapping=args.sources is None)
+    if args.unknown == "free":
+        entries = [dataclasses.replace(e, pair=painted_pair(e.pair)) for e in entries]
     _log(f"[pairs] {len(entries)} pairs ready in {time.perf_counter() - t0:.0f} s")
     records = run_pairs(entries, table)
     scaling = [] if args.no_scaling else run_scaling(table, args.seed, args.repeats)
@@ -344,6 +359,12 @@ def main(argv: list[str] | None = None) -> int:
         "Wrong accepts: accepted on an overlapping pair with a pose outside those bounds. "
         "False accepts: accepted on a negative pair.",
     ]
+    if args.unknown == "free":
+        notes.append(
+            "Unknown painted free: every cell of both maps of each pair that a saved map draws "
+            "unknown reads free (bench.pairs.painted_free), as in a map image whose unexplored "
+            "area was painted white; the scaling pair is not painted."
+        )
     if scaling:
         notes.append(
             f"Scaling: one intel pair at {SCALE_RESOLUTION} m (~500^2), upsampled x2 and x4 "

@@ -34,7 +34,7 @@ from pgvd.integrate import (
     se2,
     select_segment,
 )
-from pgvd.io import write_map
+from pgvd.io import FREE_THRESH, OCCUPIED_THRESH, P_FREE, write_map
 
 #: Segment lengths (fractions of the log) drawn for overlapping pairs.
 OVERLAP_LENGTHS = (0.05, 0.5)
@@ -68,6 +68,23 @@ class MapPair:
     overlap: float
     name: str
     info: dict = field(default_factory=dict)
+
+
+def painted_free(grid: Grid) -> Grid:
+    """``grid`` as a map image with no unknown cell: every cell a saved map draws unknown
+    (between map_saver's thresholds, :data:`pgvd.io.FREE_THRESH` and
+    :data:`pgvd.io.OCCUPIED_THRESH`) reads free (:data:`pgvd.io.P_FREE`), as when an
+    editor or an export paints the unexplored area white."""
+    p = grid.probability()
+    unknown = (p >= FREE_THRESH) & (p <= OCCUPIED_THRESH)
+    return Grid.from_probability(np.where(unknown, np.asarray(P_FREE, p.dtype), p), grid.resolution)
+
+
+def painted_pair(pair: MapPair) -> MapPair:
+    """``pair`` with both maps :func:`painted_free`; truth, overlap and name unchanged."""
+    return MapPair(
+        painted_free(pair.a), painted_free(pair.b), pair.truth, pair.overlap, pair.name, pair.info
+    )
 
 
 def random_frame(rng: np.random.Generator) -> np.ndarray:

@@ -44,7 +44,7 @@ from bench.sets import FULL, Entry, build
 from bench.sources import SOURCES
 from pgvd.decision import margin_against
 from pgvd.grid import Grid
-from pgvd.merge import MergeParams, decide_finalists, fine_maps
+from pgvd.merge import MergeParams, decide_finalists, fine_maps, registration_probability
 
 SETS = ("standard", "low", "drifted", "negative")
 
@@ -87,7 +87,7 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
         ``winner`` (index in ``finalists``), ``margin``, ``rival``, ``accepted``,
         ``matrix`` (3x3 array) and the whole ``decision`` (:class:`pgvd.decision.Decision`).
     """
-    fine_a, fine_b = fine_maps(a.probability(), b.probability(), params)
+    fine_a, fine_b = fine_maps(*(registration_probability(g, params) for g in (a, b)), params)
     mats = [np.asarray(m, dtype=float) for m in finalists]
     index, decision, matrix = decide_finalists(mats, fine_a, fine_b, params, a.resolution)
     return {

@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from bench.pairs import MIN_OVERLAP, make_pair, make_pairs, overlap_fraction, write_pair
+from bench.pairs import (
+    MIN_OVERLAP,
+    make_pair,
+    make_pairs,
+    overlap_fraction,
+    painted_pair,
+    write_pair,
+)
 from pgvd.carmen import read_carmen
 from pgvd.grid import rigid_matrix
 from pgvd.io import read_map
@@ -181,3 +188,16 @@ def test_gmapping_runs_meet_at_their_common_origin(shared):
         assert fitted > 0.6, p.name
         turned = p.truth @ rigid_matrix(np.radians(2.0), 0.0, 0.0)
         assert _walls_on_walls(p.a, p.b, turned) < fitted
+
+
+def test_painted_pair_reads_free_where_a_saved_map_draws_unknown(split):
+    from pgvd.io import FREE_THRESH, OCCUPIED_THRESH, P_FREE
+
+    painted = painted_pair(split)
+    for before, after in ((split.a, painted.a), (split.b, painted.b)):
+        p, q = before.probability(), after.probability()
+        unknown = (p >= FREE_THRESH) & (p <= OCCUPIED_THRESH)
+        assert unknown.mean() > 0.3  # a robot's partial map is mostly unknown
+        assert np.allclose(q[unknown], P_FREE, atol=1e-6)
+        assert np.allclose(q[~unknown], p[~unknown], atol=1e-6)
+    assert painted.truth is split.truth and painted.name == split.name
