@@ -142,7 +142,7 @@ def merge_many(
     for i, j in itertools.combinations(range(len(grids)), 2):
         res = register(work[i], work[j])
         outcome = "accepted" if res.accepted else "rejected"
-        why = "" if res.accepted or not res.reason else f" ({res.reason})"
+        why = f" ({res.rejection})" if res.rejection else ""
         say(f"maps {i} and {j}: {outcome}, score {res.score:.3f}{why}")
         links.append(
             LinkRecord(

@@ -73,6 +73,11 @@ class Registration:
     score: float
     reason: str = ""
 
+    @property
+    def rejection(self) -> str:
+        """Why the link was rejected; empty when it was accepted or no reason was given."""
+        return "" if self.accepted else self.reason
+
 
 RegisterFn = Callable[[Grid, Grid], Registration]
 #: ``check(a, b, predicted)``: a :class:`Registration` when the prediction decides the pair
@@ -513,7 +518,7 @@ class FusionWorker:
         log.info(
             "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s, %.2f s CPU)%s",
             a, va, b, vb, "accepted" if res.accepted else "rejected", res.score, how,
-            *clock.elapsed(), "" if res.accepted or not res.reason else f": {res.reason}",
+            *clock.elapsed(), f": {res.rejection}" if res.rejection else "",
         )  # fmt: skip
         if self.book.add_link(rec):
             self.on_link(rec)
