@@ -92,6 +92,12 @@ def router(config: Path) -> Iterator[subprocess.Popen]:
     )
     try:
         line = read_line(proc)
+    except AssertionError as exc:
+        # a router that never says ready: its stderr says why (read once it is dead,
+        # since a live process's pipe would block)
+        proc.kill()
+        raise AssertionError(f"{exc}\nrouter stderr:\n{proc.communicate(timeout=10)[1]}") from None
+    try:
         assert line.startswith("ready "), proc.stderr.read() if proc.poll() is not None else line
         yield proc
     finally:
