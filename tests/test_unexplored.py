@@ -15,10 +15,12 @@ from pgvd.unexplored import restore_unexplored, unknown_share, wall_hull
 
 FREE, OCCUPIED = 0.3, 0.65
 
+# free, unknown and wall values exact in float32: hypothesis at its lowest supported version
+# refuses an element that float32 would round
 maps = arrays(
     np.float32,
     st.tuples(st.integers(1, 24), st.integers(1, 24)),
-    elements=st.sampled_from([0.02, 0.1, 0.5, 0.9, 0.97]),
+    elements=st.sampled_from([0.0625, 0.125, 0.5, 0.875, 0.9375]),
 )
 
 
