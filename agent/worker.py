@@ -167,8 +167,8 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     only find a transform the chain contradicts.  A correction beyond the basin is
     inconclusive: the chain may be off, the search decides.
     """
-    from pgvd.matching import WallMap, map_agreement
-    from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, verify
+    from pgvd.matching import map_agreement
+    from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, verify, wall_maps
 
     params = _merge_params(min_agreement)
 
@@ -176,8 +176,7 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         res = verify(a, b, predicted, params)
         if res.accepted:
             return _registration(True, res.matrix, res.covariance, res.score)
-        fine_a = WallMap(a.probability(), params.occupied, params.free)
-        fine_b = WallMap(b.probability(), params.occupied, params.free)
+        fine_a, fine_b = wall_maps(a, b, params)
         seen = map_agreement(fine_a, fine_b, predicted)
         overlap_m = 0.5 * (seen.agree + seen.disagree) * a.resolution
         if overlap_m < params.min_overlap:

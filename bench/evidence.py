@@ -47,16 +47,10 @@ import numpy as np
 
 from bench.merge import CACHE, RESULTS, evaluate
 from bench.pairs import MapPair
+from bench.redecide import decision_maps
 from bench.sets import FULL, build
 from pgvd.matching import Agreement, WallMap, refine
-from pgvd.merge import (
-    MergeParams,
-    decide_finalists,
-    final_refinement,
-    fine_maps,
-    registration_probability,
-    score_hypothesis,
-)
+from pgvd.merge import MergeParams, decide_finalists, final_refinement, score_hypothesis
 from pgvd.sampling import subsample
 
 CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
@@ -121,7 +115,7 @@ def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: M
         Its pgvd record of ``merge.json``: ``finalists`` (3x3 B->A matrices, may be
         empty), ``matrix`` (the returned pose) and ``set``.
     maps : tuple of WallMap
-        :func:`pgvd.merge.fine_maps` of the pair.
+        :func:`bench.redecide.decision_maps` of the pair.
     params : MergeParams
         The decision's parameters.
 
@@ -223,9 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         record = chosen.get(entry.pair.name)
         if record is None:
             continue
-        maps = fine_maps(
-            *(registration_probability(g, params) for g in (entry.pair.a, entry.pair.b)), params
-        )
+        maps = decision_maps(entry.pair.a, entry.pair.b, params)
         stays.setdefault(record["set"], []).append(truth_stays(entry.pair, maps, params))
         got = "right"
         if not record["success"]:

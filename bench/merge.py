@@ -19,7 +19,7 @@ Methods, all in this one process:
                 without the heading blur (8), hypotheses scored on the rigid overlay
                 instead of the drift-tolerant one (``MergeParams.drift_shift = 0``),
                 and ``pgvd-as-drawn``: a map without unknown cells read as drawn, its
-                free space that reaches the map's edge not made unknown
+                free space outside its walls' convex hull not made unknown
                 (``MergeParams.min_unknown = 0``, :mod:`pgvd.unexplored`);
 ``pgvd-heading`` an option that is off by default: the Radon candidates refined on
                 the whole-map overlay, ``MergeParams(heading_span=6)``

@@ -44,6 +44,7 @@ from bench.sets import FULL, Entry, build
 from bench.sources import SOURCES
 from pgvd.decision import margin_against
 from pgvd.grid import Grid
+from pgvd.matching import WallMap
 from pgvd.merge import MergeParams, decide_finalists, fine_maps, registration_probability
 
 SETS = ("standard", "low", "drifted", "negative")
@@ -69,6 +70,14 @@ def params_from(overrides: list[str]) -> MergeParams:
     return dataclasses.replace(base, **changes)
 
 
+def decision_maps(a: Grid, b: Grid, params: MergeParams) -> tuple[WallMap, WallMap]:
+    """:func:`pgvd.merge.fine_maps` of two grids, each read as the merge reads it
+    (:func:`pgvd.merge.registration_probability`)."""
+    return fine_maps(
+        registration_probability(a, params), registration_probability(b, params), params
+    )
+
+
 def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
     """The decision on one pair's finalists: margin, rival, accept and the B->A matrix.
 
@@ -87,7 +96,7 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
         ``winner`` (index in ``finalists``), ``margin``, ``rival``, ``accepted``,
         ``matrix`` (3x3 array) and the whole ``decision`` (:class:`pgvd.decision.Decision`).
     """
-    fine_a, fine_b = fine_maps(*(registration_probability(g, params) for g in (a, b)), params)
+    fine_a, fine_b = decision_maps(a, b, params)
     mats = [np.asarray(m, dtype=float) for m in finalists]
     index, decision, matrix = decide_finalists(mats, fine_a, fine_b, params, a.resolution)
     return {

@@ -83,6 +83,15 @@ def basin_move(
     return shift, float(np.degrees(abs(np.angle(np.exp(1j * turn)))))
 
 
+def wall_maps(a: Grid, b: Grid, params: MergeParams) -> tuple[WallMap, WallMap]:
+    """A's and B's full-resolution wall maps, each read as registration reads it
+    (:func:`pgvd.merge.registration_probability`)."""
+    return (
+        WallMap(registration_probability(a, params), params.occupied, params.free),
+        WallMap(registration_probability(b, params), params.occupied, params.free),
+    )
+
+
 def verify(
     a: Grid, b: Grid, predicted: np.ndarray, params: MergeParams | None = None
 ) -> MergeResult:
@@ -142,9 +151,7 @@ def verify(
         )  # fmt: skip
 
     nan = np.full((3, 3), np.nan)
-    fine_a, fine_b = (
-        WallMap(registration_probability(g, params), params.occupied, params.free) for g in (a, b)
-    )
+    fine_a, fine_b = wall_maps(a, b, params)
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:
         return result(False, "a map has fewer than 10 wall cells", m0, 0.0, nan)
     matrix = refine(fine_a.tree, fine_b.walls, m0)
