@@ -130,6 +130,7 @@ class Agent:
         self._status_bytes = b"{}"
         self.session: zenoh.Session | None = None  # while run() serves
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._source_error: str | None = None  # the last one logged
         resume = self._load_state()
         self.source = make_source(
             opts.source, opts.robot, opts.frame, opts.resolution, opts.speed, resume
@@ -328,8 +329,18 @@ class Agent:
             src = self.source
             if src.step(now.mono):
                 self._call(self.node.on_source, src.grid(), now, src.done, src.resume_state())
+            self._warn_source_error()
             self._call(self.node.tick, now)
             outputs.tick(now.mono, self.node.global_component(), self.node.book)
+
+    def _warn_source_error(self) -> None:
+        """Log a source's error when it changes: a map file that never reads (a bad YAML, an
+        image that is not one) is retried every poll and would otherwise only be counted in
+        the status, with the agent up and silent."""
+        error = self.source.describe().get("last_error")
+        if error and error != self._source_error:
+            log.warning("source %s: %s", self.opts.source.path or self.opts.source.topic, error)
+        self._source_error = error
 
     def _drain_inbox(self, deadline: float) -> None:
         while time.monotonic() < deadline:

@@ -196,7 +196,10 @@ def load_scans(spec: SourceSpec) -> list[LaserScan]:
         return read_rosbag_scans(spec.path, spec.topic)
     from pgvd.carmen import read_carmen
 
-    return read_carmen(spec.path)
+    try:
+        return read_carmen(spec.path)
+    except OSError as exc:  # e.g. a directory: one line, not a traceback
+        raise ValueError(f"cannot read {spec.path}: {exc.strerror or exc}") from None
 
 
 class ReplayClock:

@@ -8,6 +8,7 @@ links the rest; ``scouting/delay`` 0 keeps ``open()`` from waiting 500 ms.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -15,6 +16,23 @@ from pathlib import Path
 import zenoh
 
 MODES = ("peer", "client", "router")
+
+# Zenoh's errors end with the Rust source location, wrap a JSON5 value error in its Debug
+# form, and show a JSON5 syntax error as a multi-line caret drawing; a user needs one line.
+_RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
+_DEBUG_MESSAGE = re.compile(r'msg: "((?:[^"\\]|\\.)*)"')
+_SYNTAX = re.compile(r"-->\s*(\d+):(\d+).*?=\s*(.+)", re.S)
+
+
+def zenoh_error(exc: BaseException) -> str:
+    """Zenoh's error text on one line: the message, or where and what for a syntax error."""
+    text = _RUST_LOCATION.sub("", str(exc))
+    if message := _DEBUG_MESSAGE.search(text):
+        return message.group(1)
+    if syntax := _SYNTAX.search(text):
+        line, column, what = syntax.groups()
+        return f"line {line}, column {column}: {' '.join(what.split())}"
+    return " ".join(text.split()) or type(exc).__name__
 
 
 @dataclass(frozen=True)
@@ -60,9 +78,8 @@ def build_config(opts: ZenohOptions) -> zenoh.Config:
     if opts.config_file is not None:
         try:
             cfg = zenoh.Config.from_file(str(opts.config_file))
-        except Exception as exc:  # zenoh raises its own ZError with a multi-line text
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ValueError(f"bad Zenoh config {opts.config_file}: {first}") from None
+        except zenoh.ZError as exc:
+            raise ValueError(f"bad Zenoh config {opts.config_file}: {zenoh_error(exc)}") from None
         file_keys = _set_keys(cfg)
     else:
         cfg = zenoh.Config()
@@ -136,8 +153,8 @@ def _insert(cfg: zenoh.Config, key: str, value: object) -> None:
     """``insert_json5`` takes JSON text, not Python values, hence ``json.dumps``."""
     try:
         cfg.insert_json5(key, json.dumps(value))
-    except Exception as exc:
-        raise ValueError(f"bad Zenoh setting {key}={value!r}: {exc}") from None
+    except zenoh.ZError as exc:
+        raise ValueError(f"bad Zenoh setting {key}={value!r}: {zenoh_error(exc)}") from None
 
 
 def _set_keys(cfg: zenoh.Config) -> set[str]:

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import shutil
+import signal
 import socket
+import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from netns import ROOT, pgvd_argv, read_line
 
 from agent.cli import main
 
@@ -24,10 +28,14 @@ def agent(tmp_path: Path, *extra: str) -> list[str]:
         (["--robot", "r/1"], "robot id"),
         (["--source", "carmen:/nonexistent.log"], "source file not found"),
         (["--source", "tape:x"], "source must be"),
+        (["--source", f"carmen:{Path(__file__).parent}"], "source is a directory"),
+        (["--source", f"map:{Path(__file__).parent}"], "source is a directory"),
         (["--frame", "1,2"], "frame must be"),
         (["--key-file", "/nonexistent.key"], "cannot read key file"),
         (["--speed", "0"], "--speed"),
         (["--inbox-mib", "0"], "--inbox-mib must be > 0"),
+        (["--lease-ms", "-5"], "--lease-ms must be > 0"),
+        (["--listen", "garbage"], "Endpoints must be of the form"),
         (["--min-agreement", "1.5"], "--min-agreement"),
         (["--zenoh-config", "/nonexistent.json5"], "bad Zenoh config"),
         (["--source", "ros2:robot1/map"], "not an absolute ROS 2 topic"),
@@ -98,3 +106,34 @@ def test_an_agent_without_ros_needs_neither_extra(tmp_path: Path, monkeypatch) -
     typestore.cache_clear()  # a type store made by an earlier test would hide an import
     opts = options_from_args(build_parser(["agent"]).parse_args(agent(tmp_path)))
     assert opts.source.kind == "carmen" and not opts.outputs.active
+
+
+def test_a_map_file_that_never_reads_is_logged_once(tmp_path: Path) -> None:
+    """A map: source whose file is there but unreadable is retried every poll, and said once.
+
+    Before, the agent stayed up and silent; only ``pgvd status`` showed the read errors.
+    """
+    shutil.copy(ROOT / "examples" / "intel_a.pgm", tmp_path / "m.pgm")
+    text = (ROOT / "examples" / "intel_a.yaml").read_text()
+    bad = tmp_path / "m.yaml"
+    bad.write_text(
+        "".join(
+            "resolution: -0.05\n" if ln.startswith("resolution") else ln
+            for ln in text.splitlines(keepends=True)
+        )
+    )
+    argv = pgvd_argv(
+        "agent", "--robot", "r1", "--source", f"map:{bad}", "--state-dir", str(tmp_path / "s"),
+        "--listen", "tcp/127.0.0.1:0",
+    )  # fmt: skip
+    # the agent logs to stderr: read it as the stdout of the process
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc.stdout = proc.stderr
+    try:
+        line = read_line(proc, timeout=30)
+        assert "WARNING source" in line and "resolution must be a finite number > 0" in line
+        with pytest.raises(AssertionError, match="no line"):
+            read_line(proc, timeout=2)  # retried every 0.5 s, not repeated
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=20)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import socket
 
 import pytest
 from hypothesis import given
@@ -58,6 +59,21 @@ def test_bad_fleet_name_is_exit_2(capsys) -> None:
     assert main(["status", "--fleet", "a/b"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "fleet name" in err
+
+
+def test_bad_timeout_is_exit_2(capsys) -> None:
+    assert main(["status", "--timeout", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--timeout must be > 0" in err
+
+
+def test_nobody_answering_is_exit_1(capsys) -> None:
+    """A monitoring script tells an empty answer from a fleet's (exit 1: asked, not achieved)."""
+    with socket.socket() as s:  # a port nobody listens on once closed
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert main(["status", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5"]) == 1
+    assert capsys.readouterr().out == "no agent answered\n"
 
 
 KEY = b"the fleet key"

@@ -76,6 +76,9 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
         ("over the size limit", [intel, intel, "--max-cells", "500000"], "exceeds the limit"),
         ("NaN", [intel, tmp / "nan.npy"], "NaN"),
         ("bad -o suffix", [intel, intel, "-o", tmp / "fused.png"], ".yaml, .yml or .npy"),
+        # refused before the merge runs: nothing on stdout
+        ("plot into a directory", [intel, intel, "--plot", tmp], "is a directory"),
+        ("-o under a file", [intel, intel, "-o", tmp / "nan.npy" / "f.yaml"], "is not a directory"),
     ]
 
 
@@ -87,6 +90,13 @@ def test_bad_input_exits_2_with_one_line(tmp_path: Path, shared: Path) -> None:
         assert len(lines) == 1 and why in lines[0], (name, proc.stderr)
         assert lines[0].startswith("pgvd merge: error: ") and "Traceback" not in proc.stderr
         assert proc.stdout == ""
+
+
+def test_a_missing_map_b_is_named_alone() -> None:
+    """C (more maps) is optional: only B is named as missing."""
+    proc = pgvd_merge(ROOT / "examples" / "intel_a.yaml")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].endswith("the following arguments are required: B")
 
 
 @pytest.mark.slow

@@ -36,7 +36,15 @@ def test_demo_agrees_links_truly_and_writes_its_outputs(tmp_path: Path) -> None:
     assert "OK: same global map True" in res.stdout
 
 
-def test_demo_bad_input_is_one_line(tmp_path: Path) -> None:
-    res = demo("--robots", "1", cwd=tmp_path)
+@pytest.mark.parametrize(
+    ("args", "why"),
+    [
+        (["--robots", "1"], "--robots"),
+        (["--max-deg", "-1"], "--max-deg and --max-cells must be > 0"),
+        (["--min-overlap", "2"], "--min-overlap must be in (0, 1]"),
+    ],
+)
+def test_demo_bad_input_is_one_line(tmp_path: Path, args: list[str], why: str) -> None:
+    res = demo(*args, cwd=tmp_path)
     assert res.returncode == 2
-    assert res.stderr.strip().count("\n") == 0 and "--robots" in res.stderr
+    assert res.stderr.strip().count("\n") == 0 and why in res.stderr

@@ -21,7 +21,13 @@ from agent.priors import parse_known_poses
 from agent.ros2_io import RosOptions
 from agent.sources import parse_frame, parse_source
 from agent.view import parse_endpoint
-from agent.zenoh_config import MODES, ZenohOptions, build_config, tile_session_options
+from agent.zenoh_config import (
+    MODES,
+    ZenohOptions,
+    build_config,
+    tile_session_options,
+    zenoh_error,
+)
 from protocol.ros2.keys import FORMS, check_domain, check_topic
 from protocol.ros2.types import DISTROS
 
@@ -170,12 +176,16 @@ def options_from_args(args: argparse.Namespace):
     _require_extras(source.kind, outputs)
     if source.path is not None and not source.path.exists():
         raise CliError(f"source file not found: {source.path}")
+    if source.kind in ("carmen", "map") and source.path is not None and source.path.is_dir():
+        raise CliError(f"source is a directory, not a {source.kind}: file: {source.path}")
     for name in ("resolution", "speed", "link_timeout", "announce", "min_interval", "inbox_mib",
                  "ros_rate"):
         if not getattr(args, name) > 0:
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
     if not 0 <= args.min_change <= 1 or not 0 <= args.epoch_change <= 1:
         raise CliError("--min-change and --epoch-change must be in [0, 1]")
+    if args.lease_ms is not None and not args.lease_ms > 0:
+        raise CliError("--lease-ms must be > 0")
     if not args.forget_after > 0:
         raise CliError("--forget-after must be > 0")
     if args.min_agreement is not None and not 0 < args.min_agreement <= 1:
@@ -273,8 +283,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         agent.run(stop)
     except zenoh.ZError as exc:  # e.g. the listen port is taken: one line, not a traceback
-        first = (str(exc).strip().splitlines() or ["unknown error"])[0]
-        raise CliError(f"cannot open the Zenoh session: {first}") from None
+        raise CliError(f"cannot open the Zenoh session: {zenoh_error(exc)}") from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

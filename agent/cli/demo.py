@@ -70,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"log not found: {args.log}")
     if args.speed <= 0 or args.timeout <= 0:
         raise CliError("--speed and --timeout must be > 0")
+    if not args.max_deg > 0 or not args.max_cells > 0:
+        raise CliError("--max-deg and --max-cells must be > 0")
+    if not 0 < args.min_overlap <= 1:
+        raise CliError(f"--min-overlap must be in (0, 1], got {args.min_overlap}")
     out: Path = args.out
     outdir.claim(out)
     try:

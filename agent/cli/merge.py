@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -48,6 +49,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="C",
         type=Path,
         nargs="*",
+        default=[],  # without a default argparse names C among the missing required arguments
         help="more maps: all pairs are registered and placed jointly, as a fleet would "
         "(--json then lists maps and links; -o writes the largest merged group)",
     )
@@ -122,6 +124,23 @@ def _summary(result: MergeResult, doc: dict) -> str:
     )
 
 
+def _check_output(what: str, path: Path | None) -> None:
+    """Refuse an output that cannot be written before the merge runs rather than after it.
+
+    Missing parent directories are created when writing (:func:`pgvd.io.atomic_write`), so
+    the nearest existing ancestor is the one that must be a writable directory.
+    """
+    if path is None:
+        return
+    if path.is_dir():
+        raise CliError(f"cannot write {what} {path}: is a directory")
+    ancestor = next(p for p in path.parents if p.exists())
+    if not ancestor.is_dir():
+        raise CliError(f"cannot write {what} {path}: {ancestor} is not a directory")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise CliError(f"cannot write {what} {path}: {ancestor} is not writable")
+
+
 def _write(what: str, path: Path, write: Callable[[], None]) -> None:
     try:
         write()
@@ -134,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"-o {args.output}: the fused map must end in .yaml, .yml or .npy")
     if args.max_cells <= 0:
         raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
+    _check_output("plot", args.plot)
+    _check_output("fused map", args.output)
     progress = _progress(args)
     say = progress or (lambda line: None)
     if args.more:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import signal
 import sys
 import threading
@@ -27,14 +26,7 @@ from types import FrameType
 import zenoh
 
 from agent.cli.common import EXIT_OK, CliError
-
-# Zenoh's errors end with the Rust source location; a user needs the first sentence only.
-_RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
-
-
-def zenoh_error(exc: BaseException) -> str:
-    """Zenoh's error text on one line, without the Rust source locations."""
-    return " ".join(_RUST_LOCATION.sub("", str(exc)).split())
+from agent.zenoh_config import zenoh_error
 
 
 def router_config(

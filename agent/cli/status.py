@@ -10,7 +10,7 @@ from pathlib import Path
 
 import zenoh
 
-from agent.cli.common import EXIT_OK, CliError, read_fleet_key
+from agent.cli.common import EXIT_FAILED, EXIT_OK, CliError, read_fleet_key
 from agent.keys import FleetKeys
 from agent.links import EPOCH_SHIFT, epoch_of
 from agent.status_reply import read_status
@@ -31,7 +31,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--key-file", type=Path, help="fleet key file: only replies with its MAC are shown"
     )
-    p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers")
+    p.add_argument(
+        "--timeout", type=float, default=3.0, help="seconds to wait for answers (default 3)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object {robot: status}")
     p.set_defaults(func=run)
 
@@ -132,6 +134,9 @@ def format_table(statuses: dict[str, dict]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the fleet's statuses; exit 1 when no agent answered (a script can tell)."""
+    if not args.timeout > 0:
+        raise CliError(f"--timeout must be > 0, got {args.timeout}")
     try:
         keys = FleetKeys(args.fleet)
         opts = ZenohOptions(
@@ -149,4 +154,4 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(statuses, indent=1, sort_keys=True))
     else:
         print(format_table(statuses))
-    return EXIT_OK
+    return EXIT_OK if statuses else EXIT_FAILED
