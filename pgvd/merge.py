@@ -468,11 +468,14 @@ class _Clock:
         self.t0 = self.last = time.perf_counter()
 
     def lap(self, stage: str) -> None:
+        """Add the time since the last lap to ``stage``; progress shows both (a stage such as
+        gamma runs once per searched heading, so its running total alone reads as steps)."""
         now = time.perf_counter()
-        self.timings[stage] = self.timings.get(stage, 0.0) + 1e3 * (now - self.last)
+        step = 1e3 * (now - self.last)
+        self.timings[stage] = self.timings.get(stage, 0.0) + step
         self.last = now
         if self.progress is not None:
-            self.progress(f"{stage}: {self.timings[stage]:.1f} ms")
+            self.progress(f"{stage}: {step:.1f} ms ({self.timings[stage]:.1f} ms so far)")
 
     def total(self) -> dict[str, float]:
         self.timings["total"] = 1e3 * (time.perf_counter() - self.t0)
