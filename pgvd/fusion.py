@@ -6,7 +6,13 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from pgvd.grid import LOGODDS_LIMIT, Grid, pixel_to_world, probability_to_logodds
+from pgvd.grid import (
+    LOGODDS_LIMIT,
+    Grid,
+    finite_3x3,
+    pixel_to_world,
+    probability_to_logodds,
+)
 from pgvd.transform import union_canvas
 from pgvd.uncertainty import propagate
 
@@ -144,8 +150,8 @@ def fuse_maps(
     Raises
     ------
     ValueError
-        If the resolutions differ, or ``covariance`` is not a finite, symmetric,
-        positive semi-definite 3x3 array.
+        If the resolutions differ, ``matrix`` is not a finite 3x3 array, or
+        ``covariance`` is not a finite, symmetric, positive semi-definite 3x3 array.
 
     References
     ----------
@@ -154,13 +160,14 @@ def fuse_maps(
     """
     if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
         raise ValueError(f"resolutions differ ({a.resolution} vs {b.resolution}); resample B")
+    matrix = finite_3x3(matrix, "matrix")
     shape, offset = union_canvas(a.shape, b.shape, matrix)
     dx, dy = int(offset[0, 2]), int(offset[1, 2])
     base = np.zeros(shape, dtype=np.float32)
     base[dy : dy + a.shape[0], dx : dx + a.shape[1]] = a.logodds
     moved = propagate(
         b.probability(),
-        offset @ np.asarray(matrix, dtype=np.float64),
+        offset @ matrix,
         covariance if propagation else np.zeros((3, 3)),
         shape,
         center=center,

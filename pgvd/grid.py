@@ -217,6 +217,22 @@ def relative_matrix(a: Grid, b: Grid) -> np.ndarray:
     return world_pose_to_pixel_matrix(a) @ np.linalg.inv(world_pose_to_pixel_matrix(b))
 
 
+def finite_3x3(value: object, what: str) -> np.ndarray:
+    """``value`` as a float64 3x3 array (a transform of eq. (1), a covariance of eq. (3)).
+
+    Raises
+    ------
+    ValueError
+        Naming ``what``, if it is not 3x3 or holds NaN or infinite values.
+    """
+    m = np.asarray(value, dtype=np.float64)
+    if m.shape != (3, 3):
+        raise ValueError(f"{what} must be a finite 3x3 array, got shape {m.shape}")
+    if not np.isfinite(m).all():
+        raise ValueError(f"{what} must be a finite 3x3 array, got NaN or infinite values")
+    return m
+
+
 def rigid_matrix(psi: float, tx: float, ty: float) -> np.ndarray:
     """Eqs. (1)-(2) as a 3x3 homogeneous matrix in the pixel frame.
 

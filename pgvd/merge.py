@@ -1025,6 +1025,8 @@ def merge(
 
     Raises
     ------
+    TypeError
+        A map that is not a :class:`pgvd.grid.Grid`.
     ValueError
         Different resolutions, an empty map, NaN, or a map without occupied cells.
 
@@ -1058,6 +1060,12 @@ def merge(
     >>> bool(error.max() < 1.5)
     True
     """
+    for name, g in (("A", a), ("B", b)):
+        if not isinstance(g, Grid):  # e.g. a probability array, which has no resolution
+            raise TypeError(
+                f"map {name} must be a pgvd.Grid (pgvd.read_map, or pgvd.Grid.from_probability "
+                f"for an array), got {type(g).__name__}"
+            )
     params = params or MergeParams()
     clock = _Clock(progress)
     pa, pb = (

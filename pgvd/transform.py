@@ -12,7 +12,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from pgvd.grid import Grid
+from pgvd.grid import Grid, finite_3x3
 
 
 def warp(
@@ -57,9 +57,7 @@ def warp(
     .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
        using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1), (12), (30).
     """
-    m = np.asarray(matrix, dtype=np.float64)
-    if m.shape != (3, 3) or not np.isfinite(m).all():
-        raise ValueError(f"matrix must be a finite 3x3 array, got shape {m.shape}")
+    m = finite_3x3(matrix, "matrix")
     inv = np.linalg.inv(m)
     rc = inv[:2, :2][::-1, ::-1]  # (x, y) -> (row, col) = (y, x)
     offset = inv[:2, 2][::-1]

@@ -24,7 +24,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import fft, ndimage
 
-from pgvd.grid import heading
+from pgvd.grid import finite_3x3, heading
 from pgvd.transform import warp
 
 #: Angular bins per sigma_psi in the polar blur; 3 keeps the blur's width within ~2 %.
@@ -86,9 +86,7 @@ def transform_covariance(xy: np.ndarray, psi: float, cov3: np.ndarray) -> np.nda
 
 
 def _pose_jacobians(m: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    m = np.asarray(m, dtype=np.float64)
-    if m.shape != (3, 3) or not np.isfinite(m).all():
-        raise ValueError(f"matrix must be a finite 3x3 array, got shape {m.shape}")
+    m = finite_3x3(m, "matrix")
     return m[:2, :2], m[:2, 2], heading(m)
 
 
@@ -173,9 +171,7 @@ def inverse_covariance(m: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 def check_covariance(cov3: np.ndarray) -> np.ndarray:
     """``cov3`` as float64 if it is a finite, symmetric, positive semi-definite 3x3, eq. (3)."""
-    c = np.asarray(cov3, dtype=np.float64)
-    if c.shape != (3, 3) or not np.isfinite(c).all():
-        raise ValueError(f"covariance must be a finite 3x3 array, got shape {c.shape}")
+    c = finite_3x3(cov3, "covariance")
     if not np.allclose(c, c.T) or np.linalg.eigvalsh(c).min() < -1e-9 * max(1.0, abs(c).max()):
         raise ValueError("covariance must be symmetric positive semi-definite")
     return c

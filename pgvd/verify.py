@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from pgvd.grid import Grid, matrix_to_pose
+from pgvd.grid import Grid, finite_3x3, matrix_to_pose
 from pgvd.matching import WallMap, map_agreement, pose_covariance, refine
 from pgvd.merge import (
     MergeParams,
@@ -54,9 +54,7 @@ BASIN_DEG = 5.0
 
 def _check(a: Grid, b: Grid, predicted: np.ndarray) -> np.ndarray:
     """The prediction as a float 3x3 rigid matrix; ``ValueError`` on anything else."""
-    m = np.asarray(predicted, dtype=np.float64)
-    if m.shape != (3, 3) or not np.isfinite(m).all():
-        raise ValueError(f"the prediction must be a finite 3x3 matrix, got shape {m.shape}")
+    m = finite_3x3(predicted, "the prediction")
     if not (
         np.allclose(m[2], (0.0, 0.0, 1.0))
         and np.allclose(m[:2, :2] @ m[:2, :2].T, np.eye(2), atol=1e-6)

@@ -146,3 +146,18 @@ def test_every_command_has_its_arguments_and_help() -> None:
         res = pgvd(name, "--help", capture_output=True, text=True)
         assert res.returncode == 0 and res.stdout.startswith(f"usage: pgvd {name} [-h]")
         assert res.stdout.count("--") >= 2, res.stdout  # its own options, not only --help
+        # descriptions are module docstrings: their reStructuredText reads as plain text
+        assert "``" not in res.stdout and ":mod:`" not in res.stdout, res.stdout
+
+
+def test_help_shows_defaults_once() -> None:
+    out = pgvd("demo", "--help", capture_output=True, text=True).stdout
+    assert "(default: 100.0)" in out  # --speed
+    assert "(default demo-out)" in out and "(default: demo-out)" not in out  # said in its help
+    assert "\n- side_by_side.png" in out  # a docstring's list stays a list
+
+
+def test_version_needs_no_command() -> None:
+    res = pgvd("--version", capture_output=True, text=True)
+    assert res.returncode == 0 and res.stdout.startswith("pgvd ")
+    assert res.stdout.split()[1][0].isdigit(), res.stdout

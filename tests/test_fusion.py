@@ -9,7 +9,7 @@ import pytest
 from scipy import ndimage
 
 from pgvd.fusion import entropy, fuse, fuse_many, fuse_maps
-from pgvd.grid import logodds_to_probability, relative_matrix
+from pgvd.grid import Grid, logodds_to_probability, relative_matrix
 from pgvd.io import read_map
 from pgvd.transform import warp
 
@@ -132,3 +132,13 @@ def test_propagation_does_work_with_a_calibrated_covariance(shared: Path) -> Non
     assert blurred.shape == plain.shape
     change = np.abs(blurred.probability() - plain.probability())
     assert change.max() > 0.1 and (change > 0.05).sum() > 100
+
+
+def test_fuse_maps_names_a_bad_matrix() -> None:
+    a = Grid.from_probability(np.full((8, 8), 0.5), 0.05)
+    with pytest.raises(ValueError, match=r"matrix must be a finite 3x3 array, got shape \(2, 2\)"):
+        fuse_maps(a, a, np.eye(2), np.zeros((3, 3)))
+    nan = np.eye(3)
+    nan[0, 2] = np.nan
+    with pytest.raises(ValueError, match="matrix must be a finite 3x3 array, got NaN"):
+        fuse_maps(a, a, nan, np.zeros((3, 3)))

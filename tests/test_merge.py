@@ -165,6 +165,8 @@ def test_bad_inputs_raise_clear_errors():
         merge(a, Grid.from_probability(p, 0.1))
     with pytest.raises(ValueError, match="no occupied"):
         merge(a, Grid.from_probability(np.full((40, 40), 0.1), 0.05))
+    with pytest.raises(TypeError, match=r"map B must be a pgvd\.Grid .* got ndarray"):
+        merge(a, p)
 
 
 @pytest.mark.parametrize("name", ["intel/intel.yaml", "fr079_albertB/map312.yaml"])

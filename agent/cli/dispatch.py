@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 from collections.abc import Collection, Sequence
 
@@ -29,11 +30,54 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: reStructuredText markup of the module docstrings that serve as descriptions: ``x`` and
+#: :role:`x` read as x in a terminal.
+_RST = re.compile(r":[a-z]+:`([^`]+)`|``([^`]+)``")
+
+
+def plain(text: str | None) -> str | None:
+    """A docstring with its reStructuredText roles and literals as plain text (for ``--help``)."""
+    return None if text is None else _RST.sub(lambda m: m.group(1) or m.group(2), text)
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions keep their line breaks (their lists stay lists); an option's default is
+    shown when it has one worth showing and its help does not give it already."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (
+            action.option_strings
+            and default not in (None, False, [], argparse.SUPPRESS)
+            and "default" not in text
+        ):
+            return f"{text} (default: %(default)s)"
+        return action.help
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse exits with code 2 on bad arguments already; keep the message to one line."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(EXIT_BAD_INPUT, f"pgvd: error: {message}\n")
+
+
+class _Version(argparse.Action):
+    """``pgvd --version``: the installed distribution's version, looked up only when asked."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, **kwargs)  # type: ignore[arg-type]
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            found = version("pgvd-fleet")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            found = "unknown (not installed)"
+        print(f"pgvd {found}")  # on stdout, as argparse's own version action does
+        parser.exit(0)
 
 
 def build_parser(commands: Collection[str] = COMMANDS.keys()) -> argparse.ArgumentParser:
@@ -51,11 +95,15 @@ def build_parser(commands: Collection[str] = COMMANDS.keys()) -> argparse.Argume
         A parser whose ``parse_args`` sets ``command`` and ``func(args) -> exit code``.
     """
     parser = _Parser(prog="pgvd", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action=_Version, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name, (module, help_line) in COMMANDS.items():
-        command = sub.add_parser(name, help=help_line, description=help_line)
+        command = sub.add_parser(
+            name, help=help_line, description=help_line, formatter_class=_Formatter
+        )
         if name in commands:
             importlib.import_module(module).configure(command)
+            command.description = plain(command.description)
     return parser
 
 
