@@ -11,15 +11,20 @@ the walls of both are grown by each of ``--grow`` cells on each side (0, 1,
 merge bench judges (:func:`bench.merge.evaluate`: accepted, heading within 2
 degrees, B's walls within 3 cells on average).
 
-    python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--unknown free] [--out bench/results]
+    python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--unknown free] [--speckle D]
+        [--ablation NAME] [--out bench/results]
 
 ``--unknown free`` paints every unknown cell of both parts free, the padding of
 B's frame included (:func:`bench.pairs.painted_free`): images whose unexplored
-area was painted white, as some editors and exports save them.  ``--ablation
+area was painted white, as some editors and exports save them.  ``--speckle D``
+turns a share ``D`` of each part's free cells, drawn independently, into lone
+walls (:func:`bench.pairs.speckled`): raw maps saved without cleaning.  ``--ablation
 pgvd-as-drawn`` (any name of :data:`bench.merge.ABLATIONS`) merges with that stage
-off; the report's name gains the ablation's.
+off, ``--ablation pgvd-despeckle`` (or another of :data:`bench.merge.OPTIONS`) with that
+option on; the report's name gains its name.
 
-Writes ``mapimages.md`` (``mapimages-painted.md`` with ``--unknown free``): per
+Writes ``mapimages.md`` (``mapimages-painted.md`` with ``--unknown free``,
+``mapimages-speckle-D.md`` with ``--speckle D``): per
 growth, right / accepted pairs and the median and largest mean cell error of the
 right ones, and a row per map image.
 """
@@ -32,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.merge import ABLATIONS, RESULTS, evaluate
-from bench.pairs import MapPair, painted_pair
+from bench.merge import ABLATIONS, OPTIONS, RESULTS, evaluate
+from bench.pairs import MapPair, painted_pair, speckled_pair
 from bench.report import mark
 from bench.sources import SHARED, SOURCES
 from pgvd.grid import Grid, rigid_matrix
@@ -85,12 +90,19 @@ def part_pairs(name: str, p: np.ndarray, frames: int, rng: np.random.Generator) 
 
 
 def run(
-    frames: int, growths: list[int], seed: int, painted: bool = False, ablation: str = ""
+    frames: int,
+    growths: list[int],
+    seed: int,
+    painted: bool = False,
+    ablation: str = "",
+    speckle: float = 0.0,
 ) -> list[dict]:
     """Every map image's pairs at every growth, merged; one record each (``painted``: with
-    :func:`bench.pairs.painted_pair`'s maps; ``ablation``: a key of
-    :data:`bench.merge.ABLATIONS`, the merge with that stage off)."""
-    params = MergeParams(diagnostics=False, **ABLATIONS.get(ablation, {}))
+    :func:`bench.pairs.painted_pair`'s maps; ``speckle``: with that share of free cells
+    lone walls, :func:`bench.pairs.speckled_pair`; ``ablation``: a key of
+    :data:`bench.merge.ABLATIONS` or :data:`bench.merge.OPTIONS`, the merge with that
+    stage off or that option on)."""
+    params = MergeParams(diagnostics=False, **{**ABLATIONS, **OPTIONS}.get(ablation, {}))
     records = []
     for source in (s for s in SOURCES if s.simulated):
         grid = read_map(SHARED / source.path)
@@ -101,6 +113,7 @@ def run(
             rng = np.random.default_rng(seed)
             p = thickened(grid.probability(), cells)
             for pair in part_pairs(source.name, p, frames, rng):
+                pair = speckled_pair(pair, speckle, seed) if speckle > 0 else pair
                 pair = painted_pair(pair) if painted else pair
                 result = merge(pair.a, pair.b, params)
                 rec = evaluate(pair, result.accepted, result.matrix)
@@ -156,18 +169,31 @@ def main(argv: list[str] | None = None) -> int:
         help="free: unknown cells painted free (writes mapimages-painted.md)",
     )
     parser.add_argument(
-        "--ablation", choices=sorted(ABLATIONS), default="", help="merge with this stage off"
+        "--speckle",
+        type=float,
+        default=0.0,
+        metavar="D",
+        help="share of each part's free cells made lone walls (writes mapimages-speckle-D.md)",
+    )
+    parser.add_argument(
+        "--ablation",
+        choices=sorted({**ABLATIONS, **OPTIONS}),
+        default="",
+        help="merge with this stage off, or this option on",
     )
     args = parser.parse_args(argv)
     if args.frames < 1 or min(args.grow) < 0:
         parser.error("--frames must be >= 1 and --grow >= 0")
+    if not 0 <= args.speckle < 1:
+        parser.error("--speckle must be in [0, 1)")
     painted = args.unknown == "free"
-    records = run(args.frames, args.grow, args.seed, painted, args.ablation)
+    records = run(args.frames, args.grow, args.seed, painted, args.ablation, args.speckle)
     args.out.mkdir(parents=True, exist_ok=True)
     command = "python3 -m bench.mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
     name = (
         "mapimages"
         + ("-painted" if painted else "")
+        + (f"-speckle-{args.speckle:g}" if args.speckle else "")
         + (f"-{args.ablation}" if args.ablation else "")
     )
     out = args.out / f"{name}.md"

@@ -27,6 +27,9 @@ Methods, all in this one process:
 ``pgvd-search`` an option that is off by default: 4 finalists more, the best by the
                 search evidence (free space seen by both counts, conflicts weigh more),
                 ``MergeParams(search_finalists=4)``;
+``pgvd-despeckle`` an option that is off by default (``pgvd merge --despeckle``): lone
+                wall cells read as unknown, ``MergeParams(speckle_radius=0.15)``
+                (:mod:`pgvd.speckle`);
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -81,6 +84,7 @@ from bench.sets import (
 from bench.sources import SOURCES
 from pgvd.carmen import read_carmen
 from pgvd.grid import Grid, heading
+from pgvd.speckle import DESPECKLE_RADIUS
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -136,7 +140,11 @@ ABLATIONS = {
     "pgvd-as-drawn": {"min_unknown": 0.0},
 }
 #: Options of pgvd that are off by default, measured beside it: MergeParams overrides.
-OPTIONS = {"pgvd-heading": {"heading_span": 6.0}, "pgvd-search": {"search_finalists": 4}}
+OPTIONS = {
+    "pgvd-heading": {"heading_span": 6.0},
+    "pgvd-search": {"search_finalists": 4},
+    "pgvd-despeckle": {"speckle_radius": DESPECKLE_RADIUS},
+}
 METHOD_NAMES = ("pgvd", *ABLATIONS, *OPTIONS, "m-explore", "hough", "exhaustive")
 
 

@@ -15,6 +15,7 @@ entirely inside the larger one; 0 means no cell was seen by both robots.
 from __future__ import annotations
 
 import json
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,7 +35,7 @@ from pgvd.integrate import (
     se2,
     select_segment,
 )
-from pgvd.io import FREE_THRESH, OCCUPIED_THRESH, P_FREE, write_map
+from pgvd.io import FREE_THRESH, OCCUPIED_THRESH, P_FREE, P_OCCUPIED, write_map
 
 #: Segment lengths (fractions of the log) drawn for overlapping pairs.
 OVERLAP_LENGTHS = (0.05, 0.5)
@@ -84,6 +85,32 @@ def painted_pair(pair: MapPair) -> MapPair:
     """``pair`` with both maps :func:`painted_free`; truth, overlap and name unchanged."""
     return MapPair(
         painted_free(pair.a), painted_free(pair.b), pair.truth, pair.overlap, pair.name, pair.info
+    )
+
+
+def speckled(grid: Grid, density: float, rng: np.random.Generator) -> Grid:
+    """``grid`` as a raw, uncleaned map: ``density`` of its free cells (below map_saver's
+    :data:`pgvd.io.FREE_THRESH`), drawn at random, are lone walls (:data:`pgvd.io.P_OCCUPIED`):
+    spurious returns that a cleaned map would have lost."""
+    p = grid.probability()
+    free = np.flatnonzero(p < FREE_THRESH)
+    picked = rng.choice(free, size=round(density * free.size), replace=False)
+    out = p.copy()
+    out.flat[picked] = P_OCCUPIED
+    return Grid.from_probability(out, grid.resolution, grid.origin)
+
+
+def speckled_pair(pair: MapPair, density: float, seed: int) -> MapPair:
+    """``pair`` with both maps :func:`speckled`, each with its own draw (two robots' raw
+    maps do not share their speckle); the draws depend on ``seed`` and the pair's name."""
+    rng = np.random.default_rng([seed, zlib.crc32(pair.name.encode())])
+    return MapPair(
+        speckled(pair.a, density, rng),
+        speckled(pair.b, density, rng),
+        pair.truth,
+        pair.overlap,
+        pair.name,
+        pair.info,
     )
 
 

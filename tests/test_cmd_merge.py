@@ -79,6 +79,7 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
         # refused before the merge runs: nothing on stdout
         ("plot into a directory", [intel, intel, "--plot", tmp], "is a directory"),
         ("-o under a file", [intel, intel, "-o", tmp / "nan.npy" / "f.yaml"], "is not a directory"),
+        ("--despeckle of 3 maps", [intel, intel, intel, "--despeckle"], "two maps, not more"),
     ]
 
 
@@ -252,3 +253,13 @@ def test_map_images_painted_free_are_merged_and_the_user_told(tmp_path: Path, sh
         assert f"pgvd merge: map {name}: no unknown cells" in proc.stderr
     err = np.array(json.loads(proc.stdout)["matrix"]) - pair.truth
     assert np.abs(err[:2, 2]).max() < 3.0 and np.abs(err[:2, :2]).max() < 0.01
+
+
+def test_despeckle_says_what_it_read_as_unknown() -> None:
+    ex = ROOT / "examples"
+    proc = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", "--despeckle", "-v")
+    assert proc.returncode == 0, proc.stderr
+    said = [ln for ln in proc.stderr.splitlines() if "lone wall cells (speckle)" in ln]
+    assert [ln.split(": ")[1] for ln in said] == ["map A", "map B"], proc.stderr
+    plain = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", "-v")
+    assert "speckle" not in plain.stderr

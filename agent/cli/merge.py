@@ -61,6 +61,12 @@ def configure(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="write a PNG of the merge")
     p.add_argument(
+        "--despeckle",
+        action="store_true",
+        help="read lone wall cells as unknown, for raw map images saved without cleaning "
+        "(two maps only; not for a laser's own maps, whose far walls are sparse dots)",
+    )
+    p.add_argument(
         "--max-cells",
         type=int,
         default=MAX_CELLS,
@@ -155,6 +161,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
     _check_output("plot", args.plot)
     _check_output("fused map", args.output)
+    if args.despeckle and args.more:
+        raise CliError("--despeckle merges two maps, not more")
     progress = _progress(args)
     say = progress or (lambda line: None)
     if args.more:
@@ -180,7 +188,12 @@ def run(args: argparse.Namespace) -> int:
         # the PGVD and edge images (MergeResult.diagnostics) are drawn only by --plot;
         # painting them back at full resolution took 10 ms of a 0.56 s merge at 1000^2
         # cells and 50 ms of 1.4 s at 2000^2 (bench.merge's scaling pair, busy machine)
-        result = merge(a, b, MergeParams(diagnostics=args.plot is not None), progress=progress)
+        from pgvd.speckle import DESPECKLE_RADIUS
+
+        params = MergeParams(
+            diagnostics=args.plot is not None, speckle_radius=DESPECKLE_RADIUS * args.despeckle
+        )
+        result = merge(a, b, params, progress=progress)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     doc = report(result, b_scale)
