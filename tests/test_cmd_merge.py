@@ -65,6 +65,7 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
     no_walls = np.where(p > 0.65, 0.1, p)
     np.save(tmp / "no_walls.npy", no_walls)
     (tmp / "dir.yaml").mkdir()
+    (tmp / "dir.png").mkdir()
     return [
         ("missing file", [maps / "nope.yaml", intel], "no such file"),
         ("unreadable file", [intel, tmp / "dir.yaml"], "is a directory"),
@@ -77,9 +78,10 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
         ("NaN", [intel, tmp / "nan.npy"], "NaN"),
         ("bad -o suffix", [intel, intel, "-o", tmp / "fused.png"], ".yaml, .yml or .npy"),
         # refused before the merge runs: nothing on stdout
-        ("plot into a directory", [intel, intel, "--plot", tmp], "is a directory"),
+        ("plot into a directory", [intel, intel, "--plot", tmp / "dir.png"], "is a directory"),
         ("-o under a file", [intel, intel, "-o", tmp / "nan.npy" / "f.yaml"], "is not a directory"),
         ("--despeckle of 3 maps", [intel, intel, intel, "--despeckle"], "two maps, not more"),
+        ("--plot not a PNG", [intel, intel, "--plot", tmp / "m.jpg"], "must end in .png"),
     ]
 
 

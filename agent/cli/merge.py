@@ -54,7 +54,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         "(--json then lists maps and links; -o writes the largest merged group)",
     )
     p.add_argument(
-        "-o", "--output", type=Path, metavar="FUSED", help="write the fused map (.yaml or .npy)"
+        "-o",
+        "--output",
+        type=Path,
+        metavar="FUSED",
+        help="write the fused map: .yaml (map_server, with resolution and origin) or .npy "
+        "(probabilities only: no resolution, no origin)",
     )
     p.add_argument(
         "--json", action="store_true", help="print one JSON object (matrix, covariance, ...)"
@@ -157,6 +162,8 @@ def _write(what: str, path: Path, write: Callable[[], None]) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.output is not None and args.output.suffix.lower() not in _MAP_SUFFIXES:
         raise CliError(f"-o {args.output}: the fused map must end in .yaml, .yml or .npy")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise CliError(f"--plot {args.plot}: the picture is a PNG, its name must end in .png")
     if args.max_cells <= 0:
         raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
     _check_output("plot", args.plot)
