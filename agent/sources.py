@@ -342,6 +342,8 @@ class MapFileSource:
             self.errors += 1
             self.last_error = str(exc).splitlines()[0]
             return False
+        # the file reads again: an error that comes back later is a new one, said again
+        self.last_error = None
         self._seen = stamp
         if self._grid is not None and _same_grid(grid, self._grid):
             return False

@@ -20,15 +20,16 @@ MODES = ("peer", "client", "router")
 # Zenoh's errors end with the Rust source location, wrap a JSON5 value error in its Debug
 # form, and show a JSON5 syntax error as a multi-line caret drawing; a user needs one line.
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
-_DEBUG_MESSAGE = re.compile(r'msg: "((?:[^"\\]|\\.)*)"')
-_SYNTAX = re.compile(r"-->\s*(\d+):(\d+).*?=\s*(.+)", re.S)
+_DEBUG_MESSAGE = re.compile(r'msg: "((?:[^"\\]|\\.)+)"')
+# the "= expected ..." line of the caret drawing, not an "=" in the quoted source line
+_SYNTAX = re.compile(r"-->\s*(\d+):(\d+).*?^\s*=\s*(.+)", re.S | re.M)
 
 
 def zenoh_error(exc: BaseException) -> str:
     """Zenoh's error text on one line: the message, or where and what for a syntax error."""
     text = _RUST_LOCATION.sub("", str(exc))
     if message := _DEBUG_MESSAGE.search(text):
-        return message.group(1)
+        return message.group(1).replace('\\"', '"')
     if syntax := _SYNTAX.search(text):
         line, column, what = syntax.groups()
         return f"line {line}, column {column}: {' '.join(what.split())}"

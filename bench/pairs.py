@@ -90,8 +90,11 @@ def painted_pair(pair: MapPair) -> MapPair:
 
 def speckled(grid: Grid, density: float, rng: np.random.Generator) -> Grid:
     """``grid`` as a raw, uncleaned map: ``density`` of its free cells (below map_saver's
-    :data:`pgvd.io.FREE_THRESH`), drawn at random, are lone walls (:data:`pgvd.io.P_OCCUPIED`):
-    spurious returns that a cleaned map would have lost."""
+    :data:`pgvd.io.FREE_THRESH`), drawn at random, are walls (:data:`pgvd.io.P_OCCUPIED`):
+    spurious returns that a cleaned map would have lost (one drawn beside a wall thickens it
+    rather than standing alone)."""
+    if not 0 <= density < 1:
+        raise ValueError(f"speckle density must be in [0, 1), got {density}")
     p = grid.probability()
     free = np.flatnonzero(p < FREE_THRESH)
     picked = rng.choice(free, size=round(density * free.size), replace=False)

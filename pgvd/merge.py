@@ -229,14 +229,12 @@ class MergeParams:
         painted free (:func:`registration_probability`).
     speckle_radius, speckle_cells : with ``speckle_radius > 0`` (m), a wall cell with at
         most ``speckle_cells`` wall cells (itself included) in the square of that
-        half-side is speckle, read as unknown by registration (:mod:`pgvd.speckle`), for
-        raw map images (``pgvd merge --despeckle`` sets 0.15).  Off by default: a laser
-        draws far walls as sparse dots and small objects as lone cells, and on the
-        development bench (``python3 -m bench.merge --methods pgvd-despeckle``) reading
-        them as unknown loses 5 standard, 6 low-overlap and 3 drifted pairs and accepts
-        one wrong pose.  The share of lone wall cells does not tell a raw image from a
-        laser's map: up to 19 % (median 2.8 %) on the bench's maps, 4.5-48 % (median
-        6.7 %) on its map images with 0.5 % of their free cells speckle.
+        half-side (at least 2 cells) is speckle, read as unknown by registration
+        (:mod:`pgvd.speckle`), for raw map images (``pgvd merge --despeckle`` sets
+        0.15).  Off by default: a laser draws far walls as sparse dots and small objects
+        as lone cells, and on the development bench reading them as unknown loses pairs
+        and accepts a wrong pose (``bench/results/merge-despeckle.md``); how many of a
+        map's walls are lone does not tell a raw image from a laser's map.
     probabilistic : False matches the plain GVD (every GVD cell certain), the paper's
         deterministic comparison Gamma_det of (41) (ablation: without PGVD weighting).
     rho_veto : False drops the existence test (32): every edge pair with a positive
@@ -440,12 +438,15 @@ def registration_probability(
     (:func:`pgvd.unexplored.restore_unexplored`).  ``say`` is told of both.
     """
     prob = grid.probability()
+    # measured as drawn: speckle read as unknown must not hide a map painted free
+    painted = unknown_share(prob, params.free, params.occupied) < params.min_unknown
     if params.speckle_radius > 0:
-        radius = max(1, round(params.speckle_radius / grid.resolution))
+        # at least 2 cells: in a 3x3 square a wall drawn every other cell is all speckle
+        radius = max(2, round(params.speckle_radius / grid.resolution))
         prob, lone = without_speckle(prob, params.occupied, radius, params.speckle_cells)
         if lone and say is not None:
             say(f"{lone} lone wall cells (speckle) read as unknown")
-    if unknown_share(prob, params.free, params.occupied) >= params.min_unknown:
+    if not painted:
         return prob
     if say is not None:
         say("no unknown cells: free space outside the convex hull of its walls read as unknown")

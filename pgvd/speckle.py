@@ -7,13 +7,15 @@ registration reads every speckle cell as a wall: coarsened to the search's
 0.2 m cells it becomes a wall block, its PGVD grows edges around it, and on
 the other map it lands on free space as a contradiction.  Cut from the
 development map images with 0.5 % of their free cells turned into lone
-walls, independently in each part, 14 of 18 pairs merged right instead of 18
-of 18; with 2 %, 2 of 18 (``python3 -m bench.mapimages --speckle``).
+walls, independently in each part, 13 of 18 pairs merged right instead of 18
+of 18 (walls as drawn); with 2 %, 1 of 18 (``python3 -m bench.mapimages
+--speckle 0.005``, ``bench/results/mapimages-speckle-*.md``).
 
 A wall cell is speckle when the square of ``2 radius + 1`` cells around it
 holds at most ``most`` wall cells, itself included.  A wall, even one a
 laser draws as a dotted line at a grazing angle, has wall cells every cell or
-two along it, so its cells have several neighbours in that square; a lone
+two along it, so with a radius of 2 cells or more its cells have several
+neighbours in that square (the two end dots of a dotted wall may not); a lone
 cell or a pair has none.  With ``MergeParams.speckle_radius`` (``pgvd merge
 --despeckle``), registration reads speckle as unknown
 (:func:`pgvd.merge.registration_probability`); fusion keeps the map as drawn.  It is
@@ -57,16 +59,19 @@ def lone_walls(walls: np.ndarray, radius: int, most: int) -> np.ndarray:
     """
     import cv2
 
-    if radius < 1 or most < 1:
-        raise ValueError(f"radius and most must be >= 1, got {radius} and {most}")
+    if not 1 <= radius <= 127 or most < 1:
+        raise ValueError(f"radius must be in 1..127 and most >= 1, got {radius} and {most}")
     walls = np.asarray(walls, dtype=bool)
+    if walls.size == 0:  # OpenCV refuses an empty image
+        return walls.copy()
     side = 2 * radius + 1
-    # counts are small whole numbers, exact in float32
+    # uint8 in, 16-bit counts out (a square of up to 255x255 cells): a quarter of the
+    # memory of float32 counts on a map at --max-cells
     count = cv2.boxFilter(
-        walls.astype(np.float32), -1, (side, side), normalize=False,
+        np.ascontiguousarray(walls).view(np.uint8), cv2.CV_16U, (side, side), normalize=False,
         borderType=cv2.BORDER_CONSTANT,
     )  # fmt: skip
-    return walls & (count < most + 0.5)
+    return walls & (count <= most)
 
 
 def without_speckle(

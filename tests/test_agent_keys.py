@@ -11,7 +11,13 @@ from hypothesis import strategies as st
 
 from agent import wire
 from agent.keys import FleetKeys, check_name, is_name
-from agent.zenoh_config import TILE_BATCH_BYTES, ZenohOptions, build_config, tile_session_options
+from agent.zenoh_config import (
+    TILE_BATCH_BYTES,
+    ZenohOptions,
+    build_config,
+    tile_session_options,
+    zenoh_error,
+)
 
 
 def test_keys_live_under_the_fleet_prefix() -> None:
@@ -111,3 +117,32 @@ def test_tile_session_keeps_the_main_choices_but_not_its_file_or_multicast(tmp_p
     assert json.loads(cfg.get_json("connect/endpoints")) == ["udp/127.0.0.1:17003"]
     # A tile message packed for a datagram, with Zenoh's framing, fits one batch.
     assert wire.DATAGRAM_BYTES + 100 <= TILE_BATCH_BYTES <= 1500 - 28
+
+
+@pytest.mark.parametrize(
+    ("text", "line"),
+    [
+        (  # a JSON5 value error in its Debug wrapper, as insert_json5 raises it
+            'Json5Err(Message { msg: "Endpoints must be of the form <protocol>/<address>: '
+            'garbage at /r/.cargo/zenoh/src/core/endpoint.rs:615.", location: Some(Location '
+            "{ line: 1, column: 1 }) }) at /r/.cargo/zenoh/src/api/config.rs:86.",
+            "Endpoints must be of the form <protocol>/<address>: garbage",
+        ),
+        (  # a syntax error whose source line holds an "=" of its own
+            ' --> 2:56\n  |\n2 |   connect: { endpoints: ["tcp/1.2.3.4:7447#iface=eth0" ,, ] }'
+            "\n  |                                                        ^---\n  |\n  = expected"
+            " array, boolean, null, number, object, or string at /r/zenoh-config/src/lib.rs:1486.",
+            "line 2, column 56: expected array, boolean, null, number, object, or string",
+        ),
+        (
+            "No such file or directory (os error 2) at /r/zenoh-config/src/lib.rs:1507.",
+            "No such file or directory (os error 2)",
+        ),
+        ('Json5Err(Message { msg: "", location: None }) at /r/config.rs:86.', None),
+    ],
+)
+def test_zenoh_errors_read_as_one_line(text: str, line: str | None) -> None:
+    got = zenoh_error(RuntimeError(text))
+    assert "\n" not in got and ".rs:" not in got and got
+    if line is not None:
+        assert got == line

@@ -269,6 +269,7 @@ def test_map_file_source_counts_a_yaml_whose_image_is_missing(shared: Path, tmp_
     shutil.copy(shared / "maps/intel_split_gt/intel_partA.pgm", tmp_path)
     assert not source.step(3.0)  # the image appeared: wait one poll, then read it
     assert source.step(4.0) and source.errors == 2
+    assert source.last_error is None  # read: no error now (read_errors keeps the count)
 
 
 def test_epoch_due_on_big_change_or_moved_canvas() -> None:

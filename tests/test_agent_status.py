@@ -53,6 +53,8 @@ def test_table_shows_robots_versions_links_traffic_and_drops() -> None:
     failing = {"kind": "map", "read_errors": 4, "last_error": "m.yaml: no such file"}
     text = format_table({"r1": {**STATUS, "source": failing}})
     assert "  source  4 read errors, last: m.yaml: no such file" in text
+    healed = {"r1": {**STATUS, "source": {**failing, "last_error": None}}}
+    assert "  source  4 read errors, reads again" in format_table(healed)
 
 
 def test_bad_fleet_name_is_exit_2(capsys) -> None:

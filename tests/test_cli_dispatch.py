@@ -148,6 +148,7 @@ def test_every_command_has_its_arguments_and_help() -> None:
         assert res.stdout.count("--") >= 2, res.stdout  # its own options, not only --help
         # descriptions are module docstrings: their reStructuredText reads as plain text
         assert "``" not in res.stdout and ":mod:`" not in res.stdout, res.stdout
+        assert max(map(len, res.stdout.splitlines())) <= 100, res.stdout  # wrapped
 
 
 def test_help_shows_defaults_once() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -265,3 +266,16 @@ def test_despeckle_says_what_it_read_as_unknown() -> None:
     assert [ln.split(": ")[1] for ln in said] == ["map A", "map B"], proc.stderr
     plain = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", "-v")
     assert "speckle" not in plain.stderr
+
+
+def test_verbose_prints_each_step_and_its_stage_so_far() -> None:
+    ex = ROOT / "examples"
+    proc = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", "-v")
+    line = re.compile(r"pgvd merge: (\w+): ([\d.]+) ms \(([\d.]+) ms so far\)")
+    steps = [m for m in map(line.fullmatch, proc.stderr.splitlines()) if m]
+    assert len({m[1] for m in steps}) >= 6, proc.stderr
+    added: dict[str, list[float]] = {}
+    for m in steps:  # the running total is the sum of the stage's steps (each rounded)
+        added.setdefault(m[1], []).append(float(m[2]))
+        assert abs(sum(added[m[1]]) - float(m[3])) <= 0.05 * len(added[m[1]]) + 1e-9, m[0]
+    assert any(len(v) > 1 for v in added.values())  # a stage run once per heading

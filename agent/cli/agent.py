@@ -177,7 +177,7 @@ def options_from_args(args: argparse.Namespace):
     if source.path is not None and not source.path.exists():
         raise CliError(f"source file not found: {source.path}")
     if source.kind in ("carmen", "map") and source.path is not None and source.path.is_dir():
-        raise CliError(f"source is a directory, not a {source.kind}: file: {source.path}")
+        raise CliError(f"source {source.kind}:{source.path} is a directory, not a file")
     for name in ("resolution", "speed", "link_timeout", "announce", "min_interval", "inbox_mib",
                  "ros_rate"):
         if not getattr(args, name) > 0:

@@ -11,6 +11,7 @@ import importlib
 import os
 import re
 import sys
+import textwrap
 from collections.abc import Collection, Sequence
 
 from agent.cli.common import EXIT_BAD_INPUT, EXIT_FAILED, CliError
@@ -35,9 +36,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
 _RST = re.compile(r":[a-z]+:`([^`]+)`|``([^`]+)``")
 
 
-def plain(text: str | None) -> str | None:
-    """A docstring with its reStructuredText roles and literals as plain text (for ``--help``)."""
-    return None if text is None else _RST.sub(lambda m: m.group(1) or m.group(2), text)
+def plain(text: str | None, width: int = 88) -> str | None:
+    """A docstring with its reStructuredText roles and literals as plain text (for ``--help``),
+    its lines wrapped at ``width`` (the help keeps line breaks, so a one-line description would
+    otherwise run off the terminal)."""
+    if text is None:
+        return None
+    text = _RST.sub(lambda m: m.group(1) or m.group(2), text)
+    return "\n".join(
+        textwrap.fill(line, width, subsequent_indent=" " * (len(line) - len(line.lstrip(" -"))))
+        if len(line) > width
+        else line
+        for line in text.splitlines()
+    )
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter):
@@ -47,11 +58,9 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
         default = action.default
-        if (
-            action.option_strings
-            and default not in (None, False, [], argparse.SUPPRESS)
-            and "default" not in text
-        ):
+        # by identity: 0 and 0.0 equal False but are defaults worth showing
+        unset = default is None or default is False or default == [] or default == argparse.SUPPRESS
+        if action.option_strings and not unset and "default" not in text:
             return f"{text} (default: %(default)s)"
         return action.help
 

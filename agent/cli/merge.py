@@ -198,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
         from pgvd.speckle import DESPECKLE_RADIUS
 
         params = MergeParams(
-            diagnostics=args.plot is not None, speckle_radius=DESPECKLE_RADIUS * args.despeckle
+            diagnostics=args.plot is not None,
+            speckle_radius=DESPECKLE_RADIUS if args.despeckle else 0.0,
         )
         result = merge(a, b, params, progress=progress)
     except ValueError as exc:

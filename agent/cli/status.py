@@ -127,8 +127,10 @@ def format_table(statuses: dict[str, dict]) -> str:
         lines.append("  drops   " + (", ".join(f"{k}={v}" for k, v in drops) or "none"))
         source = s.get("source", {})
         if source.get("read_errors"):  # a map file the source could not load
+            now = source.get("last_error")
             lines.append(
-                f"  source  {source['read_errors']} read errors, last: {source.get('last_error')}"
+                f"  source  {source['read_errors']} read errors, "
+                + (f"last: {now}" if now else "reads again")
             )
     return "\n".join(lines)
 
