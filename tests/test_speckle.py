@@ -97,3 +97,30 @@ def test_a_speckled_map_image_merges_right_only_despeckled(shared):
     for radius, right in ((DESPECKLE_RADIUS, True), (0.0, False)):
         res = merge(pair.a, pair.b, MergeParams(diagnostics=False, speckle_radius=radius))
         assert evaluate(pair, res.accepted, res.matrix)["success"] is right, (radius, res.reason)
+
+
+def test_a_painted_raw_map_is_despeckled_and_restored():
+    """The unknown share is read before speckle turns unknown: heavy speckle on a map painted
+    free must not pass for unexplored space and skip the restoration."""
+    p = np.full((80, 80), 0.1, np.float32)  # painted free: no unknown cell
+    p[20, 20:60] = p[60, 20:60] = p[20:61, 20] = p[20:61, 60] = 0.9  # a room
+    rng = np.random.default_rng(3)
+    lone = rng.choice(np.flatnonzero(p < 0.5), 200, replace=False)  # 3 % speckle
+    p.flat[lone] = 0.9
+    said: list[str] = []
+    on = MergeParams(speckle_radius=DESPECKLE_RADIUS)
+    registration_probability(Grid.from_probability(p, 0.05), on, said.append)
+    assert len(said) == 2 and said[1].startswith("no unknown cells"), said
+
+
+def test_at_a_coarse_resolution_a_dotted_wall_keeps_its_dots():
+    """0.15 m is 1.5 cells at 0.1 m/cell: the square keeps a half-side of 2 cells, where a
+    wall drawn every other cell is no speckle (in 3x3 squares it all would be)."""
+    p = np.full((30, 60), 0.5, np.float32)
+    p[10:20, :] = 0.1
+    p[15, 4:56:2] = 0.9  # a dotted wall
+    p[12, 30] = 0.9  # a lone cell
+    on = MergeParams(speckle_radius=DESPECKLE_RADIUS)
+    prob = registration_probability(Grid.from_probability(p, 0.1), on)
+    assert prob[12, 30] == 0.5
+    assert np.count_nonzero(prob[15] > OCCUPIED) >= 24  # all but the two end dots at most
