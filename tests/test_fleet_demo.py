@@ -48,3 +48,15 @@ def test_demo_bad_input_is_one_line(tmp_path: Path, args: list[str], why: str) -
     res = demo(*args, cwd=tmp_path)
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and why in res.stderr
+
+
+def test_progress_counts_the_current_links_only() -> None:
+    from agent.cli.demo import _progress
+
+    link = {"a": "r1", "b": "r2", "accepted": True, "current": True}
+    status = {
+        "source": {"progress": [5, 10]},
+        "robots": {"r1": {}, "r2": {}},
+        "links": [link, {**link, "current": False}, {**link, "accepted": False}],
+    }
+    assert " links 1 " in _progress({"r1": status, "r2": None})

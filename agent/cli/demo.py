@@ -143,7 +143,9 @@ def _progress(statuses: dict[str, dict | None]) -> str:
             continue
         done, total = s["source"].get("progress", [0, 1])
         glob = s.get("global") or {}
-        links = sum(1 for ln in s.get("links", []) if ln["accepted"])
+        # the links between the robots' current versions: older versions' links stay in the
+        # status (3 robots showed "links 6"), but only these hold the global map together
+        links = sum(1 for ln in s.get("links", []) if ln["accepted"] and ln.get("current"))
         parts.append(
             f"{robot}: {100 * done // max(total, 1):3d}% "
             f"{s.get('counts', {}).get('versions_published', 0)} versions "
