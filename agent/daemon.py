@@ -337,7 +337,9 @@ class Agent:
         """Log a source's error when it changes: a map file that never reads (a bad YAML, an
         image that is not one) is retried every poll and would otherwise only be counted in
         the status, with the agent up and silent."""
-        error = self.source.describe().get("last_error")
+        # the attribute, not describe(): this runs every loop, and a log replay's describe()
+        # builds its grid's pixel transform; only sources that read files have one
+        error = getattr(self.source, "last_error", None)
         if error and error != self._source_error:
             log.warning("source %s: %s", self.opts.source.path or self.opts.source.topic, error)
         self._source_error = error

@@ -432,9 +432,8 @@ def registration_probability(
     """The probabilities (34) of ``grid`` that registration reads.
 
     With ``params.speckle_radius``, lone wall cells (speckle, :mod:`pgvd.speckle`) are
-    unknown.  A map with less than
-    ``params.min_unknown`` of its cells unknown (an image whose unexplored area was
-    painted free) gets its unexplored space back
+    unknown.  A map with less than ``params.min_unknown`` of its cells unknown (an image
+    whose unexplored area was painted free) gets its unexplored space back
     (:func:`pgvd.unexplored.restore_unexplored`).  ``say`` is told of both.
     """
     prob = grid.probability()
