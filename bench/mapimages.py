@@ -12,19 +12,23 @@ merge bench judges (:func:`bench.merge.evaluate`: accepted, heading within 2
 degrees, B's walls within 3 cells on average).
 
     python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--unknown free] [--speckle D]
-        [--ablation NAME] [--out bench/results]
+        [--clutter C] [--ablation NAME] [--out bench/results]
 
 ``--unknown free`` paints every unknown cell of both parts free, the padding of
 B's frame included (:func:`bench.pairs.painted_free`): images whose unexplored
 area was painted white, as some editors and exports save them.  ``--speckle D``
 turns a share ``D`` of each part's free cells, drawn independently, into lone
-walls (:func:`bench.pairs.speckled`): raw maps saved without cleaning.  ``--ablation
+walls (:func:`bench.pairs.speckled`): raw maps saved without cleaning.  ``--clutter C``
+draws furniture into each image before its parts are cut, ``C`` filled discs of
+0.1-0.35 m radius per square metre of free space (:func:`bench.pairs.cluttered`; 0.3 is
+an office with a desk, chair or bin every 3 square metres).  ``--ablation
 pgvd-as-drawn`` (any name of :data:`bench.merge.ABLATIONS`) merges with that stage
 off, ``--ablation pgvd-despeckle`` (or another of :data:`bench.merge.OPTIONS`) with that
 option on; the report's name gains its name.
 
 Writes ``mapimages.md`` (``mapimages-painted.md`` with ``--unknown free``,
-``mapimages-speckle-D.md`` with ``--speckle D``): per
+``mapimages-speckle-D.md`` with ``--speckle D``, ``mapimages-clutter-C.md`` with
+``--clutter C``): per
 growth, right / accepted pairs and the median and largest mean cell error of the
 right ones, and a row per map image.
 """
@@ -38,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.merge import ABLATIONS, OPTIONS, RESULTS, evaluate
-from bench.pairs import MapPair, painted_pair, speckled_pair
+from bench.pairs import MapPair, cluttered, painted_pair, speckled_pair
 from bench.report import mark
 from bench.sources import SHARED, SOURCES
 from pgvd.grid import Grid, rigid_matrix
@@ -96,10 +100,12 @@ def run(
     painted: bool = False,
     ablation: str = "",
     speckle: float = 0.0,
+    clutter: float = 0.0,
 ) -> list[dict]:
     """Every map image's pairs at every growth, merged; one record each (``painted``: with
     :func:`bench.pairs.painted_pair`'s maps; ``speckle``: with that share of free cells
-    lone walls, :func:`bench.pairs.speckled_pair`; ``ablation``: a key of
+    lone walls, :func:`bench.pairs.speckled_pair`; ``clutter``: with that many discs of
+    furniture per square metre of free space, :func:`bench.pairs.cluttered`; ``ablation``: a key of
     :data:`bench.merge.ABLATIONS` or :data:`bench.merge.OPTIONS`, the merge with that
     stage off or that option on)."""
     params = MergeParams(diagnostics=False, **{**ABLATIONS, **OPTIONS}.get(ablation, {}))
@@ -112,6 +118,7 @@ def run(
             # the same frames at every growth: only the walls differ
             rng = np.random.default_rng(seed)
             p = thickened(grid.probability(), cells)
+            p = cluttered(p, clutter, RESOLUTION, seed) if clutter > 0 else p
             for pair in part_pairs(source.name, p, frames, rng):
                 pair = speckled_pair(pair, speckle, seed) if speckle > 0 else pair
                 pair = painted_pair(pair) if painted else pair
@@ -176,6 +183,14 @@ def main(argv: list[str] | None = None) -> int:
         help="share of each part's free cells made lone walls (writes mapimages-speckle-D.md)",
     )
     parser.add_argument(
+        "--clutter",
+        type=float,
+        default=0.0,
+        metavar="C",
+        help="filled discs of furniture per square metre of free space "
+        "(writes mapimages-clutter-C.md)",
+    )
+    parser.add_argument(
         "--ablation",
         choices=sorted({**ABLATIONS, **OPTIONS}),
         default="",
@@ -186,14 +201,19 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--frames must be >= 1 and --grow >= 0")
     if not 0 <= args.speckle < 1:
         parser.error("--speckle must be in [0, 1)")
+    if not args.clutter >= 0:
+        parser.error("--clutter must be >= 0")
     painted = args.unknown == "free"
-    records = run(args.frames, args.grow, args.seed, painted, args.ablation, args.speckle)
+    records = run(
+        args.frames, args.grow, args.seed, painted, args.ablation, args.speckle, args.clutter
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     command = "python3 -m bench.mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
     name = (
         "mapimages"
         + ("-painted" if painted else "")
         + (f"-speckle-{args.speckle:g}" if args.speckle else "")
+        + (f"-clutter-{args.clutter:g}" if args.clutter else "")
         + (f"-{args.ablation}" if args.ablation else "")
     )
     out = args.out / f"{name}.md"

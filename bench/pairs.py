@@ -103,6 +103,36 @@ def speckled(grid: Grid, density: float, rng: np.random.Generator) -> Grid:
     return Grid.from_probability(out, grid.resolution, grid.origin)
 
 
+def cluttered(p: np.ndarray, density: float, resolution: float, seed: int) -> np.ndarray:
+    """Probabilities ``p`` of a map image with furniture drawn in: filled discs of radius
+    0.1-0.35 m, ``density`` of them per square metre of free space on average (a Poisson
+    count), centred on free cells drawn at random.  Only free cells become walls
+    (:data:`pgvd.io.P_OCCUPIED`): nothing is drawn into the unexplored space.  Applied to a
+    whole image before its parts are cut, both robots see the same furniture.
+
+    Raises
+    ------
+    ValueError
+        If ``density`` is negative or ``resolution`` not positive.
+    """
+    import cv2
+
+    if not density >= 0 or not resolution > 0:
+        raise ValueError(
+            f"clutter needs density >= 0 and resolution > 0, got {density} and {resolution}"
+        )
+    rng = np.random.default_rng(seed)
+    free = p < FREE_THRESH
+    cells = np.flatnonzero(free)
+    count = min(cells.size, rng.poisson(density * cells.size * resolution**2))
+    drawn = np.zeros(p.shape, np.uint8)
+    for cell in rng.choice(cells, size=count, replace=False):
+        row, col = divmod(int(cell), p.shape[1])
+        radius = round(rng.uniform(0.1, 0.35) / resolution)
+        cv2.circle(drawn, (col, row), radius, 1, thickness=-1)
+    return np.where(free & drawn.astype(bool), np.asarray(P_OCCUPIED, p.dtype), p)
+
+
 def speckled_pair(pair: MapPair, density: float, seed: int) -> MapPair:
     """``pair`` with both maps :func:`speckled`, each with its own draw (two robots' raw
     maps do not share their speckle); the draws depend on ``seed`` and the pair's name."""

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from bench.mapimages import part_pairs, report, thickened
+from bench.mapimages import RESOLUTION, part_pairs, report, thickened
+from bench.merge import evaluate
+from bench.pairs import cluttered
 from pgvd.io import read_map
+from pgvd.merge import merge
 
 
 def test_thickened_grows_walls_and_keeps_the_rest():
@@ -43,3 +47,28 @@ def test_report_has_a_row_per_image_and_the_errors_of_right_pairs():
     assert "| a-sim | 1/1 right, 1 accepted; 0.50 / 0.50 | 0/1 right, 1 accepted |" in lines
     both = "| **all** | 1/2 right, 1 accepted; 0.50 / 0.50 | 1/2 right, 2 accepted; 1.50 / 1.50 |"
     assert both in lines
+
+
+def test_clutter_turns_only_free_cells_into_discs_of_furniture():
+    p = np.full((200, 200), 0.1)  # free, as map_saver writes it
+    p[:, :50] = 0.5  # unexplored
+    p[100, 50:] = 0.9  # a wall
+    out = cluttered(p, 2.0, 0.05, seed=3)
+    new = (out > 0.65) & (p <= 0.65)
+    assert new.any() and (p[new] == 0.1).all()  # only free cells were drawn
+    assert np.array_equal(out[p > 0.1], p[p > 0.1])
+    assert np.array_equal(out, cluttered(p, 2.0, 0.05, seed=3))
+    assert np.array_equal(cluttered(p, 0.0, 0.05, seed=3), p)
+    with pytest.raises(ValueError, match="density >= 0"):
+        cluttered(p, -1.0, 0.05, seed=3)
+
+
+def test_a_cluttered_real_image_pair_merges_right(shared):
+    # intel's image with a desk, chair or bin every 3 square metres drawn in (filled), both
+    # parts cut from it: not every frame of it merges (bench/results/mapimages-clutter-0.3.md)
+    p = read_map(shared / "maps" / "intel" / "intel.yaml").probability()
+    pair = part_pairs(
+        "intel", cluttered(p, 0.3, RESOLUTION, seed=21), 1, np.random.default_rng(21)
+    )[0]
+    result = merge(pair.a, pair.b)
+    assert evaluate(pair, result.accepted, result.matrix)["success"], result.reason
