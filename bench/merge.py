@@ -144,6 +144,10 @@ OPTIONS = {
     "pgvd-heading": {"heading_span": 6.0},
     "pgvd-search": {"search_finalists": 4},
     "pgvd-despeckle": {"speckle_radius": DESPECKLE_RADIUS},
+    # not options a user sets: the default with every heading candidate turned a little,
+    # to measure how much the outcome hangs on the heading estimate
+    "pgvd-turned+0.1": {"heading_offset": 0.1},
+    "pgvd-turned-0.1": {"heading_offset": -0.1},
 }
 METHOD_NAMES = ("pgvd", *ABLATIONS, *OPTIONS, "m-explore", "hough", "exhaustive")
 

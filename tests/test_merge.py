@@ -11,7 +11,8 @@ from bench.mapimages import random_framed as _random_frame
 from bench.mapimages import thickened
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, MergeResult, merge
+from pgvd.merge import MergeParams, MergeResult, merge, registration_probability
+from pgvd.rotation import estimate_headings
 from pgvd.transform import resample
 
 SPLITS = {
@@ -184,3 +185,21 @@ def test_thick_walls_align_to_the_cell(shared, name):
     result = merge(a, b, MergeParams(diagnostics=False))
     dpsi, disp = _errors(result, rigid_matrix(0.0, float(cut), 0.0), b)
     assert result.accepted and dpsi < 0.05 and disp < 0.25, (result.reason, dpsi, disp)
+
+
+def test_heading_offset_turns_every_searched_heading(shared):
+    # the bench's measure of how much a merge hangs on its heading estimate
+    # (pgvd-turned+0.1): every heading the search went through is a candidate of (10)
+    # turned by the offset
+    a, b = (_load(shared, p) for p in SPLITS["intel"])
+    params = MergeParams(diagnostics=False, heading_offset=0.5)
+    candidates = estimate_headings(
+        registration_probability(a, params),
+        registration_probability(b, params),
+        params.max_candidates,
+    )
+    searched = merge(a, b, params).headings_deg
+    assert searched
+    for deg in searched:
+        turns = [np.angle(np.exp(1j * np.radians(deg - np.degrees(c.psi)))) for c in candidates]
+        assert min(abs(np.degrees(t) - 0.5) for t in turns) < 1e-6, deg
