@@ -73,8 +73,8 @@ def test_the_best_rival_is_kept_and_described(intel):
     both = decide([true, turned], WEIGHT, centre, probes=probes)
     assert (both.other, both.shifted, both.best) == (d.other, shift.shifted, turned)
     assert both.margin == d.margin
-    # the copies alone, contradicted by the maps, count for the winner: a larger margin
-    assert shift.margin > both.margin
+    # the copies alone, contradicted by the maps, count as no rival at all
+    assert shift.margin == decide([true], WEIGHT, centre).margin
 
 
 def test_shifted_probes_are_rivals_only(intel):
@@ -149,14 +149,16 @@ def test_local_agreement_forgives_drift_not_a_wrong_pose(shared, intel):
         assert evidence(off) < 0 < evidence(local), off
 
 
-def test_a_contradicted_rival_counts_for_the_winner(intel):
+def test_a_contradicted_rival_counts_as_no_rival(intel):
+    # being contradicted less than a rival is no evidence: with contradicted rivals
+    # counting for it, a willow disjoint pair passed at 0.97 (bench/results/merge-turned.md)
     _, fine_b, truth = intel
     centre = fine_b.walls.mean(axis=0)
     win = Scored(truth, Agreement(900, 100))
     alone = decide([win], WEIGHT, centre).margin
     assert alone == pytest.approx((900 - WEIGHT * 100) / 1000)
     far = Scored(_moved(truth, 200.0), Agreement(100, 400))
-    assert decide([win, far], WEIGHT, centre).margin > alone
+    assert decide([win, far], WEIGHT, centre).margin == alone
     close = Scored(_moved(truth, 200.0), Agreement(450, 0))
     assert decide([win, close], WEIGHT, centre).margin == pytest.approx(0.05)
 
@@ -203,7 +205,8 @@ def test_restate_measures_the_returned_pose_against_the_same_rival(intel):
     again = restate(first, final, WEIGHT)
     assert again.winner is final and again.rival == first.rival
     points = final.agreement.agree + final.agreement.disagree
-    assert again.margin == pytest.approx((final.evidence(WEIGHT) - first.rival) / points)
+    against = max(first.rival, 0.0)
+    assert again.margin == pytest.approx((final.evidence(WEIGHT) - against) / points)
     # the refined pose puts more walls on walls: its margin, not the rough one's, decides
     assert again.margin > first.margin, (again, first)
 
