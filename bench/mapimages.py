@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.merge import ABLATIONS, OPTIONS, RESULTS, evaluate
+from bench.merge import RESULTS, VARIANTS, evaluate
 from bench.pairs import MapPair, cluttered, painted_pair, speckled_pair
 from bench.report import mark
 from bench.sources import SHARED, SOURCES
@@ -108,7 +108,7 @@ def run(
     furniture per square metre of free space, :func:`bench.pairs.cluttered`; ``ablation``: a key of
     :data:`bench.merge.ABLATIONS` or :data:`bench.merge.OPTIONS`, the merge with that
     stage off or that option on)."""
-    params = MergeParams(diagnostics=False, **{**ABLATIONS, **OPTIONS}.get(ablation, {}))
+    params = MergeParams(diagnostics=False, **VARIANTS.get(ablation, {}))
     records = []
     for source in (s for s in SOURCES if s.simulated):
         grid = read_map(SHARED / source.path)
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--ablation",
-        choices=sorted({**ABLATIONS, **OPTIONS}),
+        choices=sorted(VARIANTS),
         default="",
         help="merge with this stage off, or this option on",
     )

@@ -30,6 +30,9 @@ Methods, all in this one process:
 ``pgvd-despeckle`` an option that is off by default (``pgvd merge --despeckle``): lone
                 wall cells read as unknown, ``MergeParams(speckle_radius=0.15)``
                 (:mod:`pgvd.speckle`);
+``pgvd-turned+0.1``, ``pgvd-turned-0.1`` not options: the default with every candidate
+                heading of (10) turned by that many degrees, ``MergeParams(heading_offset)``,
+                to measure how much the outcome hangs on the heading estimate;
 ``m-explore``   multirobot_map_merge's AKAZE + affine RANSAC pipeline (OpenCV);
 ``hough``       Carpin's Hough-spectrum merging;
 ``exhaustive``  every heading at 1 degree + FFT cross-correlation (reference).
@@ -149,7 +152,9 @@ OPTIONS = {
     "pgvd-turned+0.1": {"heading_offset": 0.1},
     "pgvd-turned-0.1": {"heading_offset": -0.1},
 }
-METHOD_NAMES = ("pgvd", *ABLATIONS, *OPTIONS, "m-explore", "hough", "exhaustive")
+#: Every pgvd variant by name: a stage off or an option on.
+VARIANTS = ABLATIONS | OPTIONS
+METHOD_NAMES = ("pgvd", *VARIANTS, "m-explore", "hough", "exhaustive")
 
 
 def methods(
@@ -158,7 +163,7 @@ def methods(
     """The methods of the table, in column order (those of ``names`` that exist)."""
     makers: dict[str, Callable[[], Method]] = {
         "pgvd": _pgvd,
-        **{name: (lambda kw=kw: _pgvd(**kw)) for name, kw in (ABLATIONS | OPTIONS).items()},
+        **{name: (lambda kw=kw: _pgvd(**kw)) for name, kw in VARIANTS.items()},
         "m-explore": lambda: _baseline("mexplore"),
         "hough": lambda: _baseline("hough"),
         "exhaustive": lambda: _baseline(

@@ -172,8 +172,8 @@ def split_margins(rows: list[dict], params: MergeParams) -> np.ndarray:
     The decision takes the larger of the two rivals (:attr:`pgvd.decision.Decision.rival`);
     measured apart, each has a margin of its own (:func:`pgvd.decision.margin_against`),
     and the smaller of the two is the decision's margin.  A kind with no rival while the
-    other has one puts no bound on it (``inf``): a missing rival counts as evidence 0, a
-    present one may be negative and count for the winner.
+    other has one puts no bound on it (``inf``): the margin counts a missing rival as
+    evidence 0, as it counts one the maps contradict.
     """
     w, noise = params.disagreement_weight, params.margin_noise
     out = []
