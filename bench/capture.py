@@ -27,6 +27,8 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from pgvd.pooling import from_pooled
+
 #: MergeResult fields not worth storing per pair (images for a person to look at).
 SKIPPED_FIELDS = {"diagnostics"}
 
@@ -128,3 +130,10 @@ class Finalists:
         self.matrices = [np.asarray(s.matrix) for s in calls[-1]] if calls else []
         if not ok:
             self.matrices = None
+
+    def full_frame(self, pool: int) -> list[np.ndarray] | None:
+        """:attr:`matrices` in the full maps' pixels: the decision sees its maps pooled
+        ``pool x pool`` (:func:`pgvd.pooling.decision_pool`)."""
+        if self.matrices is None:
+            return None
+        return [from_pooled(m, pool) for m in self.matrices]

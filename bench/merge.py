@@ -103,6 +103,7 @@ Method = Callable[[Grid, Grid], tuple[bool, np.ndarray, dict]]
 
 def _pgvd(**overrides) -> Method:
     from pgvd.merge import MergeParams, merge
+    from pgvd.pooling import decision_pool
 
     params = MergeParams(diagnostics=False, **overrides)
 
@@ -114,7 +115,7 @@ def _pgvd(**overrides) -> Method:
             "result": result_json(result),
             "searched_deg": searched.degrees,
             "searched_sigma_deg": searched.sigmas,
-            "finalists": finalists.matrices,
+            "finalists": finalists.full_frame(decision_pool(a.resolution)),
         }
         return bool(result.accepted), np.asarray(result.matrix), extra
 

@@ -40,6 +40,7 @@ from bench.report import MAX_HEADING_DEG, mark
 from bench.sets import FULL, build
 from pgvd.grid import heading
 from pgvd.merge import MergeParams, merge
+from pgvd.pooling import block_scale, decision_pool, from_pooled
 from pgvd.rotation import HeadingCandidate, estimate_headings
 
 #: The module of the merge (``pgvd.merge`` the name is the function the package exports).
@@ -78,9 +79,12 @@ def true_finalist(pair: MapPair, seen: dict) -> Iterator[None]:
         return pick(good, params)
 
     def decide_with_truth(chosen: list, fine_a, fine_b, to_fine, k, params, res):
+        # the decision's frame is the maps pooled for it; k is the coarse cell in its cells
+        pool = decision_pool(pair.a.resolution)
+
         def error(h) -> float:
-            matrix = to_fine @ h.coarse_matrix @ np.linalg.inv(_MERGE_MODULE._scale(k))
-            return evaluate(pair, True, matrix)["cell_err"] / k
+            pooled = to_fine @ h.coarse_matrix @ np.linalg.inv(block_scale(k))
+            return evaluate(pair, True, from_pooled(pooled, pool))["cell_err"] / (k * pool)
 
         nearest = min(supported, key=error)
         seen.update(coarse_err=error(nearest), was_finalist=any(h is nearest for h in chosen))

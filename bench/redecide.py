@@ -46,6 +46,7 @@ from pgvd.decision import margin_against
 from pgvd.grid import Grid
 from pgvd.matching import WallMap
 from pgvd.merge import MergeParams, decide_finalists, fine_maps, registration_probability
+from pgvd.pooling import decision_pool, from_pooled, to_pooled
 
 SETS = ("standard", "low", "drifted", "negative")
 
@@ -71,11 +72,10 @@ def params_from(overrides: list[str]) -> MergeParams:
 
 
 def decision_maps(a: Grid, b: Grid, params: MergeParams) -> tuple[WallMap, WallMap]:
-    """:func:`pgvd.merge.fine_maps` of two grids, each read as the merge reads it
-    (:func:`pgvd.merge.registration_probability`)."""
-    return fine_maps(
-        registration_probability(a, params), registration_probability(b, params), params
-    )
+    """:func:`pgvd.merge.fine_maps` of two grids, each read and pooled as the merge reads
+    it (:func:`pgvd.merge.registration_probability`, :func:`pgvd.pooling.decision_pool`)."""
+    pa, pb = registration_probability(a, params), registration_probability(b, params)
+    return fine_maps(pa, pb, params, decision_pool(a.resolution))
 
 
 def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
@@ -97,14 +97,15 @@ def replay(a: Grid, b: Grid, finalists: list, params: MergeParams) -> dict:
         ``matrix`` (3x3 array) and the whole ``decision`` (:class:`pgvd.decision.Decision`).
     """
     fine_a, fine_b = decision_maps(a, b, params)
-    mats = [np.asarray(m, dtype=float) for m in finalists]
-    index, decision, matrix = decide_finalists(mats, fine_a, fine_b, params, a.resolution)
+    pool = decision_pool(a.resolution)
+    mats = [to_pooled(np.asarray(m, dtype=float), pool) for m in finalists]
+    index, decision, matrix = decide_finalists(mats, fine_a, fine_b, params, a.resolution * pool)
     return {
         "winner": index,
         "margin": decision.margin,
         "rival": decision.rival,
         "accepted": decision.margin >= params.min_margin,
-        "matrix": matrix,
+        "matrix": from_pooled(matrix, pool),
         "decision": decision,
     }
 

@@ -78,7 +78,7 @@ def _digest(params: dict) -> str:
     return hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
 
 
-def _cached(cache: Path | None, key: str, make):
+def cached(cache: Path | None, key: str, make):
     """``make()``, pickled under ``cache/key`` (loaded from there when present)."""
     path = None if cache is None else cache / f"{key}-v{PAIRS_VERSION}-s{SIM_VERSION}.pkl"
     if path is not None and path.exists():
@@ -126,7 +126,7 @@ def source_pairs(
         if n:
             own_seed = seed * 100 + k
             what = tag if noise is None else f"{tag}-{_digest({**noise.json(), 'truth': 2})}"
-            pairs = _cached(
+            pairs = cached(
                 cache,
                 f"{name}-{what}-{n}-{own_seed}",
                 lambda n=n, band=band, noise=noise, tag=tag, own_seed=own_seed: make_pairs(
@@ -138,7 +138,7 @@ def source_pairs(
         add(
             "negative",
             "disjoint",
-            _cached(
+            cached(
                 cache,
                 key("disjoint", counts.disjoint),
                 lambda: make_pairs(scans, 0, counts.disjoint, seed, name, max_draws=4 * MAX_DRAWS),
@@ -148,7 +148,7 @@ def source_pairs(
         add(
             "negative",
             "lookalike",
-            _cached(
+            cached(
                 cache,
                 key("lookalike", counts.lookalike),
                 lambda: lookalike_pairs(scans, counts.lookalike, seed, name),
@@ -158,7 +158,7 @@ def source_pairs(
         add(
             "negative",
             "mirror",
-            _cached(
+            cached(
                 cache,
                 key("mirror", counts.mirror),
                 lambda: mirror_pairs(scans, counts.mirror, seed, name),
@@ -186,7 +186,7 @@ def build(
         runs.setdefault(source.building, scans)
         entries += source_pairs(source, scans, counts, seed, cache)
     if gmapping and counts.gmapping:
-        for p in _cached(
+        for p in cached(
             cache,
             f"gmapping-{counts.gmapping}-{seed}",
             lambda: gmapping_pairs(counts.gmapping, seed),
@@ -197,7 +197,7 @@ def build(
             )
     if counts.cross and len(runs) > 1:
         names = "-".join(sorted(runs))
-        cross = _cached(
+        cross = cached(
             cache,
             f"cross-{names}-{counts.cross}-{seed}",
             lambda: cross_pairs(runs, counts.cross, seed),

@@ -35,16 +35,18 @@ Stages (``timings_ms`` keys):
     walls on clear free space, both ways); with ``search_finalists``, those that
     beat them all by a second evidence, which also counts the cells free in both
     maps, join them.  The finalists are refined and
-    scored again at full resolution (each 5 m square of the overlap re-aligned by
+    scored again at full resolution, on maps finer than 3.4 cm pooled to about
+    5 cm cells first (:mod:`pgvd.pooling`: the decision's distances in cells were
+    set on 5 cm maps), each 5 m square of the overlap re-aligned by
     up to ``drift_shift`` first, so that a drifted map's walls running beside
-    the other's are not counted as conflict), and the winner, once refined (see
+    the other's are not counted as conflict; and the winner, once refined (see
     ``refine``) and scored again, is accepted only if it stands out from its rivals on
     the same pair (:mod:`pgvd.decision`): ``margin >= min_margin``, the margin
     lowered by ``margin_noise / sqrt(n)`` for an overlap of ``n`` walls.  The residual
     distortion of the overlap (:func:`pgvd.matching.residual_distortion`) is reported
     beside the pose.
 ``refine``
-    trimmed ICP of the wall cells at full resolution, then a robust (Cauchy)
+    trimmed ICP of the wall cells at the decision's resolution, then a robust (Cauchy)
     point-to-line alignment that does not stop short along corridors.
 ``covariance``
     covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
@@ -81,6 +83,13 @@ from pgvd.matching import (
     residual_distortion,
     rho_test,
     rho_threshold,
+)
+from pgvd.pooling import (
+    block_scale,
+    coarsen,
+    covariance_from_pooled,
+    decision_pool,
+    from_pooled,
 )
 from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
 from pgvd.sampling import subsample
@@ -387,35 +396,6 @@ class _Hypothesis:
     rotation: np.ndarray  # coarse B -> crop of the rotated coarse B (where sp_b lives)
     sp_b: np.ndarray
     gamma: np.ndarray
-
-
-def coarsen(p: np.ndarray, k: int, occupied: float = OCCUPIED) -> np.ndarray:
-    """Pool a probability grid by ``k x k`` blocks, keeping one-cell walls.
-
-    A block holds its largest probability if that is a wall, otherwise its
-    mean; cells beyond the map edge count as unknown (0.5).
-    """
-    if k == 1:
-        return np.asarray(p, dtype=np.float32)
-    h, w = p.shape
-    hp, wp = -(-h // k) * k, -(-w // k) * k
-    if (hp, wp) == (h, w):  # whole blocks: no padded copy of the map
-        padded = np.asarray(p, dtype=np.float32)
-    else:
-        padded = np.full((hp, wp), 0.5, dtype=np.float32)
-        padded[:h, :w] = p
-    # each block's k*k cells made contiguous: one copy, then both reductions run
-    # over a contiguous last axis instead of k-long strided pieces (3x faster)
-    blocks = padded.reshape(hp // k, k, wp // k, k).transpose(0, 2, 1, 3)
-    blocks = np.ascontiguousarray(blocks).reshape(hp // k, wp // k, k * k)
-    top = blocks.max(axis=2)
-    return np.where(top > occupied, top, blocks.mean(axis=2)).astype(np.float32)
-
-
-def _scale(k: int) -> np.ndarray:
-    """Coarse cell -> full-resolution pixel (cell centres at integers in both)."""
-    c = (k - 1) / 2.0
-    return np.array([[k, 0.0, c], [0.0, k, c], [0.0, 0.0, 1.0]])
 
 
 def _translation(tx: float, ty: float) -> np.ndarray:
@@ -833,12 +813,18 @@ def weigh(
     )
 
 
-def fine_maps(pa: np.ndarray, pb: np.ndarray, params: MergeParams) -> tuple[WallMap, WallMap]:
-    """A's and B's full-resolution maps from their probabilities, as the decision reads them.
+def fine_maps(
+    pa: np.ndarray, pb: np.ndarray, params: MergeParams, pool: int = 1
+) -> tuple[WallMap, WallMap]:
+    """A's and B's maps from their probabilities, as the decision reads them.
 
-    A gets the nearest-wall table (:class:`pgvd.matching.WallMap` ``lookup``): every
-    hypothesis is scored against it; B's walls are only counted once per hypothesis.
+    Each is pooled ``pool x pool`` first (:func:`pgvd.pooling.decision_pool`: about
+    5 cm cells, where the decision was set).  A gets the nearest-wall table
+    (:class:`pgvd.matching.WallMap` ``lookup``): every hypothesis is scored against it;
+    B's walls are only counted once per hypothesis.
     """
+    if pool > 1:
+        pa, pb = coarsen(pa, pool, params.occupied), coarsen(pb, pool, params.occupied)
     return (
         WallMap(pa, params.occupied, params.free, lookup=True),
         WallMap(pb, params.occupied, params.free),
@@ -918,13 +904,14 @@ def _decide(
     fine_a: WallMap,
     fine_b: WallMap,
     to_fine: np.ndarray,
-    k: int,
+    k: float,
     params: MergeParams,
     res: float,
 ) -> tuple[_Hypothesis, Decision, np.ndarray]:
-    """Refine every finalist at full resolution and weigh the best against its rivals.
+    """Refine every finalist on the decision's maps and weigh the best against its rivals.
 
-    ``to_fine`` maps A's coarse crop to A's pixels.  Finalists are refined on
+    ``to_fine`` maps A's coarse crop to the pixels of A's decision map, ``k`` is
+    the coarse cell over the decision's cell (:func:`fine_maps`).  Finalists are refined on
     a subsample of B's walls, then decided by :func:`decide_finalists`;
     ``res`` is the cell size (m).  Finalists within ``params.rival_distance``
     (and 2 degrees) of the winner are its own, the others its rivals.  Returns
@@ -932,7 +919,7 @@ def _decide(
     and the winner's B->A pixel matrix.
     """
     sub_b = subsample(fine_b.walls, params.refine_points)
-    starts = [to_fine @ h.coarse_matrix @ np.linalg.inv(_scale(k)) for h in finalists]
+    starts = [to_fine @ h.coarse_matrix @ np.linalg.inv(block_scale(k)) for h in finalists]
     refined = [
         refine(fine_a, sub_b, m, radii=(12.0, 6.0, 3.0), iterations=FINALIST_ICP_ITERATIONS)
         for m in starts
@@ -955,7 +942,7 @@ def _paint(coarse: np.ndarray, matrix: np.ndarray, k: int, shape: tuple[int, int
     ``matrix`` maps full-resolution pixels of the coarse array's frame to the target frame.
     """
     r, c = np.nonzero(coarse)
-    m = matrix @ _scale(k)
+    m = matrix @ block_scale(k)
     centres = np.column_stack([c, r]).astype(float) @ m[:2, :2].T + m[:2, 2]
     out = np.zeros(shape, coarse.dtype)
     offsets = np.arange(k) - (k - 1) / 2.0
@@ -977,7 +964,7 @@ def _diagnostics(
     shapes: tuple[tuple[int, int], tuple[int, int]],
 ) -> MergeDiagnostics:
     ia, ib = np.nonzero(best.passing)
-    to_fine = _scale(k)
+    to_fine = block_scale(k)
     crop_a = to_fine @ off_a @ np.linalg.inv(to_fine)
     # B's PGVD lives in the rotated coarse frame: draw it back in B's pixels.
     back = np.linalg.inv(to_fine @ best.rotation @ np.linalg.inv(to_fine))
@@ -1161,29 +1148,34 @@ def merge(
             else (f"no translation is supported by {params.min_pairs} edge pairs")
         )
         return _rejected(why, clock)
-    fine_a, fine_b = fine_maps(pa, pb, params)
+    # the decision runs on maps pooled to about the cell size it was set on
+    # (pgvd.pooling); its pose, distortion and covariance are brought back to A's pixels
+    pool = decision_pool(a.resolution)
+    res = a.resolution * pool
+    fine_a, fine_b = fine_maps(pa, pb, params, pool)
     clock.lap("verify")
-    to_fine = _scale(k) @ off_a
+    to_fine = np.linalg.inv(block_scale(pool)) @ block_scale(k) @ off_a
     finalists = _finalists(good, params)
-    best, decision, matrix = _decide(finalists, fine_a, fine_b, to_fine, k, params, a.resolution)
+    best, decision, pooled = _decide(finalists, fine_a, fine_b, to_fine, k / pool, params, res)
     clock.lap("refine")
-    agreement = map_agreement(fine_a, fine_b, matrix, max_points=params.fine_points, scaled=True)
-    overlap_m = 0.5 * agreement.agree * a.resolution
-    distortion = residual_distortion(
+    agreement = map_agreement(fine_a, fine_b, pooled, max_points=params.fine_points, scaled=True)
+    overlap_m = 0.5 * agreement.agree * res
+    distortion = pool * residual_distortion(
         fine_a,
         fine_b.walls,
-        matrix,
-        block=params.distortion_block / a.resolution,
+        pooled,
+        block=params.distortion_block / res,
         max_points=params.fine_points,
     )
     clock.lap("verify")
+    matrix = from_pooled(pooled, pool)
     extra = {"margin": decision.margin, "distortion_px": distortion, "headings_deg": searched}
     if decision.margin < params.min_margin:
         evidence = decision.winner.evidence(params.disagreement_weight)
         return _rejected(
             f"the best pose does not stand out: margin {decision.margin:.2f} < "
             f"{params.min_margin} (evidence {evidence:.0f}, best rival {decision.rival:.0f}: "
-            f"{describe_rival(decision, fine_b.walls.mean(axis=0), a.resolution)})",
+            f"{describe_rival(decision, fine_b.walls.mean(axis=0), res)})",
             clock,
             matrix,
             agreement.ratio,
@@ -1205,7 +1197,7 @@ def merge(
             agreement.ratio,
             **extra,
         )
-    cov = pose_covariance(fine_a, fine_b, matrix, a.resolution)
+    cov = covariance_from_pooled(pose_covariance(fine_a, fine_b, pooled, res), pooled, pool)
     clock.lap("covariance")
     diag = (
         _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))
