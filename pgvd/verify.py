@@ -20,6 +20,9 @@ the cost:
 4. ``covariance``: the merge's own, calibrated on real pairs
    (:func:`pgvd.matching.pose_covariance`).
 
+Maps finer than 3.4 cm are checked pooled to about 5 cm cells, as the merge decides
+(:mod:`pgvd.pooling`); the result is in the full maps' pixels.
+
 A rejected result carries the refined matrix for diagnosis only; a prediction is never
 accepted as it stands, only the refined transform once it passed every check.
 """
@@ -39,6 +42,7 @@ from pgvd.merge import (
     score_hypothesis,
     weigh,
 )
+from pgvd.pooling import coarsen, covariance_from_pooled, decision_pool, from_pooled, to_pooled
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
 BASIN_M = 1.0
@@ -81,12 +85,16 @@ def basin_move(
     return shift, float(np.degrees(abs(np.angle(np.exp(1j * turn)))))
 
 
-def wall_maps(a: Grid, b: Grid, params: MergeParams) -> tuple[WallMap, WallMap]:
-    """A's and B's full-resolution wall maps, each read as registration reads it
-    (:func:`pgvd.merge.registration_probability`)."""
+def wall_maps(a: Grid, b: Grid, params: MergeParams, pool: int = 1) -> tuple[WallMap, WallMap]:
+    """A's and B's wall maps, each read as registration reads it
+    (:func:`pgvd.merge.registration_probability`) and pooled ``pool x pool``
+    (:func:`pgvd.pooling.decision_pool`; 1: full resolution)."""
+    pa, pb = registration_probability(a, params), registration_probability(b, params)
+    if pool > 1:
+        pa, pb = coarsen(pa, pool, params.occupied), coarsen(pb, pool, params.occupied)
     return (
-        WallMap(registration_probability(a, params), params.occupied, params.free),
-        WallMap(registration_probability(b, params), params.occupied, params.free),
+        WallMap(pa, params.occupied, params.free),
+        WallMap(pb, params.occupied, params.free),
     )
 
 
@@ -141,30 +149,37 @@ def verify(
         cov: np.ndarray,
         margin: float = float("nan"),
     ) -> MergeResult:
-        psi, tx, ty = matrix_to_pose(m)
+        # m and cov are in the pooled maps' frame: brought back to the full maps' pixels
+        full = from_pooled(m, pool)
+        psi, tx, ty = matrix_to_pose(full)
+        cov = covariance_from_pooled(cov, m, pool)
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         return MergeResult(
-            accepted, m, float(np.degrees(psi)), (tx, ty), cov, score, timings, reason,
+            accepted, full, float(np.degrees(psi)), (tx, ty), cov, score, timings, reason,
             margin=margin,
         )  # fmt: skip
 
     nan = np.full((3, 3), np.nan)
-    fine_a, fine_b = wall_maps(a, b, params)
+    # checked on maps pooled to about 5 cm cells, as the merge decides (pgvd.pooling)
+    pool = decision_pool(a.resolution)
+    res = a.resolution * pool
+    fine_a, fine_b = wall_maps(a, b, params, pool)
+    start = to_pooled(m0, pool)
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:
-        return result(False, "a map has fewer than 10 wall cells", m0, 0.0, nan)
-    matrix = refine(fine_a.tree, fine_b.walls, m0)
+        return result(False, "a map has fewer than 10 wall cells", start, 0.0, nan)
+    matrix = refine(fine_a.tree, fine_b.walls, start)
     lap("refine")
-    shift_px, turn_deg = basin_move(m0, matrix, fine_b.walls)
-    if shift_px * a.resolution > BASIN_M or turn_deg > BASIN_DEG:
+    shift_px, turn_deg = basin_move(start, matrix, fine_b.walls)
+    if shift_px * res > BASIN_M or turn_deg > BASIN_DEG:
         lap("verify")
         return result(
             False,
-            f"refinement left the prediction's basin: moved {shift_px * a.resolution:.2f} m "
+            f"refinement left the prediction's basin: moved {shift_px * res:.2f} m "
             f"and {turn_deg:.1f} deg (> {BASIN_M} m or {BASIN_DEG} deg)",
             matrix, 0.0, nan,
         )  # fmt: skip
     agreement = map_agreement(fine_a, fine_b, matrix)
-    overlap_m = 0.5 * agreement.agree * a.resolution
+    overlap_m = 0.5 * agreement.agree * res
     lap("verify")
     min_agreement = max(params.min_agreement, MIN_AGREEMENT)
     min_overlap = max(params.min_overlap, MIN_OVERLAP_M)
@@ -174,7 +189,6 @@ def verify(
     if overlap_m < min_overlap:
         why = f"overlap too small: {overlap_m:.1f} m of agreeing walls < {min_overlap} m"
         return result(False, why, matrix, agreement.ratio, nan)
-    res = a.resolution
     decision = weigh(
         [score_hypothesis(matrix, fine_a, fine_b, params, res)], fine_a, fine_b, params, res
     )
@@ -185,6 +199,6 @@ def verify(
             f"{params.min_margin} (best shifted pose {decision.rival:.0f})"
         )
         return result(False, why, matrix, agreement.ratio, nan, decision.margin)
-    cov = pose_covariance(fine_a, fine_b, matrix, a.resolution)
+    cov = pose_covariance(fine_a, fine_b, matrix, res)
     lap("covariance")
     return result(True, "accepted", matrix, agreement.ratio, cov, decision.margin)

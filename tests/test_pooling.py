@@ -20,6 +20,7 @@ from pgvd.pooling import (
     from_pooled,
     to_pooled,
 )
+from pgvd.verify import verify
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -93,3 +94,18 @@ def test_a_finer_copy_of_a_pair_is_judged_as_the_pair() -> None:
     # within one 5 cm cell, three cells of the finer maps, at B's centre
     centre = np.array([b.shape[1] * 1.5, b.shape[0] * 1.5, 1.0])
     assert np.hypot(*((fine.matrix - fine_truth) @ centre)[:2]) < 3.0
+
+
+def test_a_predicted_pose_on_finer_maps_is_checked_as_on_the_maps() -> None:
+    a, b = read_map(EXAMPLES / "intel_a.yaml"), read_map(EXAMPLES / "intel_b.yaml")
+    truth = np.asarray(json.loads((EXAMPLES / "truth.json").read_text())["matrix"])
+    base = verify(a, b, truth)
+    to_fine = block_scale(3)
+    fine_truth = to_fine @ truth @ np.linalg.inv(to_fine)
+    fine = verify(_finer(a, 3), _finer(b, 3), fine_truth)
+    assert base.accepted and fine.accepted
+    assert fine.margin == pytest.approx(base.margin, abs=0.05)
+    # the same pose in metres: the finer matrix is the base one in the finer pixels
+    assert np.allclose(fine.matrix, to_fine @ base.matrix @ np.linalg.inv(to_fine), atol=1e-6)
+    assert fine.covariance[2, 2] == pytest.approx(base.covariance[2, 2], rel=1e-6)
+    assert fine.covariance[0, 0] == pytest.approx(9 * base.covariance[0, 0], rel=0.05)
