@@ -1152,6 +1152,8 @@ def merge(
     # (pgvd.pooling); its pose, distortion and covariance are brought back to A's pixels
     pool = decision_pool(a.resolution)
     res = a.resolution * pool
+    if pool > 1 and progress is not None:
+        progress(f"decision on the maps pooled {pool}x{pool}: {res:.3f} m cells")
     fine_a, fine_b = fine_maps(pa, pb, params, pool)
     clock.lap("verify")
     to_fine = np.linalg.inv(block_scale(pool)) @ block_scale(k) @ off_a

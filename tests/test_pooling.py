@@ -109,3 +109,13 @@ def test_a_predicted_pose_on_finer_maps_is_checked_as_on_the_maps() -> None:
     assert np.allclose(fine.matrix, to_fine @ base.matrix @ np.linalg.inv(to_fine), atol=1e-6)
     assert fine.covariance[2, 2] == pytest.approx(base.covariance[2, 2], rel=1e-6)
     assert fine.covariance[0, 0] == pytest.approx(9 * base.covariance[0, 0], rel=0.05)
+
+
+def test_merge_says_when_it_pools() -> None:
+    a, b = read_map(EXAMPLES / "intel_a.yaml"), read_map(EXAMPLES / "intel_b.yaml")
+    lines: list[str] = []
+    merge(_finer(a, 2), _finer(b, 2), MergeParams(diagnostics=False), progress=lines.append)
+    assert "decision on the maps pooled 2x2: 0.050 m cells" in lines
+    lines.clear()
+    merge(a, b, MergeParams(diagnostics=False), progress=lines.append)
+    assert not any("pooled" in line for line in lines)
