@@ -2,18 +2,21 @@
 
 Every map of the merge bench has 5 cm cells, and the decision's distances in
 cells were set there.  A user's SLAM may map at 2.5 cm or 10 cm.  For each
-``--resolutions`` value, overlapping and disjoint pairs are cut from the intel
-and freiburg-079 logs with one seed (:func:`bench.pairs.make_pairs`, the same
-segments whatever the cell size, as far as the overlap band allows) and merged.
+``--resolutions`` value, overlapping pairs and negatives are cut from the intel
+and freiburg-079 logs with one seed, the same segments whatever the cell size (as
+far as the overlap band allows), and merged.  The negatives are those of the merge
+bench (:mod:`bench.negatives`): disjoint parts of one log, a part against its
+mirror image, look-alike corridors (fewer where a building has no two out of
+each other's sight) and a part of one building against a part of the other.
 A pose is right when accepted within 2 degrees and 0.15 m (B's occupied
 cells, mean): a bound in metres, so that the cell sizes compare.
 
     python3 -m bench.resolution [--resolutions 0.0175 0.025 0.05 0.1] [--overlap 8]
-        [--disjoint 3] [--out bench/results]
+        [--negatives 3] [--out bench/results]
 
 Writes ``resolution.md``: per cell size, right / overlapping pairs, wrong and
 false accepts, the smallest margin of a right pose, the largest margin of a
-disjoint pair, the median error of the right poses (m) and the median time.
+negative, the median error of the right poses (m) and the median time.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import time
 from pathlib import Path
 
 from bench.merge import CACHE, RESULTS, errors
+from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
 from bench.pairs import MAX_DRAWS, MapPair, make_pairs
 from bench.sets import cached
 from bench.sources import SHARED
@@ -36,22 +40,27 @@ LOGS = {"intel": "intel-corrected.log.gz", "fr079": "freiburg-079-corrected.log.
 MAX_HEADING_DEG, MAX_ERROR_M = 2.0, 0.15
 
 
-def pairs_at(resolution: float, n_overlap: int, n_disjoint: int, seed: int, cache: Path | None):
-    """Each log's overlapping, then disjoint, pairs at ``resolution`` (cached)."""
+def pairs_at(
+    resolution: float, n_overlap: int, n_negative: int, seed: int, cache: Path | None
+) -> list[MapPair]:
+    """Each log's overlapping pairs and negatives, then the cross pairs, at ``resolution``
+    (cached)."""
+    runs = {name: read_carmen(SHARED / "logs" / log) for name, log in LOGS.items()}
     out: list[MapPair] = []
-    for name, log in LOGS.items():
-        key = f"resolution-{name}-{resolution}-{n_overlap}-{n_disjoint}-{seed}"
+    for name, scans in runs.items():
 
-        def make(log: str = log, name: str = name) -> list[MapPair]:
-            scans = read_carmen(SHARED / "logs" / log)
-            overlapping = make_pairs(scans, n_overlap, 0, seed, name, resolution=resolution)
-            disjoint = make_pairs(
-                scans, 0, n_disjoint, seed, name, resolution=resolution, max_draws=4 * MAX_DRAWS
+        def make(scans: list = scans, name: str = name) -> list[MapPair]:
+            return (
+                make_pairs(scans, n_overlap, 0, seed, name, resolution=resolution)
+                + make_pairs(scans, 0, n_negative, seed, name, resolution, max_draws=4 * MAX_DRAWS)
+                + mirror_pairs(scans, n_negative, seed, name, resolution)
+                + lookalike_pairs(scans, n_negative, seed, name, resolution)
             )
-            return overlapping + disjoint
 
+        key = f"resolution-{name}-ov-dj-mi-la-{resolution}-{n_overlap}-{n_negative}-{seed}"
         out += cached(cache, key, make)
-    return out
+    key = f"resolution-cross-{resolution}-{n_negative}-{seed}"
+    return out + cached(cache, key, lambda: cross_pairs(runs, n_negative, seed, resolution))
 
 
 def judge(pair: MapPair, params: MergeParams) -> dict:
@@ -97,28 +106,29 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolutions", type=float, nargs="+", default=[0.0175, 0.025, 0.05, 0.1])
     parser.add_argument("--overlap", type=int, default=8, help="overlapping pairs per log")
-    parser.add_argument("--disjoint", type=int, default=3, help="disjoint pairs per log")
+    parser.add_argument("--negatives", type=int, default=3, help="negatives of each kind")
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--cache", type=Path, default=CACHE)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    if any(not r > 0 for r in args.resolutions) or args.overlap < 1 or args.disjoint < 0:
-        parser.error("resolutions must be > 0, --overlap >= 1 and --disjoint >= 0")
+    if any(not r > 0 for r in args.resolutions) or args.overlap < 1 or args.negatives < 0:
+        parser.error("resolutions must be > 0, --overlap >= 1 and --negatives >= 0")
     params = MergeParams(diagnostics=False)
     command = " ".join(["python3 -m bench.resolution", *(sys.argv[1:] if argv is None else argv)])
     lines = [
         "# The merge at other cell sizes",
         "",
-        f"`{command}` (intel and freiburg-079 logs, {args.overlap} overlapping and {args.disjoint} "
-        f"disjoint pairs each, seed {args.seed}). Right: accepted within "
+        f"`{command}` (intel and freiburg-079 logs: {args.overlap} overlapping pairs and "
+        f"{args.negatives} negatives of each kind each, and {args.negatives} pairs of the two "
+        f"buildings; seed {args.seed}). Right: accepted within "
         f"{MAX_HEADING_DEG:g} deg and {MAX_ERROR_M:g} m.",
         "",
-        "| cell (m) | right | wrong | false | smallest right margin | largest disjoint margin "
+        "| cell (m) | right | wrong | false | smallest right margin | largest negative margin "
         "| median error of right (m) | median s |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for resolution in args.resolutions:
-        pairs = pairs_at(resolution, args.overlap, args.disjoint, args.seed, args.cache)
+        pairs = pairs_at(resolution, args.overlap, args.negatives, args.seed, args.cache)
         rows = []
         for pair in pairs:
             rows.append(judge(pair, params))
