@@ -51,6 +51,7 @@ from bench.redecide import decision_maps
 from bench.sets import FULL, build
 from pgvd.matching import Agreement, WallMap, refine
 from pgvd.merge import MergeParams, decide_finalists, final_refinement, score_hypothesis
+from pgvd.pooling import decision_pool, from_pooled, to_pooled
 from pgvd.sampling import subsample
 
 CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
@@ -97,11 +98,18 @@ def classify(
     return "weighting"
 
 
+def _right(pair: MapPair, matrix: np.ndarray) -> bool:
+    """Whether ``matrix``, in the pixels of the decision's maps (pooled for fine maps,
+    :func:`pgvd.pooling.decision_pool`), is within the pair's success bounds."""
+    full = from_pooled(np.asarray(matrix), decision_pool(pair.a.resolution))
+    return bool(evaluate(pair, True, full)["success"])
+
+
 def truth_stays(pair: MapPair, maps: tuple[WallMap, WallMap], params: MergeParams) -> bool:
     """Whether the merge's last refinement, started at the exact truth, stays within the
     success bounds."""
-    moved = final_refinement(pair.truth, *maps, params)
-    return bool(evaluate(pair, True, moved)["success"])
+    truth = to_pooled(pair.truth, decision_pool(pair.a.resolution))
+    return _right(pair, final_refinement(truth, *maps, params))
 
 
 def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: MergeParams) -> dict:
@@ -125,26 +133,25 @@ def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: M
         ``pair``, ``set``, ``class``, ``truth`` and ``rival`` (``[agree, disagree]``
         of the truth and of the wrong finalist of best evidence, or None).
     """
-    res = pair.a.resolution
+    pool = decision_pool(pair.a.resolution)
+    res = pair.a.resolution * pool
     fine_a, fine_b = maps
-    truths = [pair.truth]
-    near = refine(fine_a, subsample(fine_b.walls, params.refine_points), pair.truth, (3.0, 2.0))
-    if evaluate(pair, True, near)["success"]:
+    truths = [to_pooled(pair.truth, pool)]
+    near = refine(fine_a, subsample(fine_b.walls, params.refine_points), truths[0], (3.0, 2.0))
+    if _right(pair, near):
         truths.append(near)
     weight = params.disagreement_weight
     truth = max(
         (score_hypothesis(m, fine_a, fine_b, params, res) for m in truths),
         key=lambda s: s.evidence(weight),
     )
-    finalists = [np.asarray(f, dtype=float) for f in record.get("finalists") or []]
+    finalists = [to_pooled(np.asarray(f, dtype=float), pool) for f in record.get("finalists") or []]
     index, decision, matrix = decide_finalists(
         [truth.matrix, *finalists], fine_a, fine_b, params, res
     )
-    outcome = (evaluate(pair, True, matrix)["success"], decision.margin) if index == 0 else None
+    outcome = (_right(pair, matrix), decision.margin) if index == 0 else None
     wrong = [
-        score_hypothesis(m, fine_a, fine_b, params, res)
-        for m in finalists
-        if not evaluate(pair, True, m)["success"]
+        score_hypothesis(m, fine_a, fine_b, params, res) for m in finalists if not _right(pair, m)
     ]
     returned = record.get("matrix")
     right = returned is not None and evaluate(pair, True, np.asarray(returned))["success"]

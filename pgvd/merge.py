@@ -90,6 +90,7 @@ from pgvd.pooling import (
     covariance_from_pooled,
     decision_pool,
     from_pooled,
+    pooled,
 )
 from pgvd.rotation import OCCUPIED, HeadingCandidate, estimate_headings
 from pgvd.sampling import subsample
@@ -823,11 +824,9 @@ def fine_maps(
     (:class:`pgvd.matching.WallMap` ``lookup``): every hypothesis is scored against it;
     B's walls are only counted once per hypothesis.
     """
-    if pool > 1:
-        pa, pb = coarsen(pa, pool, params.occupied), coarsen(pb, pool, params.occupied)
     return (
-        WallMap(pa, params.occupied, params.free, lookup=True),
-        WallMap(pb, params.occupied, params.free),
+        WallMap(pooled(pa, pool, params.occupied), params.occupied, params.free, lookup=True),
+        WallMap(pooled(pb, pool, params.occupied), params.occupied, params.free),
     )
 
 
@@ -1156,21 +1155,22 @@ def merge(
         progress(f"decision on the maps pooled {pool}x{pool}: {res:.3f} m cells")
     fine_a, fine_b = fine_maps(pa, pb, params, pool)
     clock.lap("verify")
-    to_fine = np.linalg.inv(block_scale(pool)) @ block_scale(k) @ off_a
+    # a coarse cell is k / pool cells of the decision's maps, for A (cropped) as for B
+    to_fine = block_scale(k / pool) @ off_a
     finalists = _finalists(good, params)
-    best, decision, pooled = _decide(finalists, fine_a, fine_b, to_fine, k / pool, params, res)
+    best, decision, winner = _decide(finalists, fine_a, fine_b, to_fine, k / pool, params, res)
     clock.lap("refine")
-    agreement = map_agreement(fine_a, fine_b, pooled, max_points=params.fine_points, scaled=True)
+    agreement = map_agreement(fine_a, fine_b, winner, max_points=params.fine_points, scaled=True)
     overlap_m = 0.5 * agreement.agree * res
     distortion = pool * residual_distortion(
         fine_a,
         fine_b.walls,
-        pooled,
+        winner,
         block=params.distortion_block / res,
         max_points=params.fine_points,
     )
     clock.lap("verify")
-    matrix = from_pooled(pooled, pool)
+    matrix = from_pooled(winner, pool)
     extra = {"margin": decision.margin, "distortion_px": distortion, "headings_deg": searched}
     if decision.margin < params.min_margin:
         evidence = decision.winner.evidence(params.disagreement_weight)
@@ -1199,7 +1199,7 @@ def merge(
             agreement.ratio,
             **extra,
         )
-    cov = covariance_from_pooled(pose_covariance(fine_a, fine_b, pooled, res), pooled, pool)
+    cov = covariance_from_pooled(pose_covariance(fine_a, fine_b, winner, res), winner, pool)
     clock.lap("covariance")
     diag = (
         _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))

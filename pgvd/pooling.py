@@ -50,7 +50,13 @@ def coarsen(p: np.ndarray, k: int, occupied: float = OCCUPIED) -> np.ndarray:
     return np.where(top > occupied, top, blocks.mean(axis=2)).astype(np.float32)
 
 
-def block_scale(k: int) -> np.ndarray:
+def pooled(p: np.ndarray, k: int, occupied: float = OCCUPIED) -> np.ndarray:
+    """``p`` pooled ``k x k`` (:func:`coarsen`) for the decision; ``p`` itself when ``k`` is 1,
+    so that a map read as it is stays as it is (no float32 copy)."""
+    return p if k == 1 else coarsen(p, k, occupied)
+
+
+def block_scale(k: float) -> np.ndarray:
     """Pooled cell -> full-resolution pixel (cell centres at integers in both)."""
     c = (k - 1) / 2.0
     return np.array([[k, 0.0, c], [0.0, k, c], [0.0, 0.0, 1.0]])

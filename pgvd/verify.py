@@ -42,7 +42,7 @@ from pgvd.merge import (
     score_hypothesis,
     weigh,
 )
-from pgvd.pooling import coarsen, covariance_from_pooled, decision_pool, from_pooled, to_pooled
+from pgvd.pooling import covariance_from_pooled, decision_pool, from_pooled, pooled, to_pooled
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
 BASIN_M = 1.0
@@ -89,12 +89,9 @@ def wall_maps(a: Grid, b: Grid, params: MergeParams, pool: int = 1) -> tuple[Wal
     """A's and B's wall maps, each read as registration reads it
     (:func:`pgvd.merge.registration_probability`) and pooled ``pool x pool``
     (:func:`pgvd.pooling.decision_pool`; 1: full resolution)."""
-    pa, pb = registration_probability(a, params), registration_probability(b, params)
-    if pool > 1:
-        pa, pb = coarsen(pa, pool, params.occupied), coarsen(pb, pool, params.occupied)
-    return (
-        WallMap(pa, params.occupied, params.free),
-        WallMap(pb, params.occupied, params.free),
+    return tuple(
+        WallMap(pooled(registration_probability(g, params), pool), params.occupied, params.free)
+        for g in (a, b)
     )
 
 
