@@ -167,8 +167,7 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     only find a transform the chain contradicts.  A correction beyond the basin is
     inconclusive: the chain may be off, the search decides.
     """
-    from pgvd.matching import map_agreement
-    from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, verify, wall_maps
+    from pgvd.verify import BASIN_DEG, BASIN_M, placement, verify
 
     params = _merge_params(min_agreement)
 
@@ -176,16 +175,15 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         res = verify(a, b, predicted, params)
         if res.accepted:
             return _registration(True, res.matrix, res.covariance, res.score)
-        fine_a, fine_b = wall_maps(a, b, params)
-        seen = map_agreement(fine_a, fine_b, predicted)
-        overlap_m = 0.5 * (seen.agree + seen.disagree) * a.resolution
-        if overlap_m < params.min_overlap:
-            why = f"the predicted pose overlaps {overlap_m:.1f} m of walls < {params.min_overlap} m"
+        seen = placement(a, b, predicted, res.matrix, params)
+        if seen.overlap_m < params.min_overlap:
+            why = (
+                f"the predicted pose overlaps {seen.overlap_m:.1f} m of walls "
+                f"< {params.min_overlap} m"
+            )
             return Registration(False, *_REJECTED, 0.0, why)
-        if len(fine_b.walls) == 0:
-            return None
-        shift_px, turn_deg = basin_move(predicted, res.matrix, fine_b.walls)
-        if shift_px * a.resolution <= BASIN_M and turn_deg <= BASIN_DEG:
+        # NaN (B without walls) fails both comparisons: inconclusive
+        if seen.shift_m <= BASIN_M and seen.turn_deg <= BASIN_DEG:
             return Registration(False, *_REJECTED, res.score, res.reason)
         return None
 
