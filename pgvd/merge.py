@@ -84,6 +84,7 @@ from pgvd.matching import (
     rho_test,
     rho_threshold,
 )
+from pgvd.parallel import both
 from pgvd.pooling import (
     block_scale,
     coarsen,
@@ -824,10 +825,12 @@ def fine_maps(
     (:class:`pgvd.matching.WallMap` ``lookup``): every hypothesis is scored against it;
     B's walls are only counted once per hypothesis.
     """
-    return (
-        WallMap(pooled(pa, pool, params.occupied), params.occupied, params.free, lookup=True),
-        WallMap(pooled(pb, pool, params.occupied), params.occupied, params.free),
-    )
+
+    def wall_map(job: tuple[np.ndarray, bool]) -> WallMap:
+        prob, lookup = job
+        return WallMap(pooled(prob, pool, params.occupied), params.occupied, params.free, lookup)
+
+    return both(wall_map, (pa, True), (pb, False))
 
 
 def final_refinement(
@@ -1089,15 +1092,18 @@ def merge(
             )
     params = params or MergeParams()
     clock = _Clock(progress)
-    pa, pb = (
-        registration_probability(g, params, _labelled(progress, f"map {n}: "))
-        for n, g in (("A", a), ("B", b))
-    )
+
+    def read(named: tuple[str, Grid]) -> np.ndarray:
+        name, grid = named
+        return registration_probability(grid, params, _labelled(progress, f"map {name}: "))
+
+    # the two maps' long array loops at once (pgvd.parallel), here and below
+    pa, pb = both(read, ("A", a), ("B", b))
     _check_inputs(a, b, pa, pb, params)
     headings = _turned(estimate_headings(pa, pb, params.max_candidates), params.heading_offset)
     clock.lap("rotation")
     k = max(1, round(params.coarse_resolution / a.resolution))
-    ca, cb = coarsen(pa, k, params.occupied), coarsen(pb, k, params.occupied)
+    ca, cb = both(lambda p: coarsen(p, k, params.occupied), pa, pb)
     # Search only the known part of A; cells of A's crop are offset by off_a.
     rows, cols = _known_box(ca)
     ca = ca[rows, cols]

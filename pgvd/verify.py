@@ -46,6 +46,7 @@ from pgvd.merge import (
     score_hypothesis,
     weigh,
 )
+from pgvd.parallel import both
 from pgvd.pooling import covariance_from_pooled, decision_pool, from_pooled, pooled, to_pooled
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
@@ -93,9 +94,12 @@ def wall_maps(a: Grid, b: Grid, params: MergeParams, pool: int = 1) -> tuple[Wal
     """A's and B's wall maps, each read as registration reads it
     (:func:`pgvd.merge.registration_probability`) and pooled ``pool x pool``
     (:func:`pgvd.pooling.decision_pool`; 1: full resolution)."""
-    return tuple(
-        WallMap(pooled(registration_probability(g, params), pool), params.occupied, params.free)
-        for g in (a, b)
+    return both(
+        lambda g: WallMap(
+            pooled(registration_probability(g, params), pool), params.occupied, params.free
+        ),
+        a,
+        b,
     )
 
 
