@@ -105,8 +105,9 @@ class Outputs:
     counters : where the bytes sent to ROS are counted (``ros_map_bytes``, ``ros_tf_bytes``).
     """
 
-    def __init__(self, opts: OutputOptions, robot: str, session: zenoh.Session | None,
-                 counters: Counters) -> None:
+    def __init__(
+        self, opts: OutputOptions, robot: str, session: zenoh.Session | None, counters: Counters
+    ) -> None:
         self.opts = opts
         self.counters = counters
         self._digest: str | None = None

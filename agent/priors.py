@@ -67,8 +67,8 @@ def prior_matrix(a: Grid, pose_a: Pose, b: Grid, pose_b: Pose) -> np.ndarray:
     3x3 matrix, B pixel -> A pixel (the convention of :func:`pgvd.merge`).
     """
     metric_b_to_a = np.linalg.inv(se2(*pose_a)) @ se2(*pose_b)
-    return world_pose_to_pixel_matrix(a) @ metric_b_to_a @ np.linalg.inv(
-        world_pose_to_pixel_matrix(b)
+    return (
+        world_pose_to_pixel_matrix(a) @ metric_b_to_a @ np.linalg.inv(world_pose_to_pixel_matrix(b))
     )
 
 

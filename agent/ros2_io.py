@@ -82,22 +82,31 @@ class RosMapSubscription:
     entity_id : the subscription's id within the node (tokens must not collide).
     """
 
-    def __init__(self, session: zenoh.Session, topic: str, opts: RosOptions,
-                 on_drop: DropFn, entity_id: int = 1) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        topic: str,
+        opts: RosOptions,
+        on_drop: DropFn,
+        entity_id: int = 1,
+    ) -> None:
         self.topic = topic
         self.opts = opts
         self._on_drop = on_drop
         self._lock = threading.Lock()
         self._latest: RosMap | None = None
         self._fresh = False
-        self._expected = data_key(topic, OCCUPANCY_GRID, domain=opts.domain,
-                                  distro=opts.distro, form=opts.form)
+        self._expected = data_key(
+            topic, OCCUPANCY_GRID, domain=opts.domain, distro=opts.distro, form=opts.form
+        )
         # Any type and hash: a publisher of the wrong type or hash is counted, not ignored.
-        watched = self._expected if opts.form == "bridge" else (
-            self._expected.rsplit("/", 2)[0] + "/*/*"
+        watched = (
+            self._expected if opts.form == "bridge" else (self._expected.rsplit("/", 2)[0] + "/*/*")
         )
         self._sub = zenoh.ext.declare_advanced_subscriber(
-            session, watched, self._on_sample,
+            session,
+            watched,
+            self._on_sample,
             history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
         )
         self._token = None
@@ -109,8 +118,7 @@ class RosMapSubscription:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:
-            ros = self._decode(str(sample.key_expr), sample.payload.to_bytes(),
-                               sample.attachment)
+            ros = self._decode(str(sample.key_expr), sample.payload.to_bytes(), sample.attachment)
         except GridRefused as exc:
             self._on_drop(exc.what, str(exc))
             return
@@ -121,14 +129,16 @@ class RosMapSubscription:
         if key != self._expected:
             raise GridRefused(
                 f"{self.topic}: sample on {key}, expected type and hash of {self._expected}",
-                "schema", "type_hash",
+                "schema",
+                "type_hash",
             )
         if self.opts.form == "rmw_zenoh":
             # rmw_zenoh's own subscribers drop a sample without one ("Unable to obtain
             # attachment"): a publisher that sends none is not a ROS 2 publisher.
             if attachment is None:
-                raise GridRefused(f"{self.topic}: sample without an rmw_zenoh attachment",
-                                  "framing", "attachment")
+                raise GridRefused(
+                    f"{self.topic}: sample without an rmw_zenoh attachment", "framing", "attachment"
+                )
             try:
                 decode_attachment(attachment.to_bytes())
             except ProtocolError as exc:
@@ -159,18 +169,19 @@ class RosMapPublisher:
     opts : key form, domain, distro and node name.
     """
 
-    def __init__(self, session: zenoh.Session, topic: str, frame: str, opts: RosOptions,
-                 gid: bytes) -> None:
+    def __init__(
+        self, session: zenoh.Session, topic: str, frame: str, opts: RosOptions, gid: bytes
+    ) -> None:
         self.frame = frame
         self.opts = opts
         self._gid = gid
         # rmw_zenoh numbers each publisher's messages on its own, from 1.
         self._map_seq = itertools.count(1)
         self._tf_seq = itertools.count(1)
-        key = data_key(topic, OCCUPANCY_GRID, domain=opts.domain, distro=opts.distro,
-                       form=opts.form)
-        tf_key = data_key("/tf", TF_MESSAGE, domain=opts.domain, distro=opts.distro,
-                          form=opts.form)
+        key = data_key(
+            topic, OCCUPANCY_GRID, domain=opts.domain, distro=opts.distro, form=opts.form
+        )
+        tf_key = data_key("/tf", TF_MESSAGE, domain=opts.domain, distro=opts.distro, form=opts.form)
         # Transient local, depth 1: a late subscriber's history query gets the last map.
         self._map = zenoh.ext.declare_advanced_publisher(
             session, key, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
@@ -184,8 +195,7 @@ class RosMapPublisher:
                 for t in (
                     node.token(),
                     node.entity_token("MP", 10, topic, OCCUPANCY_GRID, distro=opts.distro),
-                    node.entity_token("MP", 11, "/tf", TF_MESSAGE, distro=opts.distro,
-                                      qos=QOS_TF),
+                    node.entity_token("MP", 11, "/tf", TF_MESSAGE, distro=opts.distro, qos=QOS_TF),
                 )
             ]
 
@@ -194,8 +204,7 @@ class RosMapPublisher:
             return None
         return encode_attachment(Attachment(next(sequence), stamp_ns, self._gid))
 
-    def publish(self, grid: Grid, placements: list[Placement], stamp_ns: int | None = None
-                ) -> int:
+    def publish(self, grid: Grid, placements: list[Placement], stamp_ns: int | None = None) -> int:
         """Publish ``grid`` and the TF of ``placements``; returns the map's bytes."""
         stamp_ns = time.time_ns() if stamp_ns is None else stamp_ns
         size = self.publish_map(grid, stamp_ns)
@@ -225,4 +234,3 @@ class RosMapPublisher:
             token.undeclare()
         self._tf.undeclare()
         self._map.undeclare()
-

@@ -55,17 +55,20 @@ class FoxgloveView:
         )
         self._grid = GridChannel(GRID_TOPIC, context=self._context)
         self._tf = FrameTransformsChannel(TF_TOPIC, context=self._context)
-        self._links = foxglove.Channel(
-            LINKS_TOPIC, message_encoding="json", context=self._context
-        )
+        self._links = foxglove.Channel(LINKS_TOPIC, message_encoding="json", context=self._context)
 
     @property
     def port(self) -> int:
         """The port the server listens on."""
         return int(self._server.port)
 
-    def show(self, grid: Grid, placements: Sequence[Placement],
-             links: Sequence[dict[str, Any]], stamp_ns: int) -> None:
+    def show(
+        self,
+        grid: Grid,
+        placements: Sequence[Placement],
+        links: Sequence[dict[str, Any]],
+        stamp_ns: int,
+    ) -> None:
         """Send the global map, each robot map frame's placement and the links' state."""
         from foxglove.messages import FrameTransforms
 

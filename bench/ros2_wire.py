@@ -59,15 +59,22 @@ def main() -> int:
         if version in (1, 2, len(stops)):
             rows.append(f"| {version} | {stop} | {ros:,} | {pgvd:,} | {pgvd / ros:.2%} |")
     h, w = frame.shape
-    text = "\n".join([
-        f"Intel log at 0.05 m: {w}x{h} cells; first map after {args.first} scans, then an update "
-        f"every {args.every} scans ({len(stops)} updates).",
-        "",
-        "| update | scans | OccupancyGrid + attachment (B) | pgvd tiles + manifest (B) | ratio |",
-        "|---|---|---|---|---|",
-        *rows,
-        f"| all {len(stops)} | | {ros_total:,} | {pgvd_total:,} | {pgvd_total / ros_total:.2%} |",
-    ])
+    header = (
+        "| update | scans | OccupancyGrid + attachment (B) | pgvd tiles + manifest (B) | ratio |"
+    )
+    ratio = pgvd_total / ros_total
+    total = f"| all {len(stops)} | | {ros_total:,} | {pgvd_total:,} | {ratio:.2%} |"
+    text = "\n".join(
+        [
+            f"Intel log at 0.05 m: {w}x{h} cells; first map after {args.first} scans, "
+            f"then an update every {args.every} scans ({len(stops)} updates).",
+            "",
+            header,
+            "|---|---|---|---|---|",
+            *rows,
+            total,
+        ]
+    )
     print(text)
     if args.out is not None:
         args.out.write_text(text + "\n")

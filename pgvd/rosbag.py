@@ -68,8 +68,9 @@ def _yaw(q: Any) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
-def _compose(a: tuple[float, float, float], b: tuple[float, float, float]
-             ) -> tuple[float, float, float]:
+def _compose(
+    a: tuple[float, float, float], b: tuple[float, float, float]
+) -> tuple[float, float, float]:
     """Pose ``b`` (given in frame ``a``) in ``a``'s parent frame."""
     c, s = math.cos(a[2]), math.sin(a[2])
     return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2])
@@ -130,8 +131,9 @@ def scan_from_ros(msg: Any, pose: tuple[float, float, float], t: float) -> Laser
     ranges[bad] = np.inf  # no return: integrate drops ranges >= its no_return bound
     ranges[ranges > msg.range_max] = np.inf
     carmen_pose = np.array([pose[0], pose[1], pose[2] + middle])
-    return LaserScan(timestamp=t, ranges=ranges, pose=carmen_pose, odom=carmen_pose.copy(),
-                     fov=abs(fov))
+    return LaserScan(
+        timestamp=t, ranges=ranges, pose=carmen_pose, odom=carmen_pose.copy(), fov=abs(fov)
+    )
 
 
 def read_rosbag_scans(path: str | Path, topic: str | None = None) -> list[LaserScan]:
@@ -161,14 +163,18 @@ def read_rosbag_scans(path: str | Path, topic: str | None = None) -> list[LaserS
     try:
         scan_topic = _scan_topic(reader.connections, topic, path)
         tree, scans = _TfTree(), []
-        wanted = [c for c in reader.connections
-                  if c.topic == scan_topic or c.msgtype in TF_TYPES or c.msgtype == ODOMETRY]
+        wanted = [
+            c
+            for c in reader.connections
+            if c.topic == scan_topic or c.msgtype in TF_TYPES or c.msgtype == ODOMETRY
+        ]
         for conn, _, raw in reader.messages(connections=wanted):
             try:
                 msg = store.deserialize_cdr(raw, conn.msgtype)
             except Exception as exc:
-                raise BagFormatError(f"{path}: a {conn.msgtype} on {conn.topic} does not decode: "
-                                     f"{exc}") from None
+                raise BagFormatError(
+                    f"{path}: a {conn.msgtype} on {conn.topic} does not decode: {exc}"
+                ) from None
             if conn.topic == scan_topic:
                 scans.append(msg)
             else:
@@ -217,8 +223,7 @@ def read_rosbag_grids(path: str | Path, topic: str) -> list[tuple[float, bytes]]
         conns = [c for c in reader.connections if c.topic == topic and c.msgtype == GRID]
         if not conns:
             grids = sorted({c.topic for c in reader.connections if c.msgtype == GRID})
-            raise BagFormatError(f"{path}: no OccupancyGrid topic {topic} "
-                                 f"(has: {grids or 'none'})")
+            raise BagFormatError(f"{path}: no OccupancyGrid topic {topic} (has: {grids or 'none'})")
         return [(t_ns / 1e9, bytes(raw)) for _, t_ns, raw in reader.messages(connections=conns)]
     finally:
         reader.close()
@@ -238,13 +243,21 @@ def _scan_topic(connections: Iterable[Any], topic: str | None, path: Path) -> st
 def _add_transforms(tree: _TfTree, msgtype: str, msg: Any) -> None:
     if msgtype == ODOMETRY:
         p = msg.pose.pose
-        tree.add(msg.header.frame_id, msg.child_frame_id, _stamp(msg.header),
-                 (p.position.x, p.position.y, _yaw(p.orientation)))
+        tree.add(
+            msg.header.frame_id,
+            msg.child_frame_id,
+            _stamp(msg.header),
+            (p.position.x, p.position.y, _yaw(p.orientation)),
+        )
         return
     for tf in msg.transforms:
         tr = tf.transform
-        tree.add(tf.header.frame_id, tf.child_frame_id, _stamp(tf.header),
-                 (tr.translation.x, tr.translation.y, _yaw(tr.rotation)))
+        tree.add(
+            tf.header.frame_id,
+            tf.child_frame_id,
+            _stamp(tf.header),
+            (tr.translation.x, tr.translation.y, _yaw(tr.rotation)),
+        )
 
 
 def _place(scans: list[Any], tree: _TfTree, path: Path) -> list[LaserScan]:

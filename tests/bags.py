@@ -30,7 +30,8 @@ def _header(t: float, frame: str):
 
 def _tf(t: float, parent: str, child: str, x: float, y: float, yaw: float):
     return T["geometry_msgs/msg/TransformStamped"](
-        header=_header(t, parent), child_frame_id=child,
+        header=_header(t, parent),
+        child_frame_id=child,
         transform=T["geometry_msgs/msg/Transform"](
             translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
             rotation=T["geometry_msgs/msg/Quaternion"](
@@ -50,7 +51,8 @@ def _odometry(t: float, x: float, y: float, yaw: float):
     )
     zero = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
     return T["nav_msgs/msg/Odometry"](
-        header=_header(t, "odom"), child_frame_id="base_link",
+        header=_header(t, "odom"),
+        child_frame_id="base_link",
         pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
         twist=T["geometry_msgs/msg/TwistWithCovariance"](
             twist=T["geometry_msgs/msg/Twist"](linear=zero, angular=zero),
@@ -69,34 +71,54 @@ def write_scan_bag(path: Path, scans, storage: str = "mcap", odometry: bool = Fa
     with Writer(path, version=9, storage_plugin=plugin) as writer:
         conns = {
             topic: writer.add_connection(topic, msgtype, typestore=TS)
-            for topic, msgtype in [("/scan", "sensor_msgs/msg/LaserScan"), motion,
-                                   ("/tf_static", "tf2_msgs/msg/TFMessage")]
+            for topic, msgtype in [
+                ("/scan", "sensor_msgs/msg/LaserScan"),
+                motion,
+                ("/tf_static", "tf2_msgs/msg/TFMessage"),
+            ]
         }
 
         def write(topic: str, t: float, msg) -> None:
             writer.write(conns[topic], int(t * 1e9), TS.serialize_cdr(msg, conns[topic].msgtype))
 
         t0 = scans[0].timestamp
-        write("/tf_static", t0, T["tf2_msgs/msg/TFMessage"](
-            transforms=[_tf(t0, "base_link", "laser", LASER_AHEAD, 0.0, 0.0)]))
+        write(
+            "/tf_static",
+            t0,
+            T["tf2_msgs/msg/TFMessage"](
+                transforms=[_tf(t0, "base_link", "laser", LASER_AHEAD, 0.0, 0.0)]
+            ),
+        )
         for scan in scans:
             x, y, th = scan.pose
             base = (x - LASER_AHEAD * math.cos(th), y - LASER_AHEAD * math.sin(th), th)
             if odometry:
                 write("/odom", scan.timestamp, _odometry(scan.timestamp, *base))
             else:
-                write("/tf", scan.timestamp,
-                      T["tf2_msgs/msg/TFMessage"](transforms=[_tf(scan.timestamp, "odom",
-                                                                   "base_link", *base)]))
+                write(
+                    "/tf",
+                    scan.timestamp,
+                    T["tf2_msgs/msg/TFMessage"](
+                        transforms=[_tf(scan.timestamp, "odom", "base_link", *base)]
+                    ),
+                )
             n = scan.ranges.size
-            write("/scan", scan.timestamp, T["sensor_msgs/msg/LaserScan"](
-                header=_header(scan.timestamp, "laser"),
-                angle_min=-scan.fov / 2, angle_max=scan.fov / 2,
-                angle_increment=scan.fov / (n - 1), time_increment=0.0, scan_time=0.0,
-                range_min=0.0, range_max=81.0,
-                ranges=np.asarray(scan.ranges, dtype=np.float32),
-                intensities=np.zeros(0, dtype=np.float32),
-            ))
+            write(
+                "/scan",
+                scan.timestamp,
+                T["sensor_msgs/msg/LaserScan"](
+                    header=_header(scan.timestamp, "laser"),
+                    angle_min=-scan.fov / 2,
+                    angle_max=scan.fov / 2,
+                    angle_increment=scan.fov / (n - 1),
+                    time_increment=0.0,
+                    scan_time=0.0,
+                    range_min=0.0,
+                    range_max=81.0,
+                    ranges=np.asarray(scan.ranges, dtype=np.float32),
+                    intensities=np.zeros(0, dtype=np.float32),
+                ),
+            )
 
 
 def write_grid_bag(path: Path, maps: list[tuple[float, bytes]], topic: str = "/map") -> None:

@@ -55,15 +55,24 @@ def attachment(seq: int) -> bytes:
     return struct.pack("<qqB", seq, time.time_ns(), 16) + b"rosnode-gid-0001"
 
 
-def grid_cdr(cells, width: int, height: int, resolution: float, origin: tuple[float, float],
-             frame_id: str = "map") -> bytes:
+def grid_cdr(
+    cells,
+    width: int,
+    height: int,
+    resolution: float,
+    origin: tuple[float, float],
+    frame_id: str = "map",
+) -> bytes:
     """OccupancyGrid CDR; ``cells`` in ROS order (row 0 = lowest row), -1..100."""
     t = TS.types
     stamp = t["builtin_interfaces/msg/Time"](sec=1, nanosec=0)
     msg = t[GRID](
         header=t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id),
         info=t["nav_msgs/msg/MapMetaData"](
-            map_load_time=stamp, resolution=resolution, width=width, height=height,
+            map_load_time=stamp,
+            resolution=resolution,
+            width=width,
+            height=height,
             origin=t["geometry_msgs/msg/Pose"](
                 position=t["geometry_msgs/msg/Point"](x=origin[0], y=origin[1], z=0.0),
                 orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
@@ -104,7 +113,9 @@ class LatchedPublisher:
 def latched_subscriber(s: zenoh.Session, data_key: str, callback) -> zenoh.ext.AdvancedSubscriber:
     """A transient-local subscription: an advanced subscriber that queries publishers' caches."""
     return zenoh.ext.declare_advanced_subscriber(
-        s, data_key, callback,
+        s,
+        data_key,
+        callback,
         history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
     )
 
@@ -122,7 +133,9 @@ class BridgeRoute:
     def __init__(self, s: zenoh.Session, topic: str, depth: int = 1) -> None:
         self.key = topic.lstrip("/")
         self.pub = zenoh.ext.declare_advanced_publisher(
-            s, self.key, cache=zenoh.ext.CacheConfig(max_samples=depth * 10),
+            s,
+            self.key,
+            cache=zenoh.ext.CacheConfig(max_samples=depth * 10),
             publisher_detection=True,
         )
 

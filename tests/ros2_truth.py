@@ -41,8 +41,13 @@ def ros_map(segment: tuple[float, float], frame_deg: tuple[float, float, float])
     h, w = prob.shape
     ros_cells = np.flipud(cells).ravel()
     cdr = ros2_peer.grid_cdr(ros_cells, w, h, RESOLUTION, frame.origin)
-    return {"cells": ros_cells, "cdr": cdr, "world_to_map": world_to_map, "shape": (h, w),
-            "origin": frame.origin}
+    return {
+        "cells": ros_cells,
+        "cdr": cdr,
+        "world_to_map": world_to_map,
+        "shape": (h, w),
+        "origin": frame.origin,
+    }
 
 
 def assert_tf_places_maps(tf_msg, maps: dict[str, dict], anchor: str) -> None:
@@ -67,8 +72,9 @@ def assert_tf_places_maps(tf_msg, maps: dict[str, dict], anchor: str) -> None:
         h, w = truth_map["shape"]
         ox, oy = truth_map["origin"]
         size_x, size_y = w * RESOLUTION, h * RESOLUTION
-        corners = np.array([[ox, oy, 1], [ox + size_x, oy, 1], [ox, oy + size_y, 1],
-                            [ox + size_x, oy + size_y, 1]]).T
+        corners = np.array(
+            [[ox, oy, 1], [ox + size_x, oy, 1], [ox, oy + size_y, 1], [ox + size_x, oy + size_y, 1]]
+        ).T
         cells = np.linalg.norm((got @ corners - truth @ corners)[:2], axis=0).max() / RESOLUTION
         assert cells <= 2.0, (robot, cells)
 

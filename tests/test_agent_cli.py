@@ -78,12 +78,18 @@ def test_known_poses_reach_the_agent_options(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("extra", "module", "message"),
     [
-        (["--source", "ros2:/robot1/map"], "rosbags",
-         "--source ros2: needs rosbags, which is not installed: pip install 'pgvd-fleet[ros2]'"),
+        (
+            ["--source", "ros2:/robot1/map"],
+            "rosbags",
+            "--source ros2: needs rosbags, which is not installed: pip install 'pgvd-fleet[ros2]'",
+        ),
         (["--source", "rosbag:/some/bag"], "rosbags", "--source rosbag: needs rosbags"),
         (["--ros-publish", "/map_merged"], "rosbags", "--ros-publish needs rosbags"),
-        (["--foxglove", "127.0.0.1:8765"], "foxglove",
-         "--foxglove needs foxglove, which is not installed: pip install 'pgvd-fleet[view]'"),
+        (
+            ["--foxglove", "127.0.0.1:8765"],
+            "foxglove",
+            "--foxglove needs foxglove, which is not installed: pip install 'pgvd-fleet[view]'",
+        ),
     ],
 )
 def test_a_missing_extra_is_named_in_one_line(

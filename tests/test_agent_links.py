@@ -73,8 +73,12 @@ def test_record_refuses_malformed_fields(change: dict, message: str) -> None:
 @given(
     st.lists(
         st.tuples(
-            st.integers(1, 99), st.integers(1, 99), st.booleans(),
-            st.floats(-1e6, 1e6), st.floats(-np.pi, np.pi), st.floats(0.0, 1.0),
+            st.integers(1, 99),
+            st.integers(1, 99),
+            st.booleans(),
+            st.floats(-1e6, 1e6),
+            st.floats(-np.pi, np.pi),
+            st.floats(0.0, 1.0),
         ),
         max_size=8,
     )

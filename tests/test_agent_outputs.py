@@ -19,13 +19,20 @@ from pgvd.integrate import se2
 from pgvd.io import read_map
 
 
-def _component(maps: dict[str, tuple[int, Grid]], transforms: dict[str, np.ndarray],
-               digest: str = "d") -> Component:
+def _component(
+    maps: dict[str, tuple[int, Grid]], transforms: dict[str, np.ndarray], digest: str = "d"
+) -> Component:
     members = tuple(sorted(maps))
     return Component(
-        anchor=members[0], members=members, versions={r: v for r, (v, _) in maps.items()},
-        transforms=transforms, covariances={r: np.zeros((3, 3)) for r in members},
-        used=(), rejected=(), grid=maps[members[0]][1], digest=digest,
+        anchor=members[0],
+        members=members,
+        versions={r: v for r, (v, _) in maps.items()},
+        transforms=transforms,
+        covariances={r: np.zeros((3, 3)) for r in members},
+        used=(),
+        rejected=(),
+        grid=maps[members[0]][1],
+        digest=digest,
     )
 
 
@@ -92,24 +99,33 @@ def test_tf_follows_the_global_map_as_it_changes() -> None:
     sub = session.declare_subscriber(ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage"), on_tf)
     out = Outputs(OutputOptions(publish="/map_merged", rate=1.0), "a", session, Counters())
     try:
-        first = _component({"a": (1, a), "b": (4, b)},
-                           {"a": np.eye(3), "b": _b_in_a(a, 3.0, -2.0, 0.7)})
+        first = _component(
+            {"a": (1, a), "b": (4, b)}, {"a": np.eye(3), "b": _b_in_a(a, 3.0, -2.0, 0.7)}
+        )
         tf = sent_after(lambda: out.tick(0.0, first, book))
         assert (tf["b/map"].translation.x, tf["b/map"].translation.y) == pytest.approx(
-            (3.0, -2.0), abs=1e-6)
+            (3.0, -2.0), abs=1e-6
+        )
         # The merge refines B's link: a new global map, and B's transform moves with it.
-        refined = _component({"a": (1, a), "b": (4, b)},
-                             {"a": np.eye(3), "b": _b_in_a(a, 3.5, -1.0, 0.7)}, digest="d2")
+        refined = _component(
+            {"a": (1, a), "b": (4, b)},
+            {"a": np.eye(3), "b": _b_in_a(a, 3.5, -1.0, 0.7)},
+            digest="d2",
+        )
         tf = sent_after(lambda: out.tick(1.0, refined, book))
         assert (tf["b/map"].translation.x, tf["b/map"].translation.y) == pytest.approx(
-            (3.5, -1.0), abs=1e-6)
+            (3.5, -1.0), abs=1e-6
+        )
         q = tf["b/map"].rotation
         assert 2 * math.atan2(q.z, q.w) == pytest.approx(0.7, abs=1e-9)
         # B's map moves on before the next rebuild: its placement cannot be computed from
         # this global map, so the refined placements stand in and B stays in TF.
         book.put_map("b", 5, b)
-        stale = _component({"a": (1, a), "b": (4, b)},
-                           {"a": np.eye(3), "b": _b_in_a(a, 9.0, 9.0, 0.0)}, digest="d3")
+        stale = _component(
+            {"a": (1, a), "b": (4, b)},
+            {"a": np.eye(3), "b": _b_in_a(a, 9.0, 9.0, 0.0)},
+            digest="d3",
+        )
         tf = sent_after(lambda: out.tick(2.0, stale, book))
         assert sorted(tf) == ["a/map", "b/map"]
         assert tf["b/map"].translation.x == pytest.approx(3.5, abs=1e-6)

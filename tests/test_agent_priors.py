@@ -42,11 +42,18 @@ poses = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-3.1, 3.1))
 
 @given(poses, poses, poses)
 def test_priors_compose_around_a_chain(pa, pb, pc) -> None:
-    grids = [Grid(np.zeros((h, w), np.float32), 0.05, o) for h, w, o in
-             [(40, 30, (1.0, 2.0, 0.0)), (25, 50, (-3.0, 0.5, 0.2)), (60, 20, (0.0, 0.0, -1.0))]]
+    grids = [
+        Grid(np.zeros((h, w), np.float32), 0.05, o)
+        for h, w, o in [
+            (40, 30, (1.0, 2.0, 0.0)),
+            (25, 50, (-3.0, 0.5, 0.2)),
+            (60, 20, (0.0, 0.0, -1.0)),
+        ]
+    ]
     a, b, c = grids
     np.testing.assert_allclose(
-        prior_matrix(a, pa, b, pb) @ prior_matrix(b, pb, c, pc), prior_matrix(a, pa, c, pc),
+        prior_matrix(a, pa, b, pb) @ prior_matrix(b, pb, c, pc),
+        prior_matrix(a, pa, c, pc),
         atol=1e-6,
     )
 

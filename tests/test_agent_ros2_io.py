@@ -90,8 +90,9 @@ def test_a_humble_robots_map_is_followed_with_ros_distro_humble(sessions) -> Non
     humble = ros2_peer.LatchedPublisher(robot, "/robot1/map", type_hash="TypeHashNotSupported")
     humble.put(ros2_peer.grid_cdr(cells, w, h, 0.05, (0.0, 0.0)))
     drops: list[tuple[str, str]] = []
-    sub = RosMapSubscription(agent, "/robot1/map", RosOptions(distro="humble"),
-                             lambda r, d: drops.append((r, d)))
+    sub = RosMapSubscription(
+        agent, "/robot1/map", RosOptions(distro="humble"), lambda r, d: drops.append((r, d))
+    )
     jazzy = ros2_peer.LatchedPublisher(robot, "/robot1/map")
     try:
         assert _wait(sub.take).grid.shape == (h, w)
@@ -113,8 +114,9 @@ def test_only_the_agents_ros_domain_is_followed(sessions) -> None:
     other = ros2_peer.LatchedPublisher(robot, "/robot1/map")
     other.put(ros2_peer.grid_cdr(cells, w, h, 0.05, (0.0, 0.0)))
     drops: list[tuple[str, str]] = []
-    sub = RosMapSubscription(agent, "/robot1/map", RosOptions(domain=7),
-                             lambda r, d: drops.append((r, d)))
+    sub = RosMapSubscription(
+        agent, "/robot1/map", RosOptions(domain=7), lambda r, d: drops.append((r, d))
+    )
     ours = ros2_peer.LatchedPublisher(robot, "/robot1/map", domain=7)
     try:
         time.sleep(0.5)  # domain 0's cached map would have arrived by now
@@ -131,8 +133,13 @@ def test_only_the_agents_ros_domain_is_followed(sessions) -> None:
 
 @pytest.mark.parametrize(
     ("kind", "reason"),
-    [("hash", "type_hash"), ("attachment", "attachment"), ("truncated", "cdr"),
-     ("size", "size"), ("cells", "cells")],
+    [
+        ("hash", "type_hash"),
+        ("attachment", "attachment"),
+        ("truncated", "cdr"),
+        ("size", "size"),
+        ("cells", "cells"),
+    ],
 )
 def test_bad_samples_are_dropped_and_counted(sessions, kind: str, reason: str) -> None:
     robot, agent = sessions
@@ -196,4 +203,3 @@ def test_merged_map_and_tf_reach_a_ros_subscriber_late_too(sessions) -> None:
     payload, att = by_key[ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage")]
     tf = ros2_peer.TS.deserialize_cdr(payload, "tf2_msgs/msg/TFMessage")
     assert tf.transforms[0].child_frame_id == "r2/map" and len(att) == 33
-

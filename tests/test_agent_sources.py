@@ -110,9 +110,13 @@ def test_a_rosbag_of_a_growing_slam_map_replays_its_maps_in_bag_time(tmp_path: P
     ros = np.flipud(cells)  # row 0 is the lowest row: a crop [:h, :w] keeps the origin
     h, w = ros.shape
     sizes = [(h // 2, w // 3), (h * 3 // 4, w * 2 // 3), (h, w)]
-    recorded = [(100.0 + 10 * i, ros2_peer.grid_cdr(ros[:hh, :ww].ravel(), ww, hh,
-                                                     grid.resolution, grid.origin[:2]))
-                for i, (hh, ww) in enumerate(sizes)]
+    recorded = [
+        (
+            100.0 + 10 * i,
+            ros2_peer.grid_cdr(ros[:hh, :ww].ravel(), ww, hh, grid.resolution, grid.origin[:2]),
+        )
+        for i, (hh, ww) in enumerate(sizes)
+    ]
     bad = ros2_peer.grid_cdr(ros.ravel(), w, h, 0.0, grid.origin[:2])  # resolution 0
     bags.write_grid_bag(tmp_path / "bag", [*recorded, (130.0, bad)])
 

@@ -72,8 +72,10 @@ async def _receive(port: int, show) -> dict[str, bytes]:
 def test_a_foxglove_client_receives_the_global_map_tf_and_links(shared) -> None:
     grid = read_map(shared / "maps" / "intel" / "intel.yaml")
     view = FoxgloveView("127.0.0.1", 0)
-    placements = [Placement("world", "r1/map", 0.0, 0.0, 0.0),
-                  Placement("world", "r2/map", 4.0, -2.0, 0.3)]
+    placements = [
+        Placement("world", "r1/map", 0.0, 0.0, 0.0),
+        Placement("world", "r2/map", 4.0, -2.0, 0.3),
+    ]
     links = [{"a": "r1", "b": "r2", "state": "accepted", "score": 0.97}]
     try:
         payloads = asyncio.run(
@@ -95,7 +97,8 @@ def test_a_foxglove_client_receives_the_global_map_tf_and_links(shared) -> None:
     channel, data = payloads[TF_TOPIC]
     tf = _decoder(channel).FromString(data)
     assert [(t.parent_frame_id, t.child_frame_id) for t in tf.transforms] == [
-        ("world", "r1/map"), ("world", "r2/map"),
+        ("world", "r1/map"),
+        ("world", "r2/map"),
     ]
     assert tf.transforms[1].translation.x == 4.0
     _, data = payloads[LINKS_TOPIC]

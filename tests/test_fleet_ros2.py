@@ -88,8 +88,15 @@ def _bad_inputs(robot_session, topic: str, good: dict) -> dict[str, int]:
     time.sleep(1.0)
     wrong_hash.close()
     pub.close()
-    return {"ros2_type_hash": 1, "ros2_cdr": 2, "ros2_size": 1, "ros2_resolution": 2,
-            "ros2_origin": 1, "ros2_cells": 2, "ros2_attachment": 1}
+    return {
+        "ros2_type_hash": 1,
+        "ros2_cdr": 2,
+        "ros2_size": 1,
+        "ros2_resolution": 2,
+        "ros2_origin": 1,
+        "ros2_cells": 2,
+        "ros2_attachment": 1,
+    }
 
 
 def _r1_component(status: dict | None) -> dict:
@@ -124,8 +131,10 @@ def _grow(fleet: LocalFleet, publisher, tf: _Collector, merged: _Collector, fram
 def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
     work = tmp_path_factory.mktemp("ros2fleet")
     frames = random_frames(2, seed=12)
-    maps = {r: ros2_truth.ros_map(seg, fr)
-            for r, seg, fr in zip(ROBOTS, segments(2), frames, strict=True)}
+    maps = {
+        r: ros2_truth.ros_map(seg, fr)
+        for r, seg, fr in zip(ROBOTS, segments(2), frames, strict=True)
+    }
     out: dict = {"maps": maps}
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot = ros2_peer.session(listen=endpoint)
@@ -179,8 +188,9 @@ def test_two_ros_robots_merge_and_the_merged_map_reaches_ros(ros_fleet: dict) ->
     glob = ros_fleet["global"]
     assert msg.header.frame_id == "world"
     assert (msg.info.height, msg.info.width) == glob.shape
-    assert np.allclose([msg.info.origin.position.x, msg.info.origin.position.y],
-                       glob.origin[:2], atol=1e-3)
+    assert np.allclose(
+        [msg.info.origin.position.x, msg.info.origin.position.y], glob.origin[:2], atol=1e-3
+    )
     assert set(np.unique(msg.data)) == {-1, 0, 100}
     assert len(att) == 33  # rmw_zenoh's attachment: an unmodified ROS 2 subscriber takes it
     counts = ros_fleet["status_cli"]["r1"]["counts"]  # after the last publication
@@ -214,18 +224,25 @@ def bag_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
     fb, fc = random_frames(2, seed=7)
     with LocalFleet("bags", work, ["--speed", "200", "--link-timeout", "3"]) as fleet:
         fleet.add("rb", f"rosbag:{bag}:/scan", [f"--frame={fb[0]},{fb[1]},{fb[2]}"])
-        fleet.add("rc", f"carmen:{LOG}@{seg_log[0]}-{seg_log[1]}",
-                  [f"--frame={fc[0]},{fc[1]},{fc[2]}"])
+        fleet.add(
+            "rc", f"carmen:{LOG}@{seg_log[0]}-{seg_log[1]}", [f"--frame={fc[0]},{fc[1]},{fc[2]}"]
+        )
 
         def merged() -> bool:
             st = fleet.statuses()
-            return all(s and s["source"]["done"] and s["global"]
-                       and s["global"]["members"] == ["rb", "rc"] and s["settled"]
-                       for s in st.values())
+            return all(
+                s
+                and s["source"]["done"]
+                and s["global"]
+                and s["global"]["members"] == ["rb", "rc"]
+                and s["settled"]
+                for s in st.values()
+            )
 
         ok = wait_for(merged, 120)
-        shapes = {r: StateDir(a.state_dir).load_maps()[0][r].grid.shape
-                  for r, a in fleet.agents.items()}
+        shapes = {
+            r: StateDir(a.state_dir).load_maps()[0][r].grid.shape for r, a in fleet.agents.items()
+        }
         return {"merged": ok, "statuses": fleet.statuses(), "shapes": shapes}
 
 
@@ -249,8 +266,9 @@ def test_a_dds_robot_behind_zenoh_bridge_ros2dds_is_followed(tmp_path) -> None:
     cells = np.full(prob.shape, -1, dtype=np.int8)
     cells[prob > 0.65], cells[prob < 0.196] = 100, 0
     h, w = prob.shape
-    cdr = ros2_peer.grid_cdr(np.flipud(cells).ravel(), w, h, grid.resolution, grid.origin[:2],
-                             frame_id="robot1/map")
+    cdr = ros2_peer.grid_cdr(
+        np.flipud(cells).ravel(), w, h, grid.resolution, grid.origin[:2], frame_id="robot1/map"
+    )
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     dds_side = ros2_peer.session(listen=endpoint)
     route = ros2_peer.BridgeRoute(dds_side, "/robot1/map")

@@ -88,7 +88,10 @@ def _grid_fields(ros_map: dict) -> dict:
     return {
         "header": cls("std_msgs/msg/Header")(stamp=stamp, frame_id="map"),
         "info": cls("nav_msgs/msg/MapMetaData")(
-            map_load_time=stamp, resolution=ros2_truth.RESOLUTION, width=w, height=h,
+            map_load_time=stamp,
+            resolution=ros2_truth.RESOLUTION,
+            width=w,
+            height=h,
             origin=origin,
         ),
         "data": ros_map["cells"],
@@ -121,8 +124,7 @@ def _publish_until_held(fleet: LocalFleet, pubs: dict, maps: dict) -> bool:
     def held() -> bool:
         for robot, pub in pubs.items():
             pub.publish(**_grid_fields(maps[robot]))
-        return all((fleet.agents[r].status() or {}).get("own_version") is not None
-                   for r in ROBOTS)
+        return all((fleet.agents[r].status() or {}).get("own_version") is not None for r in ROBOTS)
 
     return wait_for(held, 60, period=1.0)
 
@@ -139,7 +141,9 @@ def _topic_info(topic: str, publishers: int, subscriptions: int):
         nonlocal last
         last = sdk.get_topic_info(topic, timeout=1.0, verbose=True)
         return last is not None and (last.publisher_count, last.subscriber_count) == (
-            publishers, subscriptions)
+            publishers,
+            subscriptions,
+        )
 
     wait_for(counted, 10, period=0.5)
     return last
@@ -168,8 +172,10 @@ def _late_subscriber(port: int, tries: int = 5) -> tuple[object, int]:
 @pytest.fixture(scope="module")
 def sdk_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
     work = tmp_path_factory.mktemp("sdkfleet")
-    maps = {r: ros2_truth.ros_map(seg, fr)
-            for r, seg, fr in zip(ROBOTS, segments(2), random_frames(2, seed=12), strict=True)}
+    maps = {
+        r: ros2_truth.ros_map(seg, fr)
+        for r, seg, fr in zip(ROBOTS, segments(2), random_frames(2, seed=12), strict=True)
+    }
     out: dict = {"maps": maps}
     port = free_port()
     git_cache = work / "sdk-git-cache"
@@ -181,9 +187,17 @@ def sdk_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
         merged, tf = _Inbox(), _Inbox()
         nodes: list = []
         try:
-            pubs = {r: sdk.ROS2Publisher(f"/{r}/map", GRID, node_name="slam_toolbox",
-                                         namespace=f"/{r}", router_port=port, qos=LATCHED)
-                    for r in ROBOTS}
+            pubs = {
+                r: sdk.ROS2Publisher(
+                    f"/{r}/map",
+                    GRID,
+                    node_name="slam_toolbox",
+                    namespace=f"/{r}",
+                    router_port=port,
+                    qos=LATCHED,
+                )
+                for r in ROBOTS
+            }
             nodes += pubs.values()
             out["keys"] = {r: p.keyexpr for r, p in pubs.items()}
             nodes.append(sdk.ROS2Subscriber("/map_merged", GRID, merged, router_port=port))
@@ -200,8 +214,9 @@ def sdk_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
                 time.sleep(1.0)  # a TF send at 4 Hz after the global map it places
                 out["tf"], out["merged_map"] = tf.last(), merged.last()
                 out["global"] = read_map(fleet.agents["r1"].out_dir / "global.yaml")
-                out["stored"] = {r: StateDir(a.state_dir).load_maps()[0][r].grid
-                                 for r, a in fleet.agents.items()}
+                out["stored"] = {
+                    r: StateDir(a.state_dir).load_maps()[0][r].grid for r, a in fleet.agents.items()
+                }
                 # publishers and subscriptions of each topic, as ROS 2 nodes are now
                 graph = {"/map_merged": (1, 1), "/tf": (1, 1), "/r1/map": (1, 1)}
                 out["info"] = {t: _topic_info(t, *n) for t, n in graph.items()}
@@ -245,8 +260,9 @@ def test_the_merged_map_reaches_the_sdk_subscriber(sdk_fleet: dict) -> None:
     assert msg.header.frame_id == "world"
     assert (msg.info.height, msg.info.width) == glob.shape
     assert msg.info.resolution == pytest.approx(glob.resolution, rel=1e-7)
-    assert np.allclose([msg.info.origin.position.x, msg.info.origin.position.y],
-                       glob.origin[:2], atol=1e-3)
+    assert np.allclose(
+        [msg.info.origin.position.x, msg.info.origin.position.y], glob.origin[:2], atol=1e-3
+    )
     assert set(np.unique(msg.data)) == {-1, 0, 100}
 
 

@@ -65,7 +65,9 @@ def test_a_map_that_overlaps_nothing_is_a_component_of_its_own(shared: Path, int
     assert res.merged
     # the progress says why each rejected pair was rejected, in the merge's words
     assert [ln.split(",")[0] for ln in lines] == [
-        "maps 0 and 1: rejected", "maps 0 and 2: rejected", "maps 1 and 2: accepted",
+        "maps 0 and 1: rejected",
+        "maps 0 and 2: rejected",
+        "maps 1 and 2: accepted",
     ]
     assert all(ln.endswith(")") and "(" in ln.split("score")[1] for ln in lines[:2]), lines
     assert "(" not in lines[2], lines

@@ -73,7 +73,16 @@ def test_liveliness_tokens_follow_the_documented_layout() -> None:
     token = node.entity_token("MS", 4, "/robot1/map", OCCUPANCY_GRID)
     fields = token.split("/")
     assert fields[:10] == [
-        "@ros2_lv", "0", "1f2e3d", "0", "4", "MS", "%", "%robot1", "pgvd_agent", "%robot1%map",
+        "@ros2_lv",
+        "0",
+        "1f2e3d",
+        "0",
+        "4",
+        "MS",
+        "%",
+        "%robot1",
+        "pgvd_agent",
+        "%robot1%map",
     ]
     assert fields[10:12] == JAZZY_MAP_KEY.split("/")[3:5]
     # Transient local, keep-last 1; reliability and the rest at rmw_zenoh's defaults.
@@ -120,8 +129,14 @@ def test_real_map_round_trips_through_occupancy_grid_cdr(shared) -> None:
     assert np.array_equal(bottom == -1, grid.logodds[-1] == 0)
 
 
-def _message(width: int = 3, height: int = 2, resolution: float = 0.05, data=None,
-             origin=(1.0, 2.0), quaternion=(0.0, 0.0, 0.0, 1.0)):
+def _message(
+    width: int = 3,
+    height: int = 2,
+    resolution: float = 0.05,
+    data=None,
+    origin=(1.0, 2.0),
+    quaternion=(0.0, 0.0, 0.0, 1.0),
+):
     ts = typestore()
     t = ts.types
     data = np.array([-1, 0, 100, 50, 1, 2], dtype=np.int8) if data is None else data
@@ -131,7 +146,9 @@ def _message(width: int = 3, height: int = 2, resolution: float = 0.05, data=Non
         ),
         info=t["nav_msgs/msg/MapMetaData"](
             map_load_time=t["builtin_interfaces/msg/Time"](sec=0, nanosec=0),
-            resolution=resolution, width=width, height=height,
+            resolution=resolution,
+            width=width,
+            height=height,
             origin=t["geometry_msgs/msg/Pose"](
                 position=t["geometry_msgs/msg/Point"](x=origin[0], y=origin[1], z=0.0),
                 orientation=t["geometry_msgs/msg/Quaternion"](
@@ -212,13 +229,19 @@ def test_flipped_bytes_of_a_real_message_are_refused_or_decoded(data) -> None:
 
 @settings(max_examples=40)
 @given(
-    st.integers(1, 12), st.integers(1, 12), st.floats(0.01, 1.0),
-    st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(-3.1, 3.1), st.data(),
+    st.integers(1, 12),
+    st.integers(1, 12),
+    st.floats(0.01, 1.0),
+    st.floats(-1e3, 1e3),
+    st.floats(-1e3, 1e3),
+    st.floats(-3.1, 3.1),
+    st.data(),
 )
 def test_grid_round_trip_keeps_classes_and_geometry(h, w, res, ox, oy, yaw, data) -> None:
     # Free, unknown, weak evidence either way (published as unknown: trinary), occupied.
-    values = data.draw(st.lists(st.sampled_from([-3.0, 0.0, -0.3, 0.3, 2.5]), min_size=h * w,
-                                max_size=h * w))
+    values = data.draw(
+        st.lists(st.sampled_from([-3.0, 0.0, -0.3, 0.3, 2.5]), min_size=h * w, max_size=h * w)
+    )
     grid = Grid(np.array(values, dtype=np.float32).reshape(h, w), res, (ox, oy, yaw))
     ros = decode_occupancy_grid(encode_occupancy_grid(grid, "world", 0))
     classes = np.sign(grid.logodds) * (np.abs(grid.logodds) > 1.0)

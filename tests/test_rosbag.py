@@ -76,8 +76,10 @@ def test_bad_bags_and_topics_get_one_clear_error(tmp_path, intel) -> None:
 @settings(max_examples=80)
 @given(
     st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), max_size=40),
-    st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True),
-    st.floats(0.0, 1.0), st.floats(0.1, 100.0),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(0.0, 1.0),
+    st.floats(0.1, 100.0),
 )
 @example([0.0, 0.0, 0.0], 0.0, 8.98846567431158e307, 0.0, 1.0)  # finite, but the fov overflows
 def test_any_scan_message_becomes_a_castable_scan_or_one_error(
@@ -89,9 +91,15 @@ def test_any_scan_message_becomes_a_castable_scan_or_one_error(
         header=T["std_msgs/msg/Header"](
             stamp=T["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="laser"
         ),
-        angle_min=angle_min, angle_max=0.0, angle_increment=increment, time_increment=0.0,
-        scan_time=0.0, range_min=range_min, range_max=range_max,
-        ranges=np.asarray(ranges, dtype=np.float32), intensities=np.zeros(0, dtype=np.float32),
+        angle_min=angle_min,
+        angle_max=0.0,
+        angle_increment=increment,
+        time_increment=0.0,
+        scan_time=0.0,
+        range_min=range_min,
+        range_max=range_max,
+        ranges=np.asarray(ranges, dtype=np.float32),
+        intensities=np.zeros(0, dtype=np.float32),
     )
     try:
         scan = scan_from_ros(msg, (0.0, 0.0, 0.0), 1.0)

@@ -178,8 +178,15 @@ def options_from_args(args: argparse.Namespace):
         raise CliError(f"source file not found: {source.path}")
     if source.kind in ("carmen", "map") and source.path is not None and source.path.is_dir():
         raise CliError(f"source {source.kind}:{source.path} is a directory, not a file")
-    for name in ("resolution", "speed", "link_timeout", "announce", "min_interval", "inbox_mib",
-                 "ros_rate"):
+    for name in (
+        "resolution",
+        "speed",
+        "link_timeout",
+        "announce",
+        "min_interval",
+        "inbox_mib",
+        "ros_rate",
+    ):
         if not getattr(args, name) > 0:
             raise CliError(f"--{name.replace('_', '-')} must be > 0")
     if not 0 <= args.min_change <= 1 or not 0 <= args.epoch_change <= 1:
@@ -251,8 +258,9 @@ def _require_extras(source_kind: str, outputs: OutputOptions) -> None:
 
 def _output_options(args: argparse.Namespace) -> OutputOptions:
     """The ROS 2 and Foxglove options (``ValueError`` with one line if bad)."""
-    ros = RosOptions(domain=check_domain(args.ros_domain), distro=args.ros_distro,
-                     form=args.ros_keys)
+    ros = RosOptions(
+        domain=check_domain(args.ros_domain), distro=args.ros_distro, form=args.ros_keys
+    )
     if args.ros_publish is not None:
         check_topic(args.ros_publish)
     if not _FRAME_ID.fullmatch(args.ros_frame):

@@ -67,6 +67,5 @@ def require_extra(module: str, extra: str, needed_by: str) -> None:
         importlib.import_module(module)
     except ImportError:
         raise CliError(
-            f"{needed_by} needs {module}, which is not installed: "
-            f"pip install 'pgvd-fleet[{extra}]'"
+            f"{needed_by} needs {module}, which is not installed: pip install 'pgvd-fleet[{extra}]'"
         ) from None

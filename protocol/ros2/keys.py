@@ -34,9 +34,7 @@ QOS_TRANSIENT_LOCAL_1 = ":1:,1:,:,:,,"
 def check_topic(topic: str) -> str:
     """Return ``topic`` if it is an absolute ROS 2 topic name, else raise ``ValueError``."""
     if not _TOPIC.fullmatch(topic):
-        raise ValueError(
-            f"not an absolute ROS 2 topic name: {topic!r} (expected e.g. /robot1/map)"
-        )
+        raise ValueError(f"not an absolute ROS 2 topic name: {topic!r} (expected e.g. /robot1/map)")
     return topic
 
 
@@ -47,8 +45,9 @@ def check_domain(domain: int) -> int:
     return domain
 
 
-def data_key(topic: str, msgtype: str, *, domain: int = 0, distro: str = "jazzy",
-             form: str = "rmw_zenoh") -> str:
+def data_key(
+    topic: str, msgtype: str, *, domain: int = 0, distro: str = "jazzy", form: str = "rmw_zenoh"
+) -> str:
     """The Zenoh key of ``topic``'s samples.
 
     Parameters
@@ -95,8 +94,16 @@ class RosNode:
         """The node's own ``NN`` liveliness token."""
         return f"{self._prefix(self.node_id, 'NN')}"
 
-    def entity_token(self, kind: str, entity_id: int, topic: str, msgtype: str, *,
-                     distro: str = "jazzy", qos: str = QOS_TRANSIENT_LOCAL_1) -> str:
+    def entity_token(
+        self,
+        kind: str,
+        entity_id: int,
+        topic: str,
+        msgtype: str,
+        *,
+        distro: str = "jazzy",
+        qos: str = QOS_TRANSIENT_LOCAL_1,
+    ) -> str:
         """The liveliness token of a publisher (``MP``) or subscription (``MS``) of ``topic``."""
         if kind not in ("MP", "MS"):
             raise ValueError(f"entity kind must be MP or MS, got {kind!r}")

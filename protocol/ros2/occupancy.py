@@ -69,8 +69,7 @@ class RosMap:
 
 def _deserialize(cdr: bytes, msgtype: str, limits: Limits) -> Any:
     if len(cdr) > limits.max_cells + 4096:
-        raise GridRefused(f"{msgtype} of {len(cdr)} bytes is over the cell limit", "limit",
-                          "limit")
+        raise GridRefused(f"{msgtype} of {len(cdr)} bytes is over the cell limit", "limit", "limit")
     if len(cdr) < 4 or cdr[:2] not in (b"\x00\x01", b"\x00\x00"):
         raise GridRefused(f"{msgtype}: no CDR encapsulation header", "framing", "cdr")
     try:
@@ -119,15 +118,17 @@ def decode_occupancy_grid(cdr: bytes, limits: Limits | None = None) -> RosMap:
     info = msg.info
     width, height, data = int(info.width), int(info.height), np.asarray(msg.data)
     if width * height > limits.max_cells or max(width, height) > limits.max_side:
-        raise GridRefused(f"OccupancyGrid of {width}x{height} cells is over the limit", "limit",
-                          "limit")
+        raise GridRefused(
+            f"OccupancyGrid of {width}x{height} cells is over the limit", "limit", "limit"
+        )
     if width * height != data.size or data.size == 0:
         raise GridRefused(
             f"OccupancyGrid is {width}x{height} but carries {data.size} cells", "value", "size"
         )
     if not (math.isfinite(info.resolution) and info.resolution > 0):
-        raise GridRefused(f"OccupancyGrid resolution must be > 0, got {info.resolution}",
-                          "value", "resolution")
+        raise GridRefused(
+            f"OccupancyGrid resolution must be > 0, got {info.resolution}", "value", "resolution"
+        )
     position = info.origin.position
     if not all(math.isfinite(v) for v in (position.x, position.y, position.z)):
         raise GridRefused("OccupancyGrid origin is not finite", "value", "origin")
@@ -136,13 +137,17 @@ def decode_occupancy_grid(cdr: bytes, limits: Limits | None = None) -> RosMap:
     if cells.min() < -1 or cells.max() > 100:
         raise GridRefused(
             f"OccupancyGrid cells must be in -1..100, found {cells.min()}..{cells.max()}",
-            "value", "cells",
+            "value",
+            "cells",
         )
     # -1 becomes 255 as map_server's raw shade: beyond 100, hence unknown.
     shade = np.flipud(cells).astype(np.uint8)
     prob = shade_to_probability(shade, None, mode="raw")
-    grid = Grid(probability_to_logodds(prob), float(info.resolution),
-                (float(position.x), float(position.y), yaw))
+    grid = Grid(
+        probability_to_logodds(prob),
+        float(info.resolution),
+        (float(position.x), float(position.y), yaw),
+    )
     stamp = msg.header.stamp
     return RosMap(grid, str(msg.header.frame_id), int(stamp.sec) * 10**9 + int(stamp.nanosec))
 
