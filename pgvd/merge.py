@@ -450,11 +450,6 @@ def _turned(headings: list[HeadingCandidate], degrees: float) -> list[HeadingCan
     return [replace(h, psi=float(np.angle(np.exp(1j * (h.psi + turn))))) for h in headings]
 
 
-def _labelled(progress: Callable[[str], None] | None, label: str) -> Callable[[str], None] | None:
-    """``progress`` with ``label`` before every line (None stays None)."""
-    return None if progress is None else (lambda line: progress(label + line))
-
-
 def _pgvd(prob: np.ndarray, params: MergeParams) -> tuple[np.ndarray, np.ndarray]:
     """PGVD (13)-(24), or the plain GVD with every cell certain when not ``probabilistic``."""
     s, sp = pgvd(prob, params.free)
@@ -1092,13 +1087,19 @@ def merge(
             )
     params = params or MergeParams()
     clock = _Clock(progress)
-
-    def read(named: tuple[str, Grid]) -> np.ndarray:
-        name, grid = named
-        return registration_probability(grid, params, _labelled(progress, f"map {name}: "))
-
-    # the two maps' long array loops at once (pgvd.parallel), here and below
-    pa, pb = both(read, ("A", a), ("B", b))
+    # the two maps' long array loops at once (pgvd.parallel), here and below; what the
+    # reading says is told afterwards, A's first, on this thread: progress need not be
+    # thread-safe, and its lines come in one order
+    said: dict[str, list[str]] = {"A": [], "B": []}
+    pa, pb = both(
+        lambda named: registration_probability(named[1], params, said[named[0]].append),
+        ("A", a),
+        ("B", b),
+    )
+    if progress is not None:
+        for name, lines in said.items():
+            for line in lines:
+                progress(f"map {name}: {line}")
     _check_inputs(a, b, pa, pb, params)
     headings = _turned(estimate_headings(pa, pb, params.max_candidates), params.heading_offset)
     clock.lap("rotation")

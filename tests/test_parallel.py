@@ -12,6 +12,7 @@ import pytest
 from pgvd.io import read_map
 from pgvd.merge import MergeParams, merge
 from pgvd.parallel import both
+from pgvd.speckle import DESPECKLE_RADIUS
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -77,3 +78,14 @@ def test_a_merge_is_the_same_on_one_core_as_on_two(monkeypatch) -> None:
     np.testing.assert_array_equal(two.matrix, one.matrix)
     np.testing.assert_array_equal(two.covariance, one.covariance)
     assert two.margin == one.margin
+
+
+def test_progress_is_told_on_the_callers_thread_a_before_b() -> None:
+    # the CLI prints progress lines; told from two threads, two of them ran into one
+    a, b = read_map(EXAMPLES / "intel_a.yaml"), read_map(EXAMPLES / "intel_b.yaml")
+    told: list[tuple[str, str]] = []
+    params = MergeParams(diagnostics=False, speckle_radius=DESPECKLE_RADIUS)
+    merge(a, b, params, progress=lambda line: told.append((threading.current_thread().name, line)))
+    assert {thread for thread, _ in told} == {threading.current_thread().name}
+    maps = [line.split(":")[0] for _, line in told if "speckle" in line]
+    assert maps == ["map A", "map B"]
