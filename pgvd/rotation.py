@@ -145,15 +145,13 @@ def _peak_variance(c: np.ndarray, i: int, bin_rad: float) -> float:
     ``var = tau / -C''(peak)``: a sharp, tall peak over a quiet background is
     a precise heading, a broad or low one is not.  The result is scaled by
     :data:`VARIANCE_CALIBRATION`, measured against the true headings of the
-    development pairs, and floored at a quarter of a bin squared.
+    development pairs, and floored at a quarter of a bin squared.  ``C`` is concave
+    at ``i`` (:func:`peak_bins`), so ``-C''`` is positive.
     """
     n = c.size
     curvature = -(c[(i - 1) % n] - 2 * c[i] + c[(i + 1) % n]) / bin_rad**2
     tau = 1.4826 * float(np.median(np.abs(c - np.median(c))))
-    floor = (0.5 * bin_rad) ** 2
-    if curvature <= 0:
-        return float(max(floor, (n * bin_rad / 4) ** 2))
-    return float(max(floor, VARIANCE_CALIBRATION * tau / curvature))
+    return float(max((0.5 * bin_rad) ** 2, VARIANCE_CALIBRATION * tau / curvature))
 
 
 def _refined_peak(c: np.ndarray, i: int, bin_rad: float) -> float:
@@ -163,6 +161,50 @@ def _refined_peak(c: np.ndarray, i: int, bin_rad: float) -> float:
     denom = y0 - 2 * y1 + y2
     offset = 0.5 * (y0 - y2) / denom if denom < 0 else 0.0
     return (i + offset) * bin_rad
+
+
+def peak_bins(c: np.ndarray, sep: int, count: int) -> list[tuple[int, int]]:
+    """The correlation's peaks and their quarter-turn twins, best first.
+
+    Every peak ``i`` of ``C`` (strongest first) is chosen, and so is its twin, the
+    best bin within ``sep`` bins of ``i`` plus a quarter turn, until ``count`` are
+    chosen; bins closer than ``sep`` to one chosen before are not.  A chosen bin's
+    heading variance is measured by the curvature of ``C`` (:func:`_peak_variance`):
+    its own where ``C`` is concave there, or, for a twin where it is not (a twin
+    needs not be a peak), its parent's, whose walls it is turned by a quarter.
+
+    Parameters
+    ----------
+    c : numpy.ndarray
+        The spectrum correlation (:func:`spectrum_correlation`) over 180 degrees.
+    sep : int
+        Fewest bins between two chosen bins.
+    count : int
+        How many to choose at most (a twin may take the last place).
+
+    Returns
+    -------
+    list of tuple of int
+        ``(bin, width)`` pairs, best correlation first: ``width`` is the bin whose
+        curvature gives ``bin``'s variance.
+    """
+    n = c.size
+    is_peak = (c >= np.roll(c, 1)) & (c > np.roll(c, -1))
+    concave = 2 * c > np.roll(c, 1) + np.roll(c, -1)
+    chosen: dict[int, int] = {}
+
+    def distinct(i: int) -> bool:
+        return all(min((i - j) % n, (j - i) % n) >= sep for j in chosen)
+
+    for i in (int(i) for i in np.argsort(-c) if is_peak[i]):
+        window = (i + n // 2 + np.arange(-sep + 1, sep)) % n
+        twin = int(window[np.argmax(c[window])])
+        for j in (i, twin):
+            if distinct(j):
+                chosen[j] = j if concave[j] else i
+        if len(chosen) >= count:
+            break
+    return sorted(chosen.items(), key=lambda jp: -c[jp[0]])
 
 
 def estimate_headings(
@@ -213,25 +255,10 @@ def estimate_headings(
     n = c.size
     bin_rad = np.pi / n
     sep = max(1, round(np.radians(min_separation_deg) / bin_rad))
-    is_peak = (c >= np.roll(c, 1)) & (c > np.roll(c, -1))
-    chosen: list[int] = []
-
-    def distinct(i: int) -> bool:
-        return all(min((i - j) % n, (j - i) % n) >= sep for j in chosen)
-
-    for i in (int(i) for i in np.argsort(-c) if is_peak[i]):
-        window = (i + n // 2 + np.arange(-sep + 1, sep)) % n
-        twin = int(window[np.argmax(c[window])])
-        for j in (i, twin):
-            if distinct(j):
-                chosen.append(j)
-        if 2 * len(chosen) >= max_candidates:
-            break
-    chosen.sort(key=lambda j: -c[j])
     out: list[HeadingCandidate] = []
-    for j in chosen:
+    for j, peak in peak_bins(c, sep, (max_candidates + 1) // 2):
         delta = _refined_peak(c, j, bin_rad)
-        var = _peak_variance(c, j, bin_rad)
+        var = _peak_variance(c, peak, bin_rad)
         for psi in (delta, delta + np.pi):
             out.append(HeadingCandidate(float(np.angle(np.exp(1j * psi))), var, float(c[j])))
     return out[:max_candidates]

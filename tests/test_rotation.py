@@ -7,7 +7,7 @@ import pytest
 
 from pgvd.grid import rigid_matrix
 from pgvd.io import read_map
-from pgvd.rotation import angle_spectrum, estimate_headings, spectrum_correlation
+from pgvd.rotation import angle_spectrum, estimate_headings, peak_bins, spectrum_correlation
 from pgvd.transform import warp
 
 
@@ -66,3 +66,19 @@ def test_no_occupied_cells_is_an_error():
         angle_spectrum(np.full((20, 20), 0.1))
     with pytest.raises(ValueError, match="max_candidates"):
         estimate_headings(np.eye(5), np.eye(5), max_candidates=0)
+
+
+def test_a_twin_where_the_correlation_is_not_concave_has_its_parents_width() -> None:
+    # One peak at bin 60; a quarter turn away (bin 240) the correlation only falls.
+    bins = np.arange(360)
+    c = np.exp(-0.5 * ((bins - 60) / 4.0) ** 2) - 0.001 * bins
+    assert peak_bins(c, sep=10, count=2) == [(60, 60), (231, 60)]
+
+
+def test_every_candidate_heading_has_a_width_of_its_own_walls(intel_a) -> None:
+    # intel turned by 334 deg: a twin where the correlation is not concave had variance
+    # (pi / 4)^2 (a 45 deg sigma), which blurred B's walls away at that heading (8)
+    # before its PGVD was built.  It now has the width of the peak it twins.
+    b = _rotated(intel_a, np.radians(334.0))
+    sigmas = [np.degrees(np.sqrt(c.variance)) for c in estimate_headings(intel_a, b)]
+    assert len(sigmas) == 6 and max(sigmas) < 2.0, sigmas
