@@ -167,7 +167,7 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     only find a transform the chain contradicts.  A correction beyond the basin is
     inconclusive: the chain may be off, the search decides.
     """
-    from pgvd.verify import BASIN_DEG, BASIN_M, placement, verify
+    from pgvd.verify import BASIN_DEG, BASIN_M, predicted_overlap, verify
 
     params = _merge_params(min_agreement)
 
@@ -175,7 +175,7 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         res = verify(a, b, predicted, params)
         if res.accepted:
             return _registration(True, res.matrix, res.covariance, res.score)
-        seen = placement(a, b, predicted, res.matrix, params)
+        seen = predicted_overlap(a, b, predicted, res.matrix, params)
         if seen.overlap_m < params.min_overlap:
             why = (
                 f"the predicted pose overlaps {seen.overlap_m:.1f} m of walls "

@@ -25,9 +25,9 @@ Maps finer than 3.4 cm are checked pooled to about 5 cm cells, as the merge deci
 
 A rejected result carries the refined matrix for diagnosis only; a prediction is never
 accepted as it stands, only the refined transform once it passed every check.
-:func:`placement` says what the maps show where a rejected prediction put them (how many
-metres of walls overlap, how far the refinement moved it), on the same pooled maps: the
-agent reads it to tell a chain that puts the maps apart from one that is merely off.
+:func:`predicted_overlap` says what the maps show where a rejected prediction put them
+(how many metres of walls overlap, how far the refinement moved it), on the same pooled
+maps: the agent reads it to tell a chain that puts the maps apart from one that is merely off.
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def wall_maps(a: Grid, b: Grid, params: MergeParams, pool: int = 1) -> tuple[Wal
 
 
 @dataclass(frozen=True)
-class Placement:
+class PredictedOverlap:
     """What two maps show where a prediction puts them, and how far a refinement moved it.
 
     Attributes
@@ -123,9 +123,9 @@ class Placement:
     turn_deg: float
 
 
-def placement(
+def predicted_overlap(
     a: Grid, b: Grid, predicted: np.ndarray, refined: np.ndarray, params: MergeParams
-) -> Placement:
+) -> PredictedOverlap:
     """The overlap of the maps at ``predicted`` and the move to ``refined`` (module docstring).
 
     Counted on the maps pooled to about 5 cm cells, as :func:`verify` and the merge decide
@@ -153,9 +153,9 @@ def placement(
     seen = map_agreement(fine_a, fine_b, start)
     overlap_m = 0.5 * (seen.agree + seen.disagree) * res
     if len(fine_b.walls) == 0:
-        return Placement(overlap_m, float("nan"), float("nan"))
+        return PredictedOverlap(overlap_m, float("nan"), float("nan"))
     shift_px, turn_deg = basin_move(start, to_pooled(refined, pool), fine_b.walls)
-    return Placement(overlap_m, shift_px * res, turn_deg)
+    return PredictedOverlap(overlap_m, shift_px * res, turn_deg)
 
 
 def verify(

@@ -20,7 +20,7 @@ from pgvd.pooling import (
     from_pooled,
     to_pooled,
 )
-from pgvd.verify import placement, verify
+from pgvd.verify import predicted_overlap, verify
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 PARAMS = MergeParams(diagnostics=False)
@@ -120,9 +120,9 @@ def test_where_a_prediction_puts_finer_maps_is_measured_as_on_the_maps(metres: f
     truth = np.asarray(json.loads((EXAMPLES / "truth.json").read_text())["matrix"])
     predicted = rigid_matrix(0.0, metres / a.resolution, 0.0) @ truth
     refined = rigid_matrix(np.radians(1.0), 4.0, 0.0) @ predicted
-    base = placement(a, b, predicted, refined, PARAMS)
+    base = predicted_overlap(a, b, predicted, refined, PARAMS)
     to_fine = block_scale(3)
-    fine = placement(
+    fine = predicted_overlap(
         _finer(a, 3),
         _finer(b, 3),
         to_fine @ predicted @ np.linalg.inv(to_fine),
@@ -138,7 +138,7 @@ def test_where_a_prediction_puts_finer_maps_is_measured_as_on_the_maps(metres: f
 def test_a_prediction_off_the_map_overlaps_nothing() -> None:
     a, b = read_map(EXAMPLES / "intel_a.yaml"), read_map(EXAMPLES / "intel_b.yaml")
     far = rigid_matrix(0.0, 5000.0, 0.0)
-    seen = placement(a, b, far, far, PARAMS)
+    seen = predicted_overlap(a, b, far, far, PARAMS)
     assert seen.overlap_m == 0.0 and seen.shift_m == 0.0 and seen.turn_deg == 0.0
 
 
