@@ -450,6 +450,11 @@ def _turned(headings: list[HeadingCandidate], degrees: float) -> list[HeadingCan
     return [replace(h, psi=float(np.angle(np.exp(1j * (h.psi + turn))))) for h in headings]
 
 
+def _described(h: HeadingCandidate) -> str:
+    """``"147.0 deg (sigma 1.11)"``: a candidate heading and its sigma (10), in degrees."""
+    return f"{np.degrees(h.psi):.1f} deg (sigma {np.degrees(np.sqrt(h.variance)):.2f})"
+
+
 def _pgvd(prob: np.ndarray, params: MergeParams) -> tuple[np.ndarray, np.ndarray]:
     """PGVD (13)-(24), or the plain GVD with every cell certain when not ``probabilistic``."""
     s, sp = pgvd(prob, params.free)
@@ -1102,6 +1107,9 @@ def merge(
                 progress(f"map {name}: {line}")
     _check_inputs(a, b, pa, pb, params)
     headings = _turned(estimate_headings(pa, pb, params.max_candidates), params.heading_offset)
+    if progress is not None:
+        # a heading that is wrong or too uncertain explains a failed merge: say them
+        progress("candidate headings (10): " + ", ".join(map(_described, headings)))
     clock.lap("rotation")
     k = max(1, round(params.coarse_resolution / a.resolution))
     ca, cb = both(lambda p: coarsen(p, k, params.occupied), pa, pb)
@@ -1145,6 +1153,8 @@ def merge(
         if _decided(hyps, params, bounds):
             break
         searched += (float(np.degrees(t.heading.psi)),)
+        if progress is not None:
+            progress(f"searching heading {_described(t.heading)}")
         hyps += _search_heading(t, graph_a, correlator, params, min_len, radius, clock)
     good = [h for h in hyps if h.support >= params.min_pairs]
     if not good:

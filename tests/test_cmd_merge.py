@@ -279,3 +279,18 @@ def test_verbose_prints_each_step_and_its_stage_so_far() -> None:
         added.setdefault(m[1], []).append(float(m[2]))
         assert abs(sum(added[m[1]]) - float(m[3])) <= 0.05 * len(added[m[1]]) + 1e-9, m[0]
     assert any(len(v) > 1 for v in added.values())  # a stage run once per heading
+
+
+def test_verbose_says_the_candidate_headings_and_which_were_searched() -> None:
+    # a heading far off, or one whose sigma blurs its walls away, explains a failed merge
+    ex = ROOT / "examples"
+    proc = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", "-v", "--json")
+    assert proc.returncode == 0, proc.stderr
+    heading = r"(-?\d+\.\d) deg \(sigma (\d+\.\d\d)\)"
+    (listed,) = [ln for ln in proc.stderr.splitlines() if "candidate headings (10): " in ln]
+    candidates = re.findall(heading, listed)
+    assert len(candidates) == 6 and all(0.0 < float(s) < 5.0 for _, s in candidates)
+    searched = re.findall("searching heading " + heading, proc.stderr)
+    assert searched and set(searched) <= set(candidates)
+    rotation = json.loads(proc.stdout)["rotation_deg"]
+    assert min(abs(float(deg) - rotation) for deg, _ in searched) < 1.0
