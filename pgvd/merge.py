@@ -818,19 +818,26 @@ def weigh(
 def fine_maps(
     pa: np.ndarray, pb: np.ndarray, params: MergeParams, pool: int = 1
 ) -> tuple[WallMap, WallMap]:
-    """A's and B's maps from their probabilities, as the decision reads them.
+    """A's and B's maps from their probabilities, as the decision reads them
+    (:func:`decision_map`).
 
-    Each is pooled ``pool x pool`` first (:func:`pgvd.pooling.decision_pool`: about
-    5 cm cells, where the decision was set).  A gets the nearest-wall table
-    (:class:`pgvd.matching.WallMap` ``lookup``): every hypothesis is scored against it;
-    B's walls are only counted once per hypothesis.
+    A gets the nearest-wall table (:class:`pgvd.matching.WallMap` ``lookup``): every
+    hypothesis is scored against it; B's walls are only counted once per hypothesis.
     """
 
-    def wall_map(job: tuple[np.ndarray, bool]) -> WallMap:
+    def read(job: tuple[np.ndarray, bool]) -> WallMap:
         prob, lookup = job
-        return WallMap(pooled(prob, pool, params.occupied), params.occupied, params.free, lookup)
+        return decision_map(prob, params, pool, lookup)
 
-    return both(wall_map, (pa, True), (pb, False))
+    return both(read, (pa, True), (pb, False))
+
+
+def decision_map(prob: np.ndarray, params: MergeParams, pool: int, lookup: bool = False) -> WallMap:
+    """One map's probabilities as the decision reads them: pooled ``pool x pool``
+    (:func:`pgvd.pooling.decision_pool`: about 5 cm cells, where the decision was set),
+    walls and free space at ``params``' thresholds; ``lookup`` as in
+    :class:`pgvd.matching.WallMap`."""
+    return WallMap(pooled(prob, pool, params.occupied), params.occupied, params.free, lookup)
 
 
 def final_refinement(
@@ -1095,15 +1102,15 @@ def merge(
     # the two maps' long array loops at once (pgvd.parallel), here and below; what the
     # reading says is told afterwards, A's first, on this thread: progress need not be
     # thread-safe, and its lines come in one order
-    said: dict[str, list[str]] = {"A": [], "B": []}
-    pa, pb = both(
-        lambda named: registration_probability(named[1], params, said[named[0]].append),
-        ("A", a),
-        ("B", b),
-    )
+
+    def read(grid: Grid) -> tuple[np.ndarray, list[str]]:
+        said: list[str] = []
+        return registration_probability(grid, params, said.append), said
+
+    (pa, said_a), (pb, said_b) = both(read, a, b)
     if progress is not None:
-        for name, lines in said.items():
-            for line in lines:
+        for name, said in (("A", said_a), ("B", said_b)):
+            for line in said:
                 progress(f"map {name}: {line}")
     _check_inputs(a, b, pa, pb, params)
     headings = _turned(estimate_headings(pa, pb, params.max_candidates), params.heading_offset)

@@ -42,12 +42,13 @@ from pgvd.matching import WallMap, map_agreement, pose_covariance, refine
 from pgvd.merge import (
     MergeParams,
     MergeResult,
+    decision_map,
     registration_probability,
     score_hypothesis,
     weigh,
 )
 from pgvd.parallel import both
-from pgvd.pooling import covariance_from_pooled, decision_pool, from_pooled, pooled, to_pooled
+from pgvd.pooling import covariance_from_pooled, decision_pool, from_pooled, to_pooled
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
 BASIN_M = 1.0
@@ -94,13 +95,7 @@ def wall_maps(a: Grid, b: Grid, params: MergeParams, pool: int = 1) -> tuple[Wal
     """A's and B's wall maps, each read as registration reads it
     (:func:`pgvd.merge.registration_probability`) and pooled ``pool x pool``
     (:func:`pgvd.pooling.decision_pool`; 1: full resolution)."""
-    return both(
-        lambda g: WallMap(
-            pooled(registration_probability(g, params), pool), params.occupied, params.free
-        ),
-        a,
-        b,
-    )
+    return both(lambda g: decision_map(registration_probability(g, params), params, pool), a, b)
 
 
 @dataclass(frozen=True)
@@ -144,7 +139,7 @@ def predicted_overlap(
 
     Returns
     -------
-    Placement
+    PredictedOverlap
     """
     pool = decision_pool(a.resolution)
     res = a.resolution * pool

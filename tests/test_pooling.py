@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from pgvd.grid import Grid, heading, rigid_matrix
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import MergeParams, fine_maps, merge, registration_probability
 from pgvd.pooling import (
     block_scale,
     covariance_from_pooled,
@@ -20,7 +20,7 @@ from pgvd.pooling import (
     from_pooled,
     to_pooled,
 )
-from pgvd.verify import predicted_overlap, verify
+from pgvd.verify import predicted_overlap, verify, wall_maps
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 PARAMS = MergeParams(diagnostics=False)
@@ -150,3 +150,19 @@ def test_merge_says_when_it_pools() -> None:
     lines.clear()
     merge(a, b, MergeParams(diagnostics=False), progress=lines.append)
     assert not any("pooled" in line for line in lines)
+
+
+def test_verify_reads_the_decisions_maps_as_the_merge_does() -> None:
+    # verify pooled with the default wall threshold whatever MergeParams.occupied said:
+    # a block holding a 0.7 cell and free cells was a 0.7 block to it, free to the merge
+    a = read_map(EXAMPLES / "intel_a.yaml")
+    params = MergeParams(diagnostics=False, occupied=0.8)
+    fine = _finer(a, 2)
+    logodds = fine.logodds.copy()
+    free = np.argwhere(fine.probability() < 0.2)[0]
+    logodds[free[0] - free[0] % 2, free[1] - free[1] % 2] = np.log(0.7 / 0.3)
+    fine = Grid(logodds, fine.resolution, fine.origin)
+    checked, _ = wall_maps(fine, fine, params, 2)
+    decided, _ = fine_maps(*(registration_probability(fine, params),) * 2, params, 2)
+    np.testing.assert_array_equal(checked.free, decided.free)
+    np.testing.assert_array_equal(checked.walls, decided.walls)
