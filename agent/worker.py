@@ -167,15 +167,17 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     only find a transform the chain contradicts.  A correction beyond the basin is
     inconclusive: the chain may be off, the search decides.
     """
-    from pgvd.verify import BASIN_DEG, BASIN_M, predicted_overlap, verify
+    from pgvd.verify import BASIN_DEG, BASIN_M, pooled_maps, predicted_overlap, verify
 
     params = _merge_params(min_agreement)
 
     def check(a: Grid, b: Grid, predicted: np.ndarray) -> Registration | None:
-        res = verify(a, b, predicted, params)
+        # the maps are read once for both questions: on fine maps reading is most of the cost
+        maps = pooled_maps(a, b, params)
+        res = verify(a, b, predicted, params, maps)
         if res.accepted:
             return _registration(True, res.matrix, res.covariance, res.score)
-        seen = predicted_overlap(a, b, predicted, res.matrix, params)
+        seen = predicted_overlap(a, b, predicted, res.matrix, params, maps)
         if seen.overlap_m < params.min_overlap:
             why = (
                 f"the predicted pose overlaps {seen.overlap_m:.1f} m of walls "

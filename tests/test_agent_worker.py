@@ -329,6 +329,26 @@ def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
     assert verify_check()(a, b, off) is None
 
 
+def test_a_chain_check_reads_each_map_once(intel_pair, monkeypatch) -> None:
+    """A rejected prediction is verified, then measured where it put the maps: both on one
+    reading of the maps, not one each."""
+    import pgvd.verify
+
+    a, b, truth = intel_pair
+    read: list[int] = []
+    reading = pgvd.verify.registration_probability
+
+    def counted(grid: Grid, params: MergeParams) -> np.ndarray:
+        read.append(id(grid))
+        return reading(grid, params)
+
+    monkeypatch.setattr(pgvd.verify, "registration_probability", counted)
+    off = rigid_matrix(np.radians(20.0), 60.0, 0.0) @ truth  # overlapping, disagreeing
+    verdict = verify_check()(a, b, off)
+    assert verdict is not None and not verdict.accepted
+    assert sorted(read) == sorted([id(a), id(b)])
+
+
 def test_a_merge_registration_carries_the_merges_reason(intel_pair) -> None:
     a, b, _ = intel_pair
     register = merge_registration()

@@ -20,7 +20,7 @@ from pgvd.pooling import (
     from_pooled,
     to_pooled,
 )
-from pgvd.verify import predicted_overlap, verify, wall_maps
+from pgvd.verify import pooled_maps, predicted_overlap, verify, wall_maps
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 PARAMS = MergeParams(diagnostics=False)
@@ -133,6 +133,27 @@ def test_where_a_prediction_puts_finer_maps_is_measured_as_on_the_maps(metres: f
     assert fine.overlap_m == pytest.approx(base.overlap_m, rel=0.01)
     assert fine.shift_m == pytest.approx(base.shift_m, abs=0.05)
     assert fine.turn_deg == pytest.approx(base.turn_deg, abs=1e-6) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("metres", [0.0, 3.0])
+def test_maps_read_once_give_what_each_check_reads_itself(metres: float) -> None:
+    a, b = (
+        _finer(read_map(EXAMPLES / "intel_a.yaml"), 2),
+        _finer(read_map(EXAMPLES / "intel_b.yaml"), 2),
+    )
+    to_fine = block_scale(2)
+    truth = np.asarray(json.loads((EXAMPLES / "truth.json").read_text())["matrix"])
+    predicted = (
+        rigid_matrix(0.0, metres / a.resolution, 0.0) @ to_fine @ truth @ np.linalg.inv(to_fine)
+    )
+    maps = pooled_maps(a, b, PARAMS)
+    assert maps.pool == 2 and maps.cell == pytest.approx(0.05)
+    alone, shared = verify(a, b, predicted, PARAMS), verify(a, b, predicted, PARAMS, maps)
+    assert alone.accepted == shared.accepted == (metres == 0.0)
+    assert alone.reason == shared.reason and np.array_equal(alone.matrix, shared.matrix)
+    assert predicted_overlap(a, b, predicted, alone.matrix, PARAMS) == predicted_overlap(
+        a, b, predicted, alone.matrix, PARAMS, maps
+    )
 
 
 def test_a_prediction_off_the_map_overlaps_nothing() -> None:
