@@ -1,4 +1,4 @@
-"""Map file formats: ROS ``map_server`` YAML + PGM/PNG and ``.npy`` probability arrays.
+"""Map file formats: ROS ``map_server`` YAML + PGM/PNG, bare PGM/PNG images and ``.npy`` arrays.
 
 Reading gives a log-odds :class:`~pgvd.grid.Grid` (eq. (9)).  A map_server
 image carries classes, not confidences, so the classes get definite
@@ -6,6 +6,11 @@ probabilities: occupied :data:`P_OCCUPIED` (log-odds +2.2), free
 :data:`P_FREE` (log-odds -2.2), unknown 0.5 (log-odds 0).  Every problem with
 a file raises :class:`MapFormatError`, a ``ValueError`` whose message is one
 line naming the file and the problem.
+
+A bare ``.pgm`` or ``.png`` (an image without its YAML, as map collections often ship
+them) carries no cell size: it is read with one given by the caller, map_saver's thresholds
+(occupied above 0.65, free below 0.196, so that its 0/205/254 pixels are occupied, unknown
+and free) and the origin at ``(0, 0, 0)``.
 
 map_server semantics (ROS1 ``image_loader``): ``shade`` is the gray value in
 0..255 (RGB/RGBA averaged over the colour channels; 16-bit scaled to 0..255),
@@ -48,6 +53,8 @@ FREE_THRESH = 0.196
 MAX_CELLS = 8000 * 8000
 #: Resolution given to ``.npy`` maps, which carry none.
 NPY_RESOLUTION = 0.05
+#: Suffixes of bare map images, read without a YAML (:func:`read_map`'s ``image_resolution``).
+IMAGE_SUFFIXES = (".pgm", ".png")
 
 _MODES = ("trinary", "scale", "raw")
 _REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
@@ -397,19 +404,24 @@ def read_map(
     max_cells: int = MAX_CELLS,
     *,
     npy_resolution: float = NPY_RESOLUTION,
+    image_resolution: float | None = None,
 ) -> Grid:
     """Read an occupancy map into a log-odds :class:`~pgvd.grid.Grid` (eq. (9)).
 
     Parameters
     ----------
     path : str or os.PathLike
-        ``.yaml``/``.yml`` (ROS map_server, PGM or PNG image) or ``.npy``
-        (2-D probabilities in [0, 1], 0.5 = unknown).
+        ``.yaml``/``.yml`` (ROS map_server, PGM or PNG image), a bare ``.pgm``/``.png``
+        image (map_saver's classes, see the module docstring) or ``.npy`` (2-D
+        probabilities in [0, 1], 0.5 = unknown).
     max_cells : int, optional
         Refuse maps with more cells than this (checked on the header,
         before pixels are decoded).
     npy_resolution : float, optional
         Resolution given to ``.npy`` maps, which carry none.
+    image_resolution : float, optional
+        Resolution (m) of a bare image, which carries none; reading one without it is
+        refused (a guessed cell size would scale every metric threshold of the merge).
 
     Returns
     -------
@@ -420,7 +432,8 @@ def read_map(
     ------
     MapFormatError
         Missing/unreadable file, bad YAML or keys, resolution <= 0, empty map,
-        no occupied cells, too many cells, NaN or out-of-range values.
+        no occupied cells, too many cells, NaN or out-of-range values, a bare image
+        without ``image_resolution``.
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -428,7 +441,25 @@ def read_map(
         return _read_yaml_map(path, max_cells)
     if suffix == ".npy":
         return _read_npy_map(path, max_cells, npy_resolution)
-    raise MapFormatError(path, "unknown map format (expected .yaml, .yml or .npy)")
+    if suffix in IMAGE_SUFFIXES:
+        return _read_bare_image(path, max_cells, image_resolution)
+    raise MapFormatError(path, "unknown map format (expected .yaml, .yml, .pgm, .png or .npy)")
+
+
+def _read_bare_image(path: Path, max_cells: int, resolution: float | None) -> Grid:
+    """A map image without its YAML: map_saver's classes, ``resolution``, origin (0, 0, 0)."""
+    if resolution is None:
+        raise MapFormatError(
+            path,
+            "a bare image carries no cell size: give it (pgvd merge --resolution M) "
+            "or write a map_server YAML that names the image",
+        )
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise MapFormatError(path, f"resolution must be a finite number > 0, got {resolution}")
+    shade, alpha = _decode_image(path, max_cells)
+    prob = shade_to_probability(shade, alpha)
+    _check_content(path, prob)
+    return Grid.from_probability(prob, resolution)
 
 
 def _read_yaml_map(path: Path, max_cells: int) -> Grid:

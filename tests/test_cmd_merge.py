@@ -83,6 +83,8 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
         ("-o under a file", [intel, intel, "-o", tmp / "nan.npy" / "f.yaml"], "is not a directory"),
         ("--despeckle of 3 maps", [intel, intel, intel, "--despeckle"], "two maps, not more"),
         ("--plot not a PNG", [intel, intel, "--plot", tmp / "m.jpg"], "must end in .png"),
+        ("bare image, no cell size", [ROOT / "examples/intel_a.pgm", intel], "--resolution M"),
+        ("zero --resolution", [intel, intel, "--resolution", "0"], "--resolution must be"),
     ]
 
 
@@ -94,6 +96,19 @@ def test_bad_input_exits_2_with_one_line(tmp_path: Path, shared: Path) -> None:
         assert len(lines) == 1 and why in lines[0], (name, proc.stderr)
         assert lines[0].startswith("pgvd merge: error: ") and "Traceback" not in proc.stderr
         assert proc.stdout == ""
+
+
+def test_bare_images_merge_with_the_cell_size_given() -> None:
+    """The bundled pair as bare PGMs, as map collections ship maps: the pose in pixels is
+    the one of their YAMLs."""
+    examples = ROOT / "examples"
+    bare = pgvd_merge(
+        examples / "intel_a.pgm", examples / "intel_b.pgm", "--resolution", "0.05", "--json"
+    )
+    assert bare.returncode == 0, bare.stderr
+    with_yaml = pgvd_merge(examples / "intel_a.yaml", examples / "intel_b.yaml", "--json")
+    got, want = json.loads(bare.stdout), json.loads(with_yaml.stdout)
+    assert got["accepted"] and got["matrix"] == want["matrix"]
 
 
 def test_a_missing_map_b_is_named_alone() -> None:

@@ -205,6 +205,35 @@ def test_write_png_is_a_valid_png(tmp_path: Path) -> None:
     np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "g.png")), rgb[..., 0])
 
 
+def test_a_bare_image_reads_as_its_map_saver_yaml_with_the_cell_size_given(
+    tmp_path: Path,
+) -> None:
+    """The bundled intel image, alone: the classes its YAML gives, the cell size given, and
+    the origin at 0; as a PNG too."""
+    from PIL import Image
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    with_yaml = read_map(examples / "intel_a.yaml")
+    bare = read_map(examples / "intel_a.pgm", image_resolution=0.05)
+    np.testing.assert_array_equal(bare.logodds, with_yaml.logodds)
+    assert bare.resolution == 0.05 and tuple(bare.origin) == (0.0, 0.0, 0.0)
+    with Image.open(examples / "intel_a.pgm") as im:
+        im.save(tmp_path / "intel_a.png")
+    png = read_map(tmp_path / "intel_a.png", image_resolution=0.1)
+    np.testing.assert_array_equal(png.logodds, with_yaml.logodds)
+    assert png.resolution == 0.1
+
+
+def test_a_bare_image_without_a_cell_size_is_refused_in_one_line(tmp_path: Path) -> None:
+    _pgm(tmp_path / "m.pgm", np.array([[0, 254], [205, 254]], dtype=np.uint8))
+    with pytest.raises(MapFormatError, match="carries no cell size") as info:
+        read_map(tmp_path / "m.pgm")
+    assert "\n" not in str(info.value) and str(info.value).startswith(str(tmp_path / "m.pgm"))
+    for bad in (0.0, -0.05, float("nan"), float("inf")):
+        with pytest.raises(MapFormatError, match="resolution must be a finite number > 0"):
+            read_map(tmp_path / "m.pgm", image_resolution=bad)
+
+
 # ----------------------------------------------------------------------------- bad input
 
 
@@ -314,8 +343,10 @@ _headers = st.sampled_from(
 def test_fuzz_read_map_on_random_bytes(
     tmp_path: Path, header: bytes, body: bytes, ext: str
 ) -> None:
-    """Random bytes behind a valid YAML, or as the .npy/.yaml itself: only MapFormatError."""
+    """Random bytes behind a valid YAML, as a bare image, or as the .npy/.yaml itself: only
+    MapFormatError."""
     data = header + body
+    paths = [tmp_path / "g.yaml"]
     if ext == "npy":
         target = tmp_path / "f.npy"
         target.write_bytes(data)
@@ -323,11 +354,12 @@ def test_fuzz_read_map_on_random_bytes(
         (tmp_path / f"f.{ext}").write_bytes(data)
         target = tmp_path / "f.yaml"
         target.write_text(f"image: f.{ext}\n" + YAML_TAIL)
-    for path in (target, tmp_path / "g.yaml"):
+        paths.append(tmp_path / f"f.{ext}")
+    for path in (target, *paths):
         if path.name == "g.yaml":
             path.write_bytes(data)
         try:
-            g = read_map(path, max_cells=10_000)
+            g = read_map(path, max_cells=10_000, image_resolution=0.05)
         except MapFormatError as exc:
             assert "\n" not in str(exc)
         else:

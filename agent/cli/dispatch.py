@@ -27,7 +27,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "agent.cli.router",
         "run a Zenoh router (links sites; agents connect to it as clients or peers)",
     ),
-    "merge": ("agent.cli.merge", "merge two occupancy-grid maps (ROS map_server .yaml or .npy)"),
+    "merge": (
+        "agent.cli.merge",
+        "merge occupancy-grid maps (map_server .yaml, bare .pgm/.png, .npy)",
+    ),
 }
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError
 from pgvd.grid import Grid, matrix_to_pose
-from pgvd.io import MAX_CELLS, MapFormatError, read_map, write_map, write_png
+from pgvd.io import MAX_CELLS, NPY_RESOLUTION, MapFormatError, read_map, write_map, write_png
 
 if TYPE_CHECKING:
     from pgvd.merge import MergeResult
@@ -39,7 +39,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         "a",
         metavar="A",
         type=Path,
-        help="map A: .yaml map_server file, or .npy probabilities (0.5 unknown, 0.05 m/cell)",
+        help="map A: .yaml map_server file, a bare .pgm/.png image (with --resolution), or .npy "
+        "probabilities (0.5 unknown)",
     )
     p.add_argument(
         "b", metavar="B", type=Path, help="map B, resampled to A's resolution if it differs"
@@ -72,6 +73,13 @@ def configure(p: argparse.ArgumentParser) -> None:
         "(two maps only; not for a laser's own maps, whose far walls are sparse dots)",
     )
     p.add_argument(
+        "--resolution",
+        type=float,
+        metavar="M",
+        help="cell size (m) of maps whose files carry none: bare .pgm/.png images, read with "
+        f"map_saver's classes (required for them), and .npy arrays (default {NPY_RESOLUTION})",
+    )
+    p.add_argument(
         "--max-cells",
         type=int,
         default=MAX_CELLS,
@@ -90,9 +98,16 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
     return lambda line: print(f"pgvd merge: {line}", file=sys.stderr, flush=True)
 
 
-def _read(path: Path, max_cells: int) -> Grid:
+def _read(path: Path, args: argparse.Namespace) -> Grid:
+    """One map file, with ``--max-cells`` and, for files that carry none, ``--resolution``."""
+    resolution = args.resolution
     try:
-        return read_map(path, max_cells)
+        return read_map(
+            path,
+            args.max_cells,
+            npy_resolution=NPY_RESOLUTION if resolution is None else resolution,
+            image_resolution=resolution,
+        )
     except MapFormatError as exc:
         raise CliError(str(exc)) from None
 
@@ -166,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--plot {args.plot}: the picture is a PNG, its name must end in .png")
     if args.max_cells <= 0:
         raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
+    if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
+        raise CliError(f"--resolution must be a cell size in metres > 0, got {args.resolution}")
     _check_output("plot", args.plot)
     _check_output("fused map", args.output)
     if args.despeckle and args.more:
@@ -175,8 +192,8 @@ def run(args: argparse.Namespace) -> int:
     if args.more:
         return _run_many(args, say)
     say(f"reading {args.a} and {args.b}")
-    a = _read(args.a, args.max_cells)
-    b = _read(args.b, args.max_cells)
+    a = _read(args.a, args)
+    b = _read(args.b, args)
     # imported after the files are read: bad input is refused without loading scipy
     from pgvd.fusion import fuse_maps
     from pgvd.merge import MergeParams, merge
@@ -228,7 +245,7 @@ def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     """``pgvd merge A B C ...``: :func:`agent.multimerge.merge_many`, the agents' path."""
     files = [args.a, args.b, *args.more]
     say(f"reading {len(files)} maps")
-    grids = [_read(f, args.max_cells) for f in files]
+    grids = [_read(f, args) for f in files]
     for f, g in zip(files, grids, strict=True):
         cells = g.logodds.size * (g.resolution / grids[0].resolution) ** 2
         if cells > args.max_cells:
