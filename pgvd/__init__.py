@@ -19,7 +19,8 @@ Maps
     :func:`write_png`, :class:`MapFormatError`, :func:`resample`.
 Frames (x = column, y = row; a relative transform maps B pixels to A pixels)
     :func:`rigid_matrix`, :func:`heading`, :func:`matrix_to_pose`, :func:`relative_matrix`,
-    :func:`pixel_to_world`, :func:`world_to_pixel`, :func:`warp`, :func:`union_canvas`.
+    :func:`map_frame_pose`, :func:`pixel_to_world`, :func:`world_to_pixel`, :func:`warp`,
+    :func:`union_canvas`.
 Merging (the paper's Fig. 1, eqs. (10)-(32))
     :func:`merge`, :class:`MergeParams`, :class:`MergeResult`, :class:`MergeDiagnostics`.
 Fusion (eqs. (4)-(8) and (33)-(37))
@@ -51,6 +52,7 @@ import types
 _HOME = {
     "Grid": "pgvd.grid",
     "heading": "pgvd.grid",
+    "map_frame_pose": "pgvd.grid",
     "matrix_to_pose": "pgvd.grid",
     "pixel_to_world": "pgvd.grid",
     "relative_matrix": "pgvd.grid",
@@ -97,6 +99,7 @@ __all__ = [
     "heading",
     "integrate",
     "inverse_covariance",
+    "map_frame_pose",
     "matrix_to_pose",
     "merge",
     "merge_figure",

@@ -217,6 +217,32 @@ def relative_matrix(a: Grid, b: Grid) -> np.ndarray:
     return world_pose_to_pixel_matrix(a) @ np.linalg.inv(world_pose_to_pixel_matrix(b))
 
 
+def map_frame_pose(a: Grid, b: Grid, matrix: np.ndarray) -> tuple[float, float, float]:
+    """Where a B-pixel -> A-pixel ``matrix`` puts B's map frame in A's: ``(x, y, yaw)``.
+
+    The frames are the grids' ROS map frames (REP 105: the YAML ``origin`` places the
+    lower-left cell, y points up): ``(x, y)`` in metres and ``yaw`` in radians are the pose
+    of B's map frame in A's, what tf2's ``static_transform_publisher`` takes with A's map as
+    the parent frame and B's as the child.  Two maps rendered in one world frame (whose
+    :func:`relative_matrix` is the matrix) give ``(0, 0, 0)``.
+
+    Parameters
+    ----------
+    a, b : Grid
+        The two maps, B as ``matrix`` reads its pixels (its resolution may differ from A's
+        when ``matrix`` includes the scale between them).
+    matrix : numpy.ndarray
+        3x3, B pixel -> A pixel (eqs. (1)-(2)).
+
+    Returns
+    -------
+    tuple of float
+        ``(x, y, yaw)``.
+    """
+    t = np.linalg.inv(world_pose_to_pixel_matrix(a)) @ matrix @ world_pose_to_pixel_matrix(b)
+    return float(t[0, 2]), float(t[1, 2]), float(np.arctan2(t[1, 0], t[0, 0]))
+
+
 def finite_3x3(value: object, what: str) -> np.ndarray:
     """``value`` as a float64 3x3 array (a transform of eq. (1), a covariance of eq. (3)).
 

@@ -177,6 +177,9 @@ def test_without_plot_the_pgvd_images_are_not_painted(shared: Path) -> None:
     doc = json.loads(proc.stdout)
     assert doc["accepted"] is True and "covariance" in doc["timings_ms"]
     assert "diagnostics" not in doc["timings_ms"]
+    # the two halves were rendered in one world frame: B's map frame is A's
+    frame = doc["map_frame"]
+    assert abs(frame["x"]) < 0.05 and abs(frame["y"]) < 0.05 and abs(frame["yaw"]) < 0.005
 
 
 @pytest.mark.slow
@@ -197,6 +200,9 @@ def test_resampled_b_matrix_maps_the_file_pixels(tmp_path: Path, shared: Path) -
     corners = np.array([[0, 0, 1], [300, 0, 1], [0, 300, 1], [300, 300, 1]], float).T
     err = np.array(doc["matrix"]) @ corners - truth @ corners
     assert np.abs(err[:2]).max() < 3.0  # cells of A, across B's extent
+    # B's map frame, read from its own (coarser) file, is still A's
+    frame = doc["map_frame"]
+    assert abs(frame["x"]) < 0.1 and abs(frame["y"]) < 0.1 and abs(frame["yaw"]) < 0.01
 
 
 def test_json_into_a_closed_pipe_is_quiet() -> None:
@@ -227,7 +233,15 @@ def test_three_runs_merge_into_one_map_through_the_cli(shared: Path, tmp_path: P
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
     assert [m["file"] for m in doc["maps"]] == [str(f) for f in files]
-    assert {tuple(m) for m in doc["maps"]} == {("file", "component", "matrix", "covariance")}
+    assert {tuple(m) for m in doc["maps"]} == {
+        ("file", "component", "matrix", "covariance", "map_frame")
+    }
+    # three gmapping runs of one log: their map frames lie within a few cm and a degree of
+    # each other (bench/results/gmapping_truth.md), the anchor's is its own
+    assert doc["maps"][0]["map_frame"] == {"x": 0.0, "y": 0.0, "yaw": 0.0}
+    for m in doc["maps"][1:]:
+        frame = m["map_frame"]
+        assert np.hypot(frame["x"], frame["y"]) < 0.1 and abs(frame["yaw"]) < np.radians(1.0)
     assert [(ln["a"], ln["b"], ln["used"]) for ln in doc["links"]] == [
         (0, 1, True),
         (0, 2, True),

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError
-from pgvd.grid import Grid, matrix_to_pose
+from pgvd.grid import Grid, map_frame_pose, matrix_to_pose
 from pgvd.io import MAX_CELLS, NPY_RESOLUTION, MapFormatError, read_map, write_map, write_png
 
 if TYPE_CHECKING:
@@ -121,19 +121,30 @@ def _finite_or_none(value: object) -> object:
     return value
 
 
-def report(result: MergeResult, b_scale: np.ndarray | None) -> dict:
-    """The ``--json`` object: ``accepted``, ``matrix`` (B pixels -> A pixels), ``rotation_deg``,
-    ``translation_px``, ``covariance``, ``score``, ``timings_ms`` and ``reason``.
+def map_frame(a: Grid, b: Grid, matrix: np.ndarray) -> dict[str, float] | None:
+    """``{"x", "y", "yaw"}``: B's map frame in A's (m, m, rad; :func:`pgvd.grid.map_frame_pose`),
+    None for a matrix that is not finite (a merge rejected before any pose)."""
+    if not np.isfinite(matrix).all():
+        return None
+    return dict(zip(("x", "y", "yaw"), map_frame_pose(a, b, matrix), strict=True))
 
-    ``matrix`` maps the pixels of B *as read from its file*, so it includes the scale (also
-    given as ``b_scale``) when B was resampled; non-finite numbers are null.
+
+def report(result: MergeResult, a: Grid, b: Grid, b_scale: np.ndarray | None) -> dict:
+    """The ``--json`` object: ``accepted``, ``matrix`` (B pixels -> A pixels), ``rotation_deg``,
+    ``translation_px``, ``covariance``, ``score``, ``timings_ms``, ``reason`` and
+    ``map_frame`` (B's map frame in A's, :func:`map_frame`).
+
+    ``matrix`` maps the pixels of B *as read from its file* (``b``), so it includes the
+    scale (also given as ``b_scale``) when B was resampled; non-finite numbers are null.
     """
     doc = result.to_json()
+    m = np.asarray(result.matrix, dtype=np.float64)
     if b_scale is not None:
-        m = np.asarray(result.matrix, dtype=np.float64) @ b_scale
+        m = m @ b_scale
         doc["matrix"] = [[float(v) for v in row] for row in m]
         doc["translation_px"] = [float(m[0, 2]), float(m[1, 2])]
         doc["b_scale"] = float(b_scale[0, 0])
+    doc["map_frame"] = map_frame(a, b, m)
     return {k: _finite_or_none(v) for k, v in doc.items()}
 
 
@@ -143,10 +154,12 @@ def _summary(result: MergeResult, doc: dict) -> str:
         return f"no overlap: {result.reason} ({total:.0f} ms)"
     psi, tx, ty = matrix_to_pose(np.asarray(result.matrix))
     sd = np.sqrt(np.clip(np.diag(np.asarray(result.covariance, dtype=float)), 0, None))
+    frame = doc["map_frame"]
     return (
         f"merged: rotation {math.degrees(psi):.2f} deg (+-{math.degrees(sd[2]):.2f}), "
         f"translation ({tx:.1f}, {ty:.1f}) px (+-{sd[0]:.1f}, {sd[1]:.1f}), "
-        f"score {result.score:.3f}, {total:.0f} ms"
+        f"score {result.score:.3f}, {total:.0f} ms; B's map frame in A's: "
+        f"x {frame['x']:.3f} m, y {frame['y']:.3f} m, yaw {frame['yaw']:.4f} rad"
     )
 
 
@@ -193,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_many(args, say)
     say(f"reading {args.a} and {args.b}")
     a = _read(args.a, args)
-    b = _read(args.b, args)
+    b = b_file = _read(args.b, args)
     # imported after the files are read: bad input is refused without loading scipy
     from pgvd.fusion import fuse_maps
     from pgvd.merge import MergeParams, merge
@@ -221,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
         result = merge(a, b, params, progress=progress)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    doc = report(result, b_scale)
+    doc = report(result, a, b_file, b_scale)
     if args.json:
         print(json.dumps(doc, allow_nan=False))
     else:
@@ -258,6 +271,7 @@ def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     except ValueError as exc:
         raise CliError(str(exc)) from None
     doc = res.report([str(f) for f in files])
+    _add_map_frames(doc, grids)
     if args.json:
         print(json.dumps(doc, allow_nan=False))
     else:
@@ -273,6 +287,15 @@ def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
         say(f"writing the group of {len(largest.members)} maps to {args.output}")
         _write("fused map", args.output, lambda: write_map(args.output, largest.grid))
     return EXIT_OK
+
+
+def _add_map_frames(doc: dict, grids: list[Grid]) -> None:
+    """Each map entry's ``map_frame``: its map frame in its group's anchor map's (the group's
+    first input), as :func:`map_frame` gives it for two maps."""
+    anchors: dict[int, int] = {}
+    for i, m in enumerate(doc["maps"]):
+        anchor = anchors.setdefault(m["component"], i)
+        m["map_frame"] = map_frame(grids[anchor], grids[i], np.asarray(m["matrix"], float))
 
 
 def _many_summary(doc: dict) -> str:

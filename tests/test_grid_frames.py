@@ -1,0 +1,56 @@
+"""Map frames: where a pixel matrix puts one map's ROS map frame in another's."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from pgvd.grid import Grid, map_frame_pose, relative_matrix
+
+coords = st.floats(-50.0, 50.0, allow_nan=False)
+yaws = st.floats(-np.pi, np.pi, allow_nan=False)
+poses = st.tuples(coords, coords, yaws)
+sizes = st.integers(2, 40)
+
+
+def _se2(x: float, y: float, yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+
+
+def _grid(h: int, w: int, origin: tuple[float, float, float], res: float = 0.05) -> Grid:
+    return Grid(np.zeros((h, w), np.float32), res, origin)
+
+
+@given(poses, poses, sizes, sizes, sizes, sizes)
+def test_maps_of_one_world_frame_share_their_map_frame(
+    oa: tuple, ob: tuple, ha: int, wa: int, hb: int, wb: int
+) -> None:
+    a, b = _grid(ha, wa, oa), _grid(hb, wb, ob)
+    x, y, yaw = map_frame_pose(a, b, relative_matrix(a, b))
+    assert np.allclose([x, y, np.sin(yaw)], 0.0, atol=1e-7) and np.cos(yaw) > 0
+
+
+@given(poses, poses, poses, sizes, sizes)
+def test_a_map_frame_moved_in_the_world_is_found_where_it_was_put(
+    oa: tuple, ob: tuple, frame: tuple, h: int, w: int
+) -> None:
+    """B's pixels stay where they were in the world, but its YAML origin is written in
+    another frame F (placed in the world at ``frame``): F is B's map frame now, and the
+    pixel matrix between the contents puts it at ``frame`` in A's (world) frame."""
+    a, b = _grid(h, w, oa), _grid(w, h, ob)
+    moved = np.linalg.inv(_se2(*frame)) @ _se2(*ob)
+    b_in_f = _grid(w, h, (moved[0, 2], moved[1, 2], np.arctan2(moved[1, 0], moved[0, 0])))
+    x, y, yaw = map_frame_pose(a, b_in_f, relative_matrix(a, b))
+    assert np.allclose([x, y], frame[:2], atol=1e-7)
+    assert abs(np.angle(np.exp(1j * (yaw - frame[2])))) < 1e-9
+
+
+def test_the_scale_of_a_resampled_b_is_no_turn_and_no_shift() -> None:
+    """B read at twice A's cell size: the matrix between the contents includes the scale,
+    and the frames still coincide."""
+    a = _grid(30, 20, (1.0, -2.0, 0.4))
+    b = _grid(15, 10, (1.0, -2.0, 0.4), res=0.1)
+    x, y, yaw = map_frame_pose(a, b, relative_matrix(a, b))
+    assert np.allclose([x, y, yaw], 0.0, atol=1e-9)
