@@ -55,7 +55,8 @@ Run from the project root::
 
 Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``), and
 with pgvd among the methods the margin report of :mod:`bench.acceptance`
-(``acceptance.md``, ``acceptance.png``).
+(``acceptance.md``, ``acceptance.png``) and the covariance report of
+:mod:`bench.covariance_wide` (``covariance-wide.md``, ``covariance-wide.png``).
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import acceptance, report
+from bench import acceptance, covariance_wide, report
 from bench.capture import Finalists, SearchedHeadings, result_json, to_json
 from bench.pairs import MapPair, make_pair, painted_pair
 from bench.report import MAX_CELL_ERROR, mark, pose_right
@@ -405,6 +406,7 @@ def main(argv: list[str] | None = None) -> int:
     report.chart(summary, records, scaling, args.out / "merge.png")
     if "pgvd" in table:
         acceptance.write(records, args.out, "merge.json")
+        covariance_wide.write(records, args.out, "merge.json")
     _log(text)
     _log(f"wrote {args.out / 'merge.md'}, merge.json, merge.png")
     return 0
