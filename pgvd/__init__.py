@@ -19,8 +19,8 @@ Maps
     :func:`write_png`, :class:`MapFormatError`, :func:`resample`.
 Frames (x = column, y = row; a relative transform maps B pixels to A pixels)
     :func:`rigid_matrix`, :func:`heading`, :func:`matrix_to_pose`, :func:`relative_matrix`,
-    :func:`map_frame_pose`, :func:`pixel_to_world`, :func:`world_to_pixel`, :func:`warp`,
-    :func:`union_canvas`.
+    :func:`map_frame_pose`, :func:`map_frame_covariance`, :func:`pixel_to_world`,
+    :func:`world_to_pixel`, :func:`warp`, :func:`union_canvas`.
 Merging (the paper's Fig. 1, eqs. (10)-(32))
     :func:`merge`, :class:`MergeParams`, :class:`MergeResult`, :class:`MergeDiagnostics`.
 Fusion (eqs. (4)-(8) and (33)-(37))
@@ -52,6 +52,7 @@ import types
 _HOME = {
     "Grid": "pgvd.grid",
     "heading": "pgvd.grid",
+    "map_frame_covariance": "pgvd.grid",
     "map_frame_pose": "pgvd.grid",
     "matrix_to_pose": "pgvd.grid",
     "pixel_to_world": "pgvd.grid",
@@ -99,6 +100,7 @@ __all__ = [
     "heading",
     "integrate",
     "inverse_covariance",
+    "map_frame_covariance",
     "map_frame_pose",
     "matrix_to_pose",
     "merge",

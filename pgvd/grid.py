@@ -243,6 +243,49 @@ def map_frame_pose(a: Grid, b: Grid, matrix: np.ndarray) -> tuple[float, float, 
     return float(t[0, 2]), float(t[1, 2]), float(np.arctan2(t[1, 0], t[0, 0]))
 
 
+def map_frame_covariance(
+    a: Grid, b: Grid, matrix: np.ndarray, covariance: np.ndarray
+) -> np.ndarray:
+    """The covariance of :func:`map_frame_pose`: ``(x m, y m, yaw rad)``, from the merge's.
+
+    The merge's covariance (eq. (3)) is over ``(tx px, ty px, psi rad)`` of ``matrix``
+    (:func:`matrix_to_pose`); it is carried to the map frames by the Jacobian of
+    :func:`map_frame_pose` in those three, ``J Sigma J^T``.  The pose is linear in the
+    translation, so central differences give J to rounding, and in the heading to
+    ``O(h^2)`` with ``h`` 1 microradian.  The 3x3 is what a ROS ``PoseWithCovariance`` holds
+    at rows and columns x, y and yaw (0, 1 and 5 of its 6x6).
+
+    Parameters
+    ----------
+    a, b : Grid
+        The two maps, B in the pixels ``matrix`` and ``covariance`` refer to.
+    matrix : numpy.ndarray
+        3x3 rigid, B pixel -> A pixel.
+    covariance : numpy.ndarray
+        3x3 over ``(tx px, ty px, psi rad)`` of ``matrix``.
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 over ``(x m, y m, yaw rad)``.
+    """
+    psi, tx, ty = matrix_to_pose(matrix)
+    params = np.array([tx, ty, psi])
+    jac = np.empty((3, 3))
+    for k, h in enumerate((1.0, 1.0, 1e-6)):
+        step = np.zeros(3)
+        step[k] = h
+        up, down = (
+            np.array(map_frame_pose(a, b, rigid_matrix(q[2], q[0], q[1])))
+            for q in (params + step, params - step)
+        )
+        diff = up - down
+        diff[2] = np.angle(np.exp(1j * diff[2]))
+        jac[:, k] = diff / (2 * h)
+    cov = jac @ np.asarray(covariance, dtype=np.float64) @ jac.T
+    return 0.5 * (cov + cov.T)
+
+
 def finite_3x3(value: object, what: str) -> np.ndarray:
     """``value`` as a float64 3x3 array (a transform of eq. (1), a covariance of eq. (3)).
 

@@ -180,6 +180,9 @@ def test_without_plot_the_pgvd_images_are_not_painted(shared: Path) -> None:
     # the two halves were rendered in one world frame: B's map frame is A's
     frame = doc["map_frame"]
     assert abs(frame["x"]) < 0.05 and abs(frame["y"]) < 0.05 and abs(frame["yaw"]) < 0.005
+    # and the truth (0, 0, 0) lies inside the 99 % ellipsoid of its covariance
+    e = np.array([frame["x"], frame["y"], frame["yaw"]])
+    assert e @ np.linalg.solve(np.array(frame["covariance"]), e) < 11.34
 
 
 @pytest.mark.slow

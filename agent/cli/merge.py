@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError
-from pgvd.grid import Grid, map_frame_pose, matrix_to_pose
+from pgvd.grid import Grid, map_frame_covariance, map_frame_pose, matrix_to_pose
 from pgvd.io import MAX_CELLS, NPY_RESOLUTION, MapFormatError, read_map, write_map, write_png
 
 if TYPE_CHECKING:
@@ -121,30 +121,44 @@ def _finite_or_none(value: object) -> object:
     return value
 
 
-def map_frame(a: Grid, b: Grid, matrix: np.ndarray) -> dict[str, float] | None:
+def map_frame(
+    a: Grid, b: Grid, matrix: np.ndarray, covariance: np.ndarray | None = None
+) -> dict[str, object] | None:
     """``{"x", "y", "yaw"}``: B's map frame in A's (m, m, rad; :func:`pgvd.grid.map_frame_pose`),
-    None for a matrix that is not finite (a merge rejected before any pose)."""
+    with ``covariance`` over them (:func:`pgvd.grid.map_frame_covariance`) when one is given
+    (null when it is not finite); None for a matrix that is not finite (a merge rejected
+    before any pose)."""
     if not np.isfinite(matrix).all():
         return None
-    return dict(zip(("x", "y", "yaw"), map_frame_pose(a, b, matrix), strict=True))
+    frame: dict[str, object] = dict(
+        zip(("x", "y", "yaw"), map_frame_pose(a, b, matrix), strict=True)
+    )
+    if covariance is not None:
+        finite = np.isfinite(covariance).all()
+        cov = map_frame_covariance(a, b, matrix, covariance) if finite else None
+        frame["covariance"] = None if cov is None else [[float(v) for v in row] for row in cov]
+    return frame
 
 
 def report(result: MergeResult, a: Grid, b: Grid, b_scale: np.ndarray | None) -> dict:
     """The ``--json`` object: ``accepted``, ``matrix`` (B pixels -> A pixels), ``rotation_deg``,
     ``translation_px``, ``covariance``, ``score``, ``timings_ms``, ``reason`` and
-    ``map_frame`` (B's map frame in A's, :func:`map_frame`).
+    ``map_frame`` (B's map frame in A's with its covariance, :func:`map_frame`).
 
-    ``matrix`` maps the pixels of B *as read from its file* (``b``), so it includes the
-    scale (also given as ``b_scale``) when B was resampled; non-finite numbers are null.
+    ``b`` is B as merged (resampled to A's cells when ``b_scale`` is given); ``matrix`` maps
+    the pixels of B *as read from its file*, so it includes that scale (also given as
+    ``b_scale``); non-finite numbers are null.
     """
     doc = result.to_json()
-    m = np.asarray(result.matrix, dtype=np.float64)
     if b_scale is not None:
-        m = m @ b_scale
+        m = np.asarray(result.matrix, dtype=np.float64) @ b_scale
         doc["matrix"] = [[float(v) for v in row] for row in m]
         doc["translation_px"] = [float(m[0, 2]), float(m[1, 2])]
         doc["b_scale"] = float(b_scale[0, 0])
-    doc["map_frame"] = map_frame(a, b, m)
+    # resampling keeps B's metric origin: its map frame is the file's
+    doc["map_frame"] = map_frame(
+        a, b, np.asarray(result.matrix, dtype=np.float64), np.asarray(result.covariance, float)
+    )
     return {k: _finite_or_none(v) for k, v in doc.items()}
 
 
@@ -155,11 +169,13 @@ def _summary(result: MergeResult, doc: dict) -> str:
     psi, tx, ty = matrix_to_pose(np.asarray(result.matrix))
     sd = np.sqrt(np.clip(np.diag(np.asarray(result.covariance, dtype=float)), 0, None))
     frame = doc["map_frame"]
+    fsd = np.sqrt(np.clip(np.diag(np.asarray(frame["covariance"], dtype=float)), 0, None))
     return (
         f"merged: rotation {math.degrees(psi):.2f} deg (+-{math.degrees(sd[2]):.2f}), "
         f"translation ({tx:.1f}, {ty:.1f}) px (+-{sd[0]:.1f}, {sd[1]:.1f}), "
         f"score {result.score:.3f}, {total:.0f} ms; B's map frame in A's: "
-        f"x {frame['x']:.3f} m, y {frame['y']:.3f} m, yaw {frame['yaw']:.4f} rad"
+        f"x {frame['x']:.3f} m (+-{fsd[0]:.3f}), y {frame['y']:.3f} m (+-{fsd[1]:.3f}), "
+        f"yaw {frame['yaw']:.4f} rad (+-{fsd[2]:.4f})"
     )
 
 
@@ -206,7 +222,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_many(args, say)
     say(f"reading {args.a} and {args.b}")
     a = _read(args.a, args)
-    b = b_file = _read(args.b, args)
+    b = _read(args.b, args)
     # imported after the files are read: bad input is refused without loading scipy
     from pgvd.fusion import fuse_maps
     from pgvd.merge import MergeParams, merge
@@ -234,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
         result = merge(a, b, params, progress=progress)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    doc = report(result, a, b_file, b_scale)
+    doc = report(result, a, b, b_scale)
     if args.json:
         print(json.dumps(doc, allow_nan=False))
     else:
