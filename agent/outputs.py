@@ -17,7 +17,6 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import numpy as np
 import zenoh
 
 from agent.book import FleetBook
@@ -25,7 +24,7 @@ from agent.counters import Counters
 from agent.globalmap import Component
 from agent.ros2_io import RosMapPublisher, RosOptions
 from agent.status import link_json
-from pgvd.grid import Grid, world_pose_to_pixel_matrix
+from pgvd.grid import Grid, map_frame_pose
 from protocol.ros2.occupancy import Placement
 
 
@@ -64,9 +63,8 @@ def map_placements(
     """Each member robot's map frame placed in the merged frame ``frame``.
 
     The merged frame is the anchor map's metric frame, so robot ``r``'s metric map frame
-    reaches it through its pixels: ``P_a^-1 T_r P_r``, with ``P`` a grid's metric -> pixel
-    matrix (:func:`pgvd.grid.world_pose_to_pixel_matrix`) and ``T_r`` the component's
-    ``r`` pixel -> anchor pixel matrix, eqs. (1)-(2).
+    reaches it through its pixels: :func:`pgvd.grid.map_frame_pose` of the component's ``r``
+    pixel -> anchor pixel matrix, eqs. (1)-(2).
 
     Parameters
     ----------
@@ -82,15 +80,13 @@ def map_placements(
     anchor = maps.get(comp.anchor)
     if anchor is None or anchor[0] != comp.versions[comp.anchor]:
         return []
-    to_anchor_metric = np.linalg.inv(world_pose_to_pixel_matrix(anchor[1]))
     out = []
     for robot in comp.members:
         held = maps.get(robot)
         if held is None or held[0] != comp.versions[robot]:
             continue
-        m = to_anchor_metric @ comp.transforms[robot] @ world_pose_to_pixel_matrix(held[1])
-        yaw = math.atan2(m[1, 0], m[0, 0])
-        out.append(Placement(frame, map_frame(robot), float(m[0, 2]), float(m[1, 2]), yaw))
+        x, y, yaw = map_frame_pose(anchor[1], held[1], comp.transforms[robot])
+        out.append(Placement(frame, map_frame(robot), x, y, yaw))
     return out
 
 
