@@ -268,7 +268,16 @@ def map_frame_covariance(
     -------
     numpy.ndarray
         3x3 over ``(x m, y m, yaw rad)``.
+
+    Raises
+    ------
+    ValueError
+        If ``matrix`` is not rigid (a scale between the maps' cells: give B at A's cells,
+        as the merge does, where the covariance is defined).
     """
+    r = np.asarray(matrix, dtype=np.float64)[:2, :2]
+    if not np.allclose(r @ r.T, np.eye(2), atol=1e-6):
+        raise ValueError("map_frame_covariance needs a rigid B pixel -> A pixel matrix")
     psi, tx, ty = matrix_to_pose(matrix)
     params = np.array([tx, ty, psi])
     jac = np.empty((3, 3))

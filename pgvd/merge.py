@@ -499,6 +499,37 @@ class _Clock:
         return self.timings
 
 
+def check_extent(name: str, grid: Grid, params: MergeParams) -> None:
+    """Refuse a map under three search cells (``params.coarse_resolution``) a side.
+
+    The search pools each map to those cells and the decision to about 5 cm
+    (:mod:`pgvd.pooling`): a map a few search cells across has no GVD edge to match, and a
+    cell size far below a millimetre (a wrong ``resolution``, or a hostile one) would make
+    that pooling ask for a canvas of astronomic size instead of failing.
+
+    Parameters
+    ----------
+    name : str
+        How the message names the map ("A", "B").
+    grid : Grid
+        The map.
+    params : MergeParams
+        Its ``coarse_resolution``.
+
+    Raises
+    ------
+    ValueError
+        Naming the map, its extent and its cell size.
+    """
+    least = 3 * params.coarse_resolution
+    h, w = (n * grid.resolution for n in grid.shape)
+    if min(h, w) < least:
+        raise ValueError(
+            f"map {name} spans {w:.3g} x {h:.3g} m, under {least:.3g} m a side: too small "
+            f"to merge at {grid.resolution:g} m/cell (is the cell size right?)"
+        )
+
+
 def _check_inputs(a: Grid, b: Grid, pa: np.ndarray, pb: np.ndarray, params: MergeParams) -> None:
     if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
         raise ValueError(
@@ -508,6 +539,7 @@ def _check_inputs(a: Grid, b: Grid, pa: np.ndarray, pb: np.ndarray, params: Merg
     for name, g, p in (("A", a, pa), ("B", b, pb)):
         if g.logodds.size == 0:
             raise ValueError(f"map {name} is empty")
+        check_extent(name, g, params)
         if not np.isfinite(g.logodds).all():
             raise ValueError(f"map {name} contains NaN or infinite values")
         if not (p > params.occupied).any():

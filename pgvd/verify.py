@@ -43,6 +43,7 @@ from pgvd.matching import WallMap, map_agreement, pose_covariance, refine
 from pgvd.merge import (
     MergeParams,
     MergeResult,
+    check_extent,
     decision_map,
     registration_probability,
     score_hypothesis,
@@ -63,7 +64,7 @@ MIN_OVERLAP_M = 15.0
 BASIN_DEG = 5.0
 
 
-def _check(a: Grid, b: Grid, predicted: np.ndarray) -> np.ndarray:
+def _check(predicted: np.ndarray) -> np.ndarray:
     """The prediction as a float 3x3 rigid matrix; ``ValueError`` on anything else."""
     m = finite_3x3(predicted, "the prediction")
     if not (
@@ -71,11 +72,18 @@ def _check(a: Grid, b: Grid, predicted: np.ndarray) -> np.ndarray:
         and np.allclose(m[:2, :2] @ m[:2, :2].T, np.eye(2), atol=1e-6)
     ):
         raise ValueError("the prediction is not a rigid transform (eqs. (1)-(2))")
+    return m
+
+
+def _check_pair(a: Grid, b: Grid, params: MergeParams) -> None:
+    """``ValueError`` for maps of different cell sizes, or one too small to check
+    (:func:`pgvd.merge.check_extent`), before either is read."""
     if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
         raise ValueError(
             f"maps have different resolutions ({a.resolution} vs {b.resolution} m/cell)"
         )
-    return m
+    for name, g in (("A", a), ("B", b)):
+        check_extent(name, g, params)
 
 
 def basin_move(
@@ -137,7 +145,13 @@ def pooled_maps(a: Grid, b: Grid, params: MergeParams) -> PooledMaps:
     Returns
     -------
     PooledMaps
+
+    Raises
+    ------
+    ValueError
+        Maps of different cell sizes, or one under three search cells a side.
     """
+    _check_pair(a, b, params)
     pool = decision_pool(a.resolution)
     wall_a, wall_b = wall_maps(a, b, params, pool)
     return PooledMaps(wall_a, wall_b, pool, a.resolution * pool)
@@ -194,8 +208,9 @@ def predicted_overlap(
     -------
     PredictedOverlap
     """
-    m0 = _check(a, b, predicted)
-    maps = maps or pooled_maps(a, b, params)
+    m0 = _check(predicted)
+    if maps is None:
+        maps = pooled_maps(a, b, params)
     start = to_pooled(m0, maps.pool)
     seen = map_agreement(maps.a, maps.b, start)
     overlap_m = 0.5 * (seen.agree + seen.disagree) * maps.cell
@@ -232,12 +247,14 @@ def verify(
     MergeResult
         Accepted with the refined matrix, its overlay agreement as ``score`` and its
         covariance (3), or rejected with a ``reason`` (and no covariance).  The timings
-        have ``refine``, ``verify``, ``covariance`` and ``total``.
+        have ``refine``, ``verify``, ``covariance`` and ``total`` (reading the maps
+        included, unless they came as ``maps``).
 
     Raises
     ------
     ValueError
-        A prediction that is not a finite rigid 3x3 matrix, or different resolutions.
+        A prediction that is not a finite rigid 3x3 matrix, different resolutions, or a
+        map under three search cells a side (:func:`pgvd.merge.check_extent`).
 
     References
     ----------
@@ -245,7 +262,8 @@ def verify(
        using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(3), Sec. VI.
     """
     params = params or MergeParams(diagnostics=False)
-    m0 = _check(a, b, predicted)
+    m0 = _check(predicted)
+    _check_pair(a, b, params)
     t0 = last = time.perf_counter()
     timings: dict[str, float] = {}
 
@@ -275,7 +293,8 @@ def verify(
 
     nan = np.full((3, 3), np.nan)
     # checked on maps pooled to about 5 cm cells, as the merge decides (pgvd.pooling)
-    maps = maps or pooled_maps(a, b, params)
+    if maps is None:
+        maps = pooled_maps(a, b, params)
     pool, res, fine_a, fine_b = maps.pool, maps.cell, maps.a, maps.b
     start = to_pooled(m0, pool)
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:

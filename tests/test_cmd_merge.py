@@ -85,6 +85,17 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
         ("--plot not a PNG", [intel, intel, "--plot", tmp / "m.jpg"], "must end in .png"),
         ("bare image, no cell size", [ROOT / "examples/intel_a.pgm", intel], "--resolution M"),
         ("zero --resolution", [intel, intel, "--resolution", "0"], "--resolution must be"),
+        (
+            "a nanometre cell",
+            [ROOT / "examples/intel_a.pgm", ROOT / "examples/intel_b.pgm", "--resolution", "1e-9"],
+            "too small to merge at 1e-09 m/cell",
+        ),
+        # B resampled to A's nanometre cells would hold 10^23 cells: refused before it is built
+        (
+            "B resampled past --max-cells",
+            [ROOT / "examples/intel_a.pgm", intel, "--resolution", "1e-9"],
+            "over --max-cells",
+        ),
     ]
 
 
@@ -109,6 +120,29 @@ def test_bare_images_merge_with_the_cell_size_given() -> None:
     with_yaml = pgvd_merge(examples / "intel_a.yaml", examples / "intel_b.yaml", "--json")
     got, want = json.loads(bare.stdout), json.loads(with_yaml.stdout)
     assert got["accepted"] and got["matrix"] == want["matrix"]
+
+
+def test_the_map_frame_is_where_the_true_transform_puts_b_in_the_world() -> None:
+    """The bundled pair, each map in a frame of its own turned by -69 deg: B's map frame in
+    A's, from B's cells placed by the true pixel matrix through each map's own metric frame
+    (pgvd.pixel_to_world), lies within 3 sigma of what pgvd merge reports."""
+    from pgvd.grid import pixel_to_world
+
+    examples = ROOT / "examples"
+    a, b = read_map(examples / "intel_a.yaml"), read_map(examples / "intel_b.yaml")
+    truth = np.asarray(json.loads((examples / "truth.json").read_text())["matrix"])
+    cells = np.array([[0.0, 0.0], [500.0, 0.0], [0.0, 400.0]])
+    in_b = pixel_to_world(b, cells)
+    in_a = pixel_to_world(a, (truth @ np.column_stack([cells, np.ones(3)]).T)[:2].T)
+    yaw = np.arctan2(*(in_a[1] - in_a[0])[::-1]) - np.arctan2(*(in_b[1] - in_b[0])[::-1])
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    x, y = in_a[0] - np.array([[c, -s_], [s_, c]]) @ in_b[0]
+    proc = pgvd_merge(examples / "intel_a.yaml", examples / "intel_b.yaml", "--json")
+    frame = json.loads(proc.stdout)["map_frame"]
+    err = np.array([frame["x"] - x, frame["y"] - y, np.angle(np.exp(1j * (frame["yaw"] - yaw)))])
+    sd = np.sqrt(np.diag(frame["covariance"]))
+    assert abs(np.degrees(frame["yaw"])) > 60  # far from the identity: a sign would show
+    assert np.all(np.abs(err) < 3 * sd), (err, sd)
 
 
 def test_a_missing_map_b_is_named_alone() -> None:
@@ -167,6 +201,7 @@ def test_rejected_pair_exits_3_and_still_plots(tmp_path: Path, shared: Path) -> 
     doc = json.loads(proc.stdout)  # strict JSON: NaN covariance entries are null
     assert doc.keys() >= CONTRACT_KEYS and doc["accepted"] is False and doc["reason"]
     assert plot.stat().st_size > 0 and not fused.exists()
+    assert doc["map_frame"] is None  # a rejected pose places no frame
 
 
 def test_without_plot_the_pgvd_images_are_not_painted(shared: Path) -> None:

@@ -126,6 +126,11 @@ def test_bad_predictions_are_errors(shared):
         verify(a, a, np.diag([2.0, 2.0, 1.0]))
     with pytest.raises(ValueError, match="resolutions"):
         verify(a, resample(a, 0.1), np.eye(3))
+    # a cell size of a nanometre (a wrong or hostile one) is refused, not pooled into an
+    # array of petabytes
+    tiny = Grid(a.logodds, 1e-9, a.origin)
+    with pytest.raises(ValueError, match=r"map A spans .* too small to merge at 1e-09 m/cell"):
+        verify(tiny, tiny, np.eye(3))
 
 
 def test_empty_map_is_a_rejection(shared):

@@ -116,6 +116,8 @@ def _finite_or_none(value: object) -> object:
     """JSON has no NaN: a rejected merge's covariance is reported as nulls."""
     if isinstance(value, list):
         return [_finite_or_none(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
@@ -143,7 +145,8 @@ def map_frame(
 def report(result: MergeResult, a: Grid, b: Grid, b_scale: np.ndarray | None) -> dict:
     """The ``--json`` object: ``accepted``, ``matrix`` (B pixels -> A pixels), ``rotation_deg``,
     ``translation_px``, ``covariance``, ``score``, ``timings_ms``, ``reason`` and
-    ``map_frame`` (B's map frame in A's with its covariance, :func:`map_frame`).
+    ``map_frame`` (B's map frame in A's with its covariance, :func:`map_frame`; null unless
+    the merge is accepted).
 
     ``b`` is B as merged (resampled to A's cells when ``b_scale`` is given); ``matrix`` maps
     the pixels of B *as read from its file*, so it includes that scale (also given as
@@ -155,9 +158,14 @@ def report(result: MergeResult, a: Grid, b: Grid, b_scale: np.ndarray | None) ->
         doc["matrix"] = [[float(v) for v in row] for row in m]
         doc["translation_px"] = [float(m[0, 2]), float(m[1, 2])]
         doc["b_scale"] = float(b_scale[0, 0])
-    # resampling keeps B's metric origin: its map frame is the file's
-    doc["map_frame"] = map_frame(
-        a, b, np.asarray(result.matrix, dtype=np.float64), np.asarray(result.covariance, float)
+    # resampling keeps B's metric origin: its map frame is the file's.  A rejected merge's
+    # matrix is there for diagnosis only: it places no frame (a TF from it would be false)
+    doc["map_frame"] = (
+        map_frame(
+            a, b, np.asarray(result.matrix, dtype=np.float64), np.asarray(result.covariance, float)
+        )
+        if result.accepted
+        else None
     )
     return {k: _finite_or_none(v) for k, v in doc.items()}
 
@@ -169,13 +177,17 @@ def _summary(result: MergeResult, doc: dict) -> str:
     psi, tx, ty = matrix_to_pose(np.asarray(result.matrix))
     sd = np.sqrt(np.clip(np.diag(np.asarray(result.covariance, dtype=float)), 0, None))
     frame = doc["map_frame"]
-    fsd = np.sqrt(np.clip(np.diag(np.asarray(frame["covariance"], dtype=float)), 0, None))
+    cov = frame["covariance"]
+    fsd = np.sqrt(np.clip(np.diag(np.asarray(cov, dtype=float)), 0, None)) if cov else None
+    x, y, yaw = (
+        f"{frame[k]:.{d}f}" + ("" if fsd is None else f" (+-{fsd[i]:.{d}f})")
+        for i, (k, d) in enumerate((("x", 3), ("y", 3), ("yaw", 4)))
+    )
     return (
         f"merged: rotation {math.degrees(psi):.2f} deg (+-{math.degrees(sd[2]):.2f}), "
         f"translation ({tx:.1f}, {ty:.1f}) px (+-{sd[0]:.1f}, {sd[1]:.1f}), "
         f"score {result.score:.3f}, {total:.0f} ms; B's map frame in A's: "
-        f"x {frame['x']:.3f} m (+-{fsd[0]:.3f}), y {frame['y']:.3f} m (+-{fsd[1]:.3f}), "
-        f"yaw {frame['yaw']:.4f} rad (+-{fsd[2]:.4f})"
+        f"x {x} m, y {y} m, yaw {yaw} rad"
     )
 
 
@@ -231,12 +243,15 @@ def run(args: argparse.Namespace) -> int:
 
     b_scale = None
     if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
+        # the size is checked before resampling: a B of far coarser cells than A's would
+        # otherwise be built first, however large (memory), and refused afterwards
+        rows, cols = (round(n * b.resolution / a.resolution) for n in b.shape)
+        if rows * cols > args.max_cells:
+            raise CliError(f"{args.b}: resampled to {(rows, cols)} cells, over --max-cells")
         say(f"resampling B from {b.resolution} to {a.resolution} m/cell")
         resampled = resample(b, a.resolution)
         b_scale = scale_matrix(b.resolution, a.resolution, b.shape[0], resampled.shape[0])
         b = resampled
-        if b.logodds.size > args.max_cells:
-            raise CliError(f"{args.b}: resampled to {b.shape} cells, over --max-cells")
     try:
         # the PGVD and edge images (MergeResult.diagnostics) are drawn only by --plot;
         # painting them back at full resolution took 10 ms of a 0.56 s merge at 1000^2
