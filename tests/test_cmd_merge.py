@@ -122,6 +122,17 @@ def test_bare_images_merge_with_the_cell_size_given() -> None:
     assert got["accepted"] and got["matrix"] == want["matrix"]
 
 
+def test_a_resolution_no_map_uses_is_said_once() -> None:
+    examples = ROOT / "examples"
+    proc = pgvd_merge(
+        examples / "intel_a.yaml", examples / "intel_b.yaml", "--resolution", "0.1", "--json"
+    )
+    assert proc.returncode == 0 and json.loads(proc.stdout)["accepted"]
+    assert proc.stderr == (
+        "pgvd merge: note: --resolution 0.1 is not used: each map's YAML gives its own cell size\n"
+    )
+
+
 def test_the_map_frame_is_where_the_true_transform_puts_b_in_the_world() -> None:
     """The bundled pair, each map in a frame of its own turned by -69 deg: B's map frame in
     A's, from B's cells placed by the true pixel matrix through each map's own metric frame

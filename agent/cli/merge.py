@@ -226,6 +226,14 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--resolution must be a cell size in metres > 0, got {args.resolution}")
     _check_output("plot", args.plot)
     _check_output("fused map", args.output)
+    files = [args.a, args.b, *args.more]
+    if args.resolution is not None and all(f.suffix.lower() in (".yaml", ".yml") for f in files):
+        # not an error (the merge is the same), but the user believed it set something
+        print(
+            f"pgvd merge: note: --resolution {args.resolution:g} is not used: each map's YAML "
+            "gives its own cell size",
+            file=sys.stderr,
+        )
     if args.despeckle and args.more:
         raise CliError("--despeckle merges two maps, not more")
     progress = _progress(args)
