@@ -36,12 +36,15 @@ class ManyMerge:
     ----------
     ids : the robot id given to each input, in input order (sorting them keeps it).
     scales : per input, file px -> working px (identity unless resampled).
+    frames : per input, the map as registered (resampling keeps its metric origin, so its
+        map frame is the file's); the components' transforms map their pixels.
     links : every pair tried, ``a`` before ``b`` in input order.
     components : :func:`agent.globalmap.build_components` of the working maps.
     """
 
     ids: tuple[str, ...]
     scales: tuple[np.ndarray, ...]
+    frames: tuple[Grid, ...]
     links: tuple[LinkRecord, ...]
     components: tuple[Component, ...]
 
@@ -151,4 +154,4 @@ def merge_many(
         )
     maps = {r: (0, g) for r, g in zip(ids, work, strict=True)}
     comps = build_components(maps, links, fuse, params)
-    return ManyMerge(ids, tuple(scales), tuple(links), tuple(comps))
+    return ManyMerge(ids, tuple(scales), tuple(work), tuple(links), tuple(comps))

@@ -287,10 +287,14 @@ def test_three_runs_merge_into_one_map_through_the_cli(shared: Path, tmp_path: P
     }
     # three gmapping runs of one log: their map frames lie within a few cm and a degree of
     # each other (bench/results/gmapping_truth.md), the anchor's is its own
-    assert doc["maps"][0]["map_frame"] == {"x": 0.0, "y": 0.0, "yaw": 0.0}
+    anchor = doc["maps"][0]["map_frame"]
+    assert (anchor["x"], anchor["y"], anchor["yaw"]) == (0.0, 0.0, 0.0)
     for m in doc["maps"][1:]:
         frame = m["map_frame"]
         assert np.hypot(frame["x"], frame["y"]) < 0.1 and abs(frame["yaw"]) < np.radians(1.0)
+        # its placement's covariance, carried to metres: centimetres and a tenth of a degree
+        sd = np.sqrt(np.diag(frame["covariance"]))
+        assert np.all(sd > 0) and np.all(sd < [0.1, 0.1, np.radians(0.5)]), sd
     assert [(ln["a"], ln["b"], ln["used"]) for ln in doc["links"]] == [
         (0, 1, True),
         (0, 2, True),

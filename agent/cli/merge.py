@@ -24,6 +24,7 @@ from pgvd.grid import Grid, map_frame_covariance, map_frame_pose, matrix_to_pose
 from pgvd.io import MAX_CELLS, NPY_RESOLUTION, MapFormatError, read_map, write_map, write_png
 
 if TYPE_CHECKING:
+    from agent.multimerge import ManyMerge
     from pgvd.merge import MergeResult
 
 _MAP_SUFFIXES = (".yaml", ".yml", ".npy")
@@ -310,7 +311,7 @@ def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     except ValueError as exc:
         raise CliError(str(exc)) from None
     doc = res.report([str(f) for f in files])
-    _add_map_frames(doc, grids)
+    _add_map_frames(doc, res)
     if args.json:
         print(json.dumps(doc, allow_nan=False))
     else:
@@ -328,13 +329,18 @@ def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     return EXIT_OK
 
 
-def _add_map_frames(doc: dict, grids: list[Grid]) -> None:
+def _add_map_frames(doc: dict, res: ManyMerge) -> None:
     """Each map entry's ``map_frame``: its map frame in its group's anchor map's (the group's
-    first input), as :func:`map_frame` gives it for two maps."""
-    anchors: dict[int, int] = {}
-    for i, m in enumerate(doc["maps"]):
-        anchor = anchors.setdefault(m["component"], i)
-        m["map_frame"] = map_frame(grids[anchor], grids[i], np.asarray(m["matrix"], float))
+    first input), with the covariance of its placement, as :func:`map_frame` gives them for
+    two maps (on the maps as registered, where the transforms and covariances are defined)."""
+    index = {r: i for i, r in enumerate(res.ids)}
+    for comp in res.components:
+        anchor = res.frames[index[comp.anchor]]
+        for robot in comp.members:
+            i = index[robot]
+            doc["maps"][i]["map_frame"] = map_frame(
+                anchor, res.frames[i], comp.transforms[robot], comp.covariances[robot]
+            )
 
 
 def _many_summary(doc: dict) -> str:
