@@ -33,15 +33,12 @@ Run from the project root after ``python3 -m bench.merge``::
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
-from bench.report import NEGATIVE, OVERLAP_SETS, pose_right
+from bench.report import NEGATIVE, OVERLAP_SETS, pose_right, records_main
 
-RESULTS = Path(__file__).resolve().parent / "results"
 CLASSES = ("right", "wrong", "negative")
 #: Thresholds of the table, beside the merge's own.
 THRESHOLDS = (0.0, 0.2, 0.4, 0.5, 0.6, 0.65, 0.7, 0.8, 0.9)
@@ -215,17 +212,7 @@ def write(records: list[dict], out: Path, source: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--merge", type=Path, default=RESULTS / "merge.json")
-    parser.add_argument("--out", type=Path, default=RESULTS)
-    args = parser.parse_args(argv)
-    try:
-        records = json.loads(args.merge.read_text())["records"]
-    except (OSError, ValueError, KeyError) as e:
-        print(f"cannot read the merge records of {args.merge}: {e}")
-        return 2
-    print(write(records, args.out, args.merge.name))
-    return 0
+    return records_main(argv, __doc__.splitlines()[0], write)
 
 
 if __name__ == "__main__":

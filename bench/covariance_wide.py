@@ -27,17 +27,13 @@ chi2(3) quantiles).
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from bench.covariance import consistency, nees, pose_error
-from bench.report import OVERLAP_SETS, pose_right
+from bench.report import OVERLAP_SETS, pose_right, records_main
 
-RESULTS = Path(__file__).resolve().parent / "results"
 #: Sources whose pairs :mod:`bench.covariance` draws its calibration pairs from (their logs).
 CALIBRATION_BUILDINGS = ("intel", "fr079")
 
@@ -150,17 +146,7 @@ def write(records: list[dict], out: Path, source: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--merge", type=Path, default=RESULTS / "merge.json")
-    parser.add_argument("--out", type=Path, default=RESULTS)
-    args = parser.parse_args(argv)
-    try:
-        records = json.loads(args.merge.read_text())["records"]
-    except (OSError, ValueError, KeyError) as e:
-        print(f"cannot read the merge records of {args.merge}: {e}", file=sys.stderr)
-        return 2
-    print(write(records, args.out, args.merge.name))
-    return 0
+    return records_main(argv, __doc__.splitlines()[0], write)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,10 @@ negative pair.
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -216,3 +220,26 @@ def chart(summary: dict, records: list[dict], scaling: list[dict], path: Path) -
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def records_main(
+    argv: list[str] | None, description: str, write: Callable[[list[dict], Path, str], str]
+) -> int:
+    """The command line of a report built from a run's records alone (``--merge``, ``--out``).
+
+    Reads the records of ``--merge`` (default ``bench/results/merge.json``), hands them to
+    ``write(records, out, source)`` and prints what it returns; a file without records is
+    one line on stderr and exit 2.
+    """
+    results = Path(__file__).resolve().parent / "results"
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--merge", type=Path, default=results / "merge.json")
+    parser.add_argument("--out", type=Path, default=results)
+    args = parser.parse_args(argv)
+    try:
+        records = json.loads(args.merge.read_text())["records"]
+    except (OSError, ValueError, KeyError) as e:
+        print(f"cannot read the merge records of {args.merge}: {e}", file=sys.stderr)
+        return 2
+    print(write(records, args.out, args.merge.name))
+    return 0
