@@ -210,7 +210,9 @@ def predicted_overlap(
     """
     m0 = _check(predicted)
     if maps is None:
-        maps = pooled_maps(a, b, params)
+        maps = pooled_maps(a, b, params)  # checks the pair before reading it
+    else:
+        _check_pair(a, b, params)
     start = to_pooled(m0, maps.pool)
     seen = map_agreement(maps.a, maps.b, start)
     overlap_m = 0.5 * (seen.agree + seen.disagree) * maps.cell
@@ -263,7 +265,6 @@ def verify(
     """
     params = params or MergeParams(diagnostics=False)
     m0 = _check(predicted)
-    _check_pair(a, b, params)
     t0 = last = time.perf_counter()
     timings: dict[str, float] = {}
 
@@ -294,7 +295,9 @@ def verify(
     nan = np.full((3, 3), np.nan)
     # checked on maps pooled to about 5 cm cells, as the merge decides (pgvd.pooling)
     if maps is None:
-        maps = pooled_maps(a, b, params)
+        maps = pooled_maps(a, b, params)  # checks the pair before reading it
+    else:
+        _check_pair(a, b, params)
     pool, res, fine_a, fine_b = maps.pool, maps.cell, maps.a, maps.b
     start = to_pooled(m0, pool)
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:
