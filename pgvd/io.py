@@ -160,17 +160,20 @@ def _number(meta: dict[str, YamlValue], key: str, path: Path) -> float:
     return float(v)
 
 
+def _check_resolution(path: Path, res: float, shown: object) -> None:
+    """``MapFormatError`` unless the cell size ``res`` (``shown`` as the file or caller gave
+    it) is a finite number > 0."""
+    if not math.isfinite(res) or res <= 0:
+        raise MapFormatError(path, f"resolution must be a finite number > 0, got {shown}")
+
+
 def _read_meta(path: Path) -> dict[str, YamlValue]:
     text = _read_bytes(path).decode("utf-8-sig", errors="replace")  # tolerate a BOM
     meta = parse_map_yaml(text, path)
     missing = [k for k in _REQUIRED_KEYS if k not in meta]
     if missing:
         raise MapFormatError(path, f"missing key(s): {', '.join(missing)}")
-    res = _number(meta, "resolution", path)
-    if not math.isfinite(res) or res <= 0:
-        raise MapFormatError(
-            path, f"resolution must be a finite number > 0, got {meta['resolution']}"
-        )
+    _check_resolution(path, _number(meta, "resolution", path), meta["resolution"])
     origin = meta["origin"]
     if not isinstance(origin, list) or len(origin) != 3 or not all(map(math.isfinite, origin)):
         raise MapFormatError(path, f"origin must be a list of 3 finite numbers, got {origin!r}")
@@ -454,8 +457,7 @@ def _read_bare_image(path: Path, max_cells: int, resolution: float | None) -> Gr
             "a bare image carries no cell size: give it (pgvd merge --resolution M) "
             "or write a map_server YAML that names the image",
         )
-    if not (math.isfinite(resolution) and resolution > 0):
-        raise MapFormatError(path, f"resolution must be a finite number > 0, got {resolution}")
+    _check_resolution(path, resolution, resolution)
     shade, alpha = _decode_image(path, max_cells)
     prob = shade_to_probability(shade, alpha)
     _check_content(path, prob)

@@ -530,12 +530,17 @@ def check_extent(name: str, grid: Grid, params: MergeParams) -> None:
         )
 
 
-def _check_inputs(a: Grid, b: Grid, pa: np.ndarray, pb: np.ndarray, params: MergeParams) -> None:
+def check_resolutions(a: Grid, b: Grid) -> None:
+    """``ValueError`` unless the two maps have one cell size (to a part in a million)."""
     if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
         raise ValueError(
             f"maps have different resolutions ({a.resolution} vs {b.resolution} m/cell); "
             "resample B first (pgvd.transform.resample)"
         )
+
+
+def _check_inputs(a: Grid, b: Grid, pa: np.ndarray, pb: np.ndarray, params: MergeParams) -> None:
+    check_resolutions(a, b)
     for name, g, p in (("A", a, pa), ("B", b, pb)):
         if g.logodds.size == 0:
             raise ValueError(f"map {name} is empty")

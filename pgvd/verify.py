@@ -44,6 +44,7 @@ from pgvd.merge import (
     MergeParams,
     MergeResult,
     check_extent,
+    check_resolutions,
     decision_map,
     registration_probability,
     score_hypothesis,
@@ -78,10 +79,7 @@ def _check(predicted: np.ndarray) -> np.ndarray:
 def _check_pair(a: Grid, b: Grid, params: MergeParams) -> None:
     """``ValueError`` for maps of different cell sizes, or one too small to check
     (:func:`pgvd.merge.check_extent`), before either is read."""
-    if not np.isclose(a.resolution, b.resolution, rtol=1e-6, atol=0.0):
-        raise ValueError(
-            f"maps have different resolutions ({a.resolution} vs {b.resolution} m/cell)"
-        )
+    check_resolutions(a, b)
     for name, g in (("A", a), ("B", b)):
         check_extent(name, g, params)
 
