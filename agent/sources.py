@@ -27,7 +27,6 @@ enough, so every version is worth registering again (:mod:`agent.links`).
 from __future__ import annotations
 
 import hashlib
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,8 +40,6 @@ from pgvd.io import MapFormatError, map_image_path, read_map
 if TYPE_CHECKING:
     from pgvd.carmen import LaserScan
     from protocol.ros2.occupancy import RosMap
-
-_CARMEN = re.compile(r"^carmen:(?P<path>.+?)(?:@(?P<lo>[0-9.]+)-(?P<hi>[0-9.]+))?$")
 
 
 #: What ``--source`` accepts, for one-line errors.
@@ -76,14 +73,32 @@ def parse_source(spec: str) -> SourceSpec:
         return SourceSpec("ros2", None, topic=check_topic(spec[5:]))
     if spec.startswith("rosbag:"):
         return _parse_rosbag(spec[7:])
-    m = _CARMEN.match(spec)
-    if m is None:
-        raise ValueError(f"source must be {FORMS}, got {spec!r}")
-    lo = float(m["lo"]) if m["lo"] is not None else 0.0
-    hi = float(m["hi"]) if m["hi"] is not None else 1.0
+    if spec.startswith("carmen:") and spec[7:]:
+        return _parse_carmen(spec[7:])
+    raise ValueError(f"source must be {FORMS}, got {spec!r}")
+
+
+def _parse_carmen(rest: str) -> SourceSpec:
+    """``LOG[@FROM-TO]``: what follows the last ``@`` is the segment, unless the whole of
+    ``rest`` names an existing file (a log whose name holds an ``@``)."""
+    log, sep, segment = rest.rpartition("@")
+    if not sep or Path(rest).is_file():
+        return SourceSpec("carmen", Path(rest))
+    if not log:
+        raise ValueError(f"carmen source needs a log before @{segment}: carmen:LOG[@FROM-TO]")
+    lo_text, dash, hi_text = segment.partition("-")
+    try:
+        lo, hi = float(lo_text), float(hi_text)
+    except ValueError:
+        dash = ""
+    if not dash:
+        raise ValueError(
+            f"carmen segment must be @FROM-TO, fractions of the log such as @0.2-0.6, "
+            f"got @{segment}"
+        )
     if not 0.0 <= lo < hi <= 1.0:
         raise ValueError(f"segment must satisfy 0 <= FROM < TO <= 1, got {lo}-{hi}")
-    return SourceSpec("carmen", Path(m["path"]), (lo, hi))
+    return SourceSpec("carmen", Path(log), (lo, hi))
 
 
 def _parse_rosbag(rest: str) -> SourceSpec:

@@ -20,6 +20,11 @@ import numpy as np
 LOGODDS_LIMIT = 20.0
 #: Cells converted per pass by logodds_to_probability (fits a CPU cache; speed only).
 _CHUNK = 1 << 15
+#: Cell sizes (m) a map may have.  Occupancy grids run from about a centimetre to half a
+#: metre; outside these bounds a cell size is a unit slip (millimetres written as metres)
+#: or hostile, and resampling or pooling such a map asks for filter windows and canvases of
+#: absurd size (a 1e9 m cell hung ``pgvd merge``; 1e-320 overflowed its arithmetic).
+CELL_SIZE_RANGE = (1e-3, 1.0)
 
 
 @dataclass(frozen=True)
@@ -73,6 +78,27 @@ class Grid:
     ) -> Grid:
         """Build a grid from occupancy probabilities (0.5 = unknown), eq. (9)."""
         return cls(probability_to_logodds(p), resolution, origin)
+
+
+def check_cell_size(resolution: float) -> None:
+    """Refuse a cell size outside :data:`CELL_SIZE_RANGE`.
+
+    Parameters
+    ----------
+    resolution : float
+        Metres per cell.
+
+    Raises
+    ------
+    ValueError
+        Naming the cell size and the range.
+    """
+    lo, hi = CELL_SIZE_RANGE
+    if not lo <= resolution <= hi:  # NaN fails too
+        raise ValueError(
+            f"a cell size of {resolution:g} m is outside {lo:g}-{hi:g} m, the range of "
+            "occupancy grids (is it in metres?)"
+        )
 
 
 def probability_to_logodds(p: np.ndarray) -> np.ndarray:

@@ -40,7 +40,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from pgvd.grid import Grid
+from pgvd.grid import Grid, check_cell_size
 
 #: Probability given to an occupied map_server cell (log-odds ~ +2.2).
 P_OCCUPIED = 0.9
@@ -55,6 +55,7 @@ MAX_CELLS = 8000 * 8000
 NPY_RESOLUTION = 0.05
 #: Suffixes of bare map images, read without a YAML (:func:`read_map`'s ``image_resolution``).
 IMAGE_SUFFIXES = (".pgm", ".png")
+_IS_DIRECTORY = "is a directory, not a map file"
 
 _MODES = ("trinary", "scale", "raw")
 _REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
@@ -160,11 +161,13 @@ def _number(meta: dict[str, YamlValue], key: str, path: Path) -> float:
     return float(v)
 
 
-def _check_resolution(path: Path, res: float, shown: object) -> None:
-    """``MapFormatError`` unless the cell size ``res`` (``shown`` as the file or caller gave
-    it) is a finite number > 0."""
-    if not math.isfinite(res) or res <= 0:
-        raise MapFormatError(path, f"resolution must be a finite number > 0, got {shown}")
+def _check_resolution(path: Path, res: float) -> None:
+    """``MapFormatError`` unless the cell size ``res`` is one of an occupancy grid
+    (:func:`pgvd.grid.check_cell_size`)."""
+    try:
+        check_cell_size(res)
+    except ValueError as exc:
+        raise MapFormatError(path, f"resolution: {exc}") from None
 
 
 def _read_meta(path: Path) -> dict[str, YamlValue]:
@@ -173,7 +176,7 @@ def _read_meta(path: Path) -> dict[str, YamlValue]:
     missing = [k for k in _REQUIRED_KEYS if k not in meta]
     if missing:
         raise MapFormatError(path, f"missing key(s): {', '.join(missing)}")
-    _check_resolution(path, _number(meta, "resolution", path), meta["resolution"])
+    _check_resolution(path, _number(meta, "resolution", path))
     origin = meta["origin"]
     if not isinstance(origin, list) or len(origin) != 3 or not all(map(math.isfinite, origin)):
         raise MapFormatError(path, f"origin must be a list of 3 finite numbers, got {origin!r}")
@@ -237,7 +240,7 @@ def _read_bytes(path: Path) -> bytes:
     except FileNotFoundError:
         raise MapFormatError(path, "no such file") from None
     except IsADirectoryError:
-        raise MapFormatError(path, "is a directory, not a map file") from None
+        raise MapFormatError(path, _IS_DIRECTORY) from None
     except OSError as exc:
         raise MapFormatError(path, f"cannot read: {exc.strerror or exc}") from None
 
@@ -439,6 +442,8 @@ def read_map(
         without ``image_resolution``.
     """
     path = Path(path)
+    if path.is_dir():  # whatever its name: "unknown map format" would send the user astray
+        raise MapFormatError(path, _IS_DIRECTORY)
     suffix = path.suffix.lower()
     if suffix in (".yaml", ".yml"):
         return _read_yaml_map(path, max_cells)
@@ -457,7 +462,7 @@ def _read_bare_image(path: Path, max_cells: int, resolution: float | None) -> Gr
             "a bare image carries no cell size: give it (pgvd merge --resolution M) "
             "or write a map_server YAML that names the image",
         )
-    _check_resolution(path, resolution, resolution)
+    _check_resolution(path, resolution)
     shade, alpha = _decode_image(path, max_cells)
     prob = shade_to_probability(shade, alpha)
     _check_content(path, prob)
@@ -482,6 +487,7 @@ def _read_yaml_map(path: Path, max_cells: int) -> Grid:
 
 
 def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
+    _check_resolution(path, resolution)
     try:
         f = path.open("rb")
     except FileNotFoundError:
@@ -578,6 +584,25 @@ def atomic_write(
         os.close(dir_fd)
 
 
+def written_files(path: str | os.PathLike[str]) -> tuple[Path, ...]:
+    """The files :func:`write_map` writes for ``path``: a YAML and the ``.pgm`` beside it,
+    or the ``.npy``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.yaml``/``.yml`` or ``.npy``.
+
+    Returns
+    -------
+    tuple of pathlib.Path
+    """
+    path = Path(path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return (path, path.with_suffix(".pgm"))
+    return (path,)
+
+
 def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     """Write a grid as map_server ``.yaml`` + trinary ``.pgm`` beside it, or as ``.npy``.
 
@@ -611,7 +636,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     pixels = np.full(prob.shape, 205, dtype=np.uint8)
     pixels[prob > OCCUPIED_THRESH] = 0
     pixels[prob < FREE_THRESH] = 254
-    image = path.with_suffix(".pgm")
+    image = written_files(path)[1]
     header = f"P5\n{pixels.shape[1]} {pixels.shape[0]}\n255\n".encode()
     atomic_write(image, lambda f: f.write(header + pixels.tobytes()))
     ox, oy, yaw = (float(v) for v in grid.origin)

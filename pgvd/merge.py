@@ -64,7 +64,7 @@ import numpy as np
 
 from pgvd.decision import Decision, Scored, decide, describe_rival, restate, shifted
 from pgvd.graph import EdgeGraph, build_graph
-from pgvd.grid import Grid, matrix_to_pose, rigid_matrix
+from pgvd.grid import Grid, check_cell_size, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
 from pgvd.matching import (
     EdgeCorrelator,
@@ -500,11 +500,12 @@ class _Clock:
 
 
 def check_extent(name: str, grid: Grid, params: MergeParams) -> None:
-    """Refuse a map under three search cells (``params.coarse_resolution``) a side.
+    """Refuse a map under three search cells (``params.coarse_resolution``) a side, or one
+    whose cell size is no occupancy grid's (:func:`pgvd.grid.check_cell_size`).
 
     The search pools each map to those cells and the decision to about 5 cm
     (:mod:`pgvd.pooling`): a map a few search cells across has no GVD edge to match, and a
-    cell size far below a millimetre (a wrong ``resolution``, or a hostile one) would make
+    cell size far outside a grid's (a wrong ``resolution``, or a hostile one) would make
     that pooling ask for a canvas of astronomic size instead of failing.
 
     Parameters
@@ -521,6 +522,10 @@ def check_extent(name: str, grid: Grid, params: MergeParams) -> None:
     ValueError
         Naming the map, its extent and its cell size.
     """
+    try:
+        check_cell_size(grid.resolution)
+    except ValueError as exc:
+        raise ValueError(f"map {name}: {exc}") from None
     least = 3 * params.coarse_resolution
     h, w = (n * grid.resolution for n in grid.shape)
     if min(h, w) < least:

@@ -137,7 +137,7 @@ def test_a_map_file_that_never_reads_is_logged_once(tmp_path: Path) -> None:
     proc.stdout = proc.stderr
     try:
         line = read_line(proc, timeout=30)
-        assert "WARNING source" in line and "resolution must be a finite number > 0" in line
+        assert "WARNING source" in line and "resolution: a cell size of -0.05 m is outside" in line
         with pytest.raises(AssertionError, match="no line"):
             read_line(proc, timeout=2)  # retried every 0.5 s, not repeated
     finally:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -40,6 +41,21 @@ def test_parse_source() -> None:
     for bad in ("nope:x", "map:", "carmen:x@0.5-0.2", "carmen:x@0-1.5"):
         with pytest.raises(ValueError):
             parse_source(bad)
+
+
+def test_a_malformed_segment_is_named_not_taken_for_part_of_the_file_name(
+    tmp_path: Path,
+) -> None:
+    # "carmen:LOG@0.5" once read as a log called "LOG@0.5" and failed as a missing file
+    for bad in ("0.5", "abc", "1..2-3", "0.2-", "-0.6"):
+        with pytest.raises(ValueError, match=f"must be @FROM-TO, .* got @{re.escape(bad)}$"):
+            parse_source(f"carmen:{INTEL}@{bad}")
+    with pytest.raises(ValueError, match=re.escape("needs a log before @0.1-0.2")):
+        parse_source("carmen:@0.1-0.2")
+    # a log whose own name holds an "@" is still read whole
+    odd = tmp_path / "run@home.log"
+    odd.write_text("")
+    assert parse_source(f"carmen:{odd}") == SourceSpec("carmen", odd)
 
 
 def test_parse_ros_sources() -> None:

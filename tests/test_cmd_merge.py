@@ -65,14 +65,23 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
     np.save(tmp / "empty.npy", np.zeros((0, 888), np.float32))
     no_walls = np.where(p > 0.65, 0.1, p)
     np.save(tmp / "no_walls.npy", no_walls)
+    tiny = np.full((10, 10), 0.1)
+    tiny[:, 5] = 0.9
+    np.save(tmp / "tiny.npy", tiny)
     (tmp / "dir.yaml").mkdir()
     (tmp / "dir.png").mkdir()
+    (tmp / "nomap").mkdir()
     return [
         ("missing file", [maps / "nope.yaml", intel], "no such file"),
         ("unreadable file", [intel, tmp / "dir.yaml"], "is a directory"),
+        ("a directory with no map suffix", [tmp / "nomap", intel], "is a directory, not a map"),
         ("missing key", [_yaml_copy(tmp, "k", intel, drop="resolution"), intel], "missing key"),
         ("zero resolution", [intel, _yaml_copy(tmp, "r0", intel, resolution="0")], "resolution"),
-        ("negative resolution", [_yaml_copy(tmp, "rneg", intel, resolution="-0.05"), intel], "> 0"),
+        ("negative resolution", [_yaml_copy(tmp, "rn", intel, resolution="-0.05"), intel], "-0.05"),
+        # B shrunk to A's cells of a gigametre once hung the max filter of the resampling
+        ("absurd resolution", [_yaml_copy(tmp, "rb", intel, resolution="1e9"), intel], "0.001-1 m"),
+        # and a subnormal one overflowed B's resampled size
+        ("subnormal resolution", [intel, _yaml_copy(tmp, "rs", intel, resolution="1e-320")], "1 m"),
         ("empty map", [intel, tmp / "empty.npy"], "empty map"),
         ("no occupied cells", [tmp / "no_walls.npy", intel], "no occupied cells"),
         ("over the size limit", [intel, intel, "--max-cells", "500000"], "exceeds the limit"),
@@ -84,16 +93,18 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
         ("--despeckle of 3 maps", [intel, intel, intel, "--despeckle"], "two maps, not more"),
         ("--plot not a PNG", [intel, intel, "--plot", tmp / "m.jpg"], "must end in .png"),
         ("bare image, no cell size", [ROOT / "examples/intel_a.pgm", intel], "--resolution M"),
-        ("zero --resolution", [intel, intel, "--resolution", "0"], "--resolution must be"),
+        ("zero --resolution", [intel, intel, "--resolution", "0"], "--resolution 0: "),
         (
             "a nanometre cell",
             [ROOT / "examples/intel_a.pgm", ROOT / "examples/intel_b.pgm", "--resolution", "1e-9"],
-            "too small to merge at 1e-09 m/cell",
+            "--resolution 1e-09: a cell size of 1e-09 m is outside 0.001-1 m",
         ),
-        # B resampled to A's nanometre cells would hold 10^23 cells: refused before it is built
+        # a map 0.5 m across has no GVD to match
+        ("a map too small", [tmp / "tiny.npy", intel], "too small to merge at 0.05 m/cell"),
+        # B resampled to A's millimetre cells would hold 2e9 cells: refused before it is built
         (
             "B resampled past --max-cells",
-            [ROOT / "examples/intel_a.pgm", intel, "--resolution", "1e-9"],
+            [ROOT / "examples/intel_a.pgm", intel, "--resolution", "0.001"],
             "over --max-cells",
         ),
     ]
@@ -154,6 +165,27 @@ def test_the_map_frame_is_where_the_true_transform_puts_b_in_the_world() -> None
     sd = np.sqrt(np.diag(frame["covariance"]))
     assert abs(np.degrees(frame["yaw"])) > 60  # far from the identity: a sign would show
     assert np.all(np.abs(err) < 3 * sd), (err, sd)
+
+
+def test_outputs_that_would_overwrite_an_input_map_are_refused(tmp_path: Path) -> None:
+    # `-o intel_a.yaml` once replaced the robot's own map by the fused one, exit 0
+    for name in ("intel_a.yaml", "intel_a.pgm", "intel_b.yaml", "intel_b.pgm"):
+        (tmp_path / name).write_bytes((ROOT / "examples" / name).read_bytes())
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    a, b = tmp_path / "intel_a.yaml", tmp_path / "intel_b.yaml"
+    for extra, hit in (
+        (["-o", a], "-o would overwrite the input map file"),
+        # intel_a.yml is new, but the .pgm written beside it is A's image
+        (["-o", tmp_path / "intel_a.yml"], f"-o would overwrite the input map file {a.parent}"),
+        (["-o", tmp_path / "sub" / ".." / "intel_b.yaml"], "intel_b.yaml"),
+    ):
+        proc = pgvd_merge(a, b, *extra)
+        assert proc.returncode == 2 and hit in proc.stderr, (extra, proc.stderr)
+        assert proc.stdout == ""
+    bare = tmp_path / "intel_a.pgm"
+    proc = pgvd_merge(bare, tmp_path / "intel_b.pgm", "--resolution", "0.05", "-o", a)
+    assert proc.returncode == 2 and "intel_a.pgm" in proc.stderr
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
 def test_a_missing_map_b_is_named_alone() -> None:

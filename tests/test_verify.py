@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy.stats import chi2
@@ -126,11 +128,16 @@ def test_bad_predictions_are_errors(shared):
         verify(a, a, np.diag([2.0, 2.0, 1.0]))
     with pytest.raises(ValueError, match="resolutions"):
         verify(a, resample(a, 0.1), np.eye(3))
-    # a cell size of a nanometre (a wrong or hostile one) is refused, not pooled into an
-    # array of petabytes
-    tiny = Grid(a.logodds, 1e-9, a.origin)
-    with pytest.raises(ValueError, match=r"map A spans .* too small to merge at 1e-09 m/cell"):
-        verify(tiny, tiny, np.eye(3))
+    # a cell size of a nanometre or a gigametre (a wrong or hostile one) is refused, not
+    # pooled into an array of petabytes
+    for res in (1e-9, 1e9):
+        odd = Grid(a.logodds, res, a.origin)
+        why = re.escape(f"map A: a cell size of {res:g} m is outside")
+        with pytest.raises(ValueError, match=why):
+            verify(odd, odd, np.eye(3))
+    small = Grid(a.logodds[:10, :10], a.resolution, a.origin)
+    with pytest.raises(ValueError, match=r"map A spans .* too small to merge at 0.05 m/cell"):
+        verify(small, small, np.eye(3))
 
 
 def test_empty_map_is_a_rejection(shared):

@@ -12,7 +12,13 @@ from pathlib import Path
 
 import zenoh
 
-from agent.cli.common import EXIT_OK, CliError, read_fleet_key, require_extra
+from agent.cli.common import (
+    EXIT_OK,
+    CliError,
+    check_resolution_option,
+    read_fleet_key,
+    require_extra,
+)
 from agent.failpoints import check_armed
 from agent.inbox import MAX_BYTES
 from agent.keys import check_name
@@ -178,8 +184,8 @@ def options_from_args(args: argparse.Namespace):
         raise CliError(f"source file not found: {source.path}")
     if source.kind in ("carmen", "map") and source.path is not None and source.path.is_dir():
         raise CliError(f"source {source.kind}:{source.path} is a directory, not a file")
+    check_resolution_option(args.resolution)
     for name in (
-        "resolution",
         "speed",
         "link_timeout",
         "announce",

@@ -20,6 +20,23 @@ class CliError(Exception):
     """A user error: printed as one line on stderr, exit code 2."""
 
 
+def check_resolution_option(resolution: float) -> None:
+    """``CliError`` naming ``--resolution`` unless it is an occupancy grid's cell size.
+
+    Parameters
+    ----------
+    resolution : float
+        The option's value, metres per cell (:func:`pgvd.grid.check_cell_size`).
+    """
+    # imported here: pgvd.grid loads numpy, which `pgvd --help` and `pgvd status` never need
+    from pgvd.grid import check_cell_size
+
+    try:
+        check_cell_size(resolution)
+    except ValueError as exc:
+        raise CliError(f"--resolution {resolution:g}: {exc}") from None
+
+
 def read_fleet_key(path: Path | None) -> bytes | None:
     """The fleet key in a file, for the HMAC every message of the fleet carries.
 

@@ -9,6 +9,7 @@ once both maps are known good.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -19,9 +20,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError
+from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError, check_resolution_option
 from pgvd.grid import Grid, map_frame_covariance, map_frame_pose, matrix_to_pose
-from pgvd.io import MAX_CELLS, NPY_RESOLUTION, MapFormatError, read_map, write_map, write_png
+from pgvd.io import (
+    MAX_CELLS,
+    NPY_RESOLUTION,
+    MapFormatError,
+    map_image_path,
+    read_map,
+    write_map,
+    write_png,
+    written_files,
+)
 
 if TYPE_CHECKING:
     from agent.multimerge import ManyMerge
@@ -209,6 +219,31 @@ def _check_output(what: str, path: Path | None) -> None:
         raise CliError(f"cannot write {what} {path}: {ancestor} is not writable")
 
 
+def _check_inputs_kept(args: argparse.Namespace, files: list[Path]) -> None:
+    """Refuse ``-o`` or ``--plot`` where they would overwrite an input map: a robot's map
+    lost to a typo is not a merge result.
+
+    An input is its file and, for a map_server YAML, the image it names (a YAML that cannot
+    be read names none here; reading it reports why).
+    """
+    inputs = []
+    for f in files:
+        inputs.append(f)
+        if f.suffix.lower() in (".yaml", ".yml"):
+            with contextlib.suppress(MapFormatError):
+                inputs.append(map_image_path(f))
+    outputs = [("-o", t) for t in written_files(args.output)] if args.output else []
+    if args.plot is not None:
+        outputs.append(("--plot", args.plot))
+    for option, target in outputs:
+        for f in inputs:
+            # realpath, not samefile alone: "new/../a.yaml" does not exist yet, but writing it
+            # creates new/ and lands on a.yaml
+            same = os.path.realpath(target) == os.path.realpath(f)
+            if same or (target.exists() and f.exists() and os.path.samefile(target, f)):
+                raise CliError(f"{option} would overwrite the input map file {f}")
+
+
 def _write(what: str, path: Path, write: Callable[[], None]) -> None:
     try:
         write()
@@ -223,11 +258,12 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--plot {args.plot}: the picture is a PNG, its name must end in .png")
     if args.max_cells <= 0:
         raise CliError(f"--max-cells must be > 0, got {args.max_cells}")
-    if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
-        raise CliError(f"--resolution must be a cell size in metres > 0, got {args.resolution}")
+    if args.resolution is not None:
+        check_resolution_option(args.resolution)
     _check_output("plot", args.plot)
     _check_output("fused map", args.output)
     files = [args.a, args.b, *args.more]
+    _check_inputs_kept(args, files)
     if args.resolution is not None and all(f.suffix.lower() in (".yaml", ".yml") for f in files):
         # not an error (the merge is the same), but the user believed it set something
         print(
