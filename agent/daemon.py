@@ -32,7 +32,7 @@ from agent.inbox import MAX_BYTES, Inbox, offer_or_drop
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
 from agent.priors import Pose
-from agent.ros2_io import RosMapSubscription
+from agent.ros2_io import RosMapSubscription, declare_node
 from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap
 from agent.status import HostFacts
@@ -279,8 +279,9 @@ class Agent:
             stack.enter_context(
                 session.liveliness().declare_subscriber(k.alive(), self._on_alive, history=True)
             )
+            self._declare_ros_node(session, stack)
             self._follow_ros_topic(session, stack)
-            outputs = Outputs(self.opts.outputs, me, session, self.counters)
+            outputs = Outputs(self.opts.outputs, session, self.counters)
             stack.callback(outputs.close)
             log.info("agent %s up in fleet %s (pid %d)", me, self.opts.fleet, os.getpid())
             self.worker.start()
@@ -307,6 +308,15 @@ class Agent:
         drop, best_effort = zenoh.CongestionControl.DROP, zenoh.Reliability.BEST_EFFORT
         publisher = tiles.declare_publisher(key, congestion_control=drop, reliability=best_effort)
         return stack.enter_context(publisher)
+
+    def _declare_ros_node(self, session: zenoh.Session, stack: contextlib.ExitStack) -> None:
+        """The ROS 2 node token, when the agent reads or publishes a ROS topic; declared on
+        the stack before the subscription and publishers, so that it is undeclared after."""
+        if not (isinstance(self.source, RosTopicSource) or self.opts.outputs.publish):
+            return
+        token = declare_node(session, self.opts.outputs.ros)
+        if token is not None:
+            stack.callback(token.undeclare)
 
     def _follow_ros_topic(self, session: zenoh.Session, stack: contextlib.ExitStack) -> None:
         """A ``ros2:`` source reads the topic's subscription; refusals count as ``ros2_*``."""

@@ -11,7 +11,6 @@ that connects late sees the fleet on the next send).
 
 from __future__ import annotations
 
-import hashlib
 import math
 import time
 from collections.abc import Mapping
@@ -25,7 +24,7 @@ from agent.globalmap import Component
 from agent.ros2_io import RosMapPublisher, RosOptions
 from agent.status import link_json
 from pgvd.grid import Grid, map_frame_pose
-from protocol.ros2.occupancy import Placement
+from protocol.ros2.occupancy import Placement, robot_map_frame
 
 
 @dataclass(frozen=True)
@@ -50,11 +49,6 @@ class OutputOptions:
     @property
     def active(self) -> bool:
         return self.publish is not None or self.foxglove is not None
-
-
-def map_frame(robot: str) -> str:
-    """The TF frame of ``robot``'s own map (REP 105's ``map``, namespaced by robot)."""
-    return f"{robot}/map"
 
 
 def map_placements(
@@ -86,7 +80,7 @@ def map_placements(
         if held is None or held[0] != comp.versions[robot]:
             continue
         x, y, yaw = map_frame_pose(anchor[1], held[1], comp.transforms[robot])
-        out.append(Placement(frame, map_frame(robot), x, y, yaw))
+        out.append(Placement(frame, robot_map_frame(robot), x, y, yaw))
     return out
 
 
@@ -96,13 +90,12 @@ class Outputs:
     Parameters
     ----------
     opts : what to serve.
-    robot : this agent's robot id (a stable GID for its ROS publisher).
     session : the agent's open Zenoh session (timestamping enabled) when publishing to ROS.
     counters : where the bytes sent to ROS are counted (``ros_map_bytes``, ``ros_tf_bytes``).
     """
 
     def __init__(
-        self, opts: OutputOptions, robot: str, session: zenoh.Session | None, counters: Counters
+        self, opts: OutputOptions, session: zenoh.Session | None, counters: Counters
     ) -> None:
         self.opts = opts
         self.counters = counters
@@ -114,8 +107,7 @@ class Outputs:
         self._view = None
         if opts.publish is not None:
             assert session is not None
-            gid = hashlib.sha256(f"pgvd-ros-gid:{robot}".encode()).digest()[:16]
-            self._ros = RosMapPublisher(session, opts.publish, opts.frame, opts.ros, gid)
+            self._ros = RosMapPublisher(session, opts.publish, opts.frame, opts.ros)
         if opts.foxglove is not None:
             from agent.view import FoxgloveView
 

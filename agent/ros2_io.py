@@ -17,6 +17,7 @@ a subscriber, and on rmw_zenoh that count comes from these tokens.
 from __future__ import annotations
 
 import itertools
+import secrets
 import threading
 import time
 from collections.abc import Callable
@@ -68,6 +69,23 @@ class RosOptions:
 
     def ros_node(self, session: zenoh.Session) -> RosNode:
         return RosNode(str(session.zid()), self.node, self.namespace, 0, self.domain)
+
+
+def declare_node(session: zenoh.Session, opts: RosOptions) -> zenoh.LivelinessToken | None:
+    """The agent's ROS 2 node token (``NN``), None for the bridge's key form (no tokens).
+
+    One token for the node whatever it publishes or subscribes, declared before its
+    entities' tokens and undeclared after them: rmw_zenoh's graph cache warns of a node
+    removed before its publishers and subscriptions, on every ROS node, at each shutdown.
+
+    Parameters
+    ----------
+    session : the agent's open Zenoh session.
+    opts : domain, node name and namespace.
+    """
+    if opts.form != "rmw_zenoh":
+        return None
+    return session.liveliness().declare_token(opts.ros_node(session).token())
 
 
 class RosMapSubscription:
@@ -161,6 +179,8 @@ class RosMapSubscription:
 class RosMapPublisher:
     """Publishes a map as ``nav_msgs/msg/OccupancyGrid`` (latched) and placements on ``/tf``.
 
+    The node's own token is :func:`declare_node`'s; this declares its two publishers'.
+
     Parameters
     ----------
     session : an open Zenoh session with timestamping enabled.
@@ -169,15 +189,14 @@ class RosMapPublisher:
     opts : key form, domain, distro and node name.
     """
 
-    def __init__(
-        self, session: zenoh.Session, topic: str, frame: str, opts: RosOptions, gid: bytes
-    ) -> None:
+    def __init__(self, session: zenoh.Session, topic: str, frame: str, opts: RosOptions) -> None:
         self.frame = frame
         self.opts = opts
-        self._gid = gid
-        # rmw_zenoh numbers each publisher's messages on its own, from 1.
-        self._map_seq = itertools.count(1)
-        self._tf_seq = itertools.count(1)
+        # rmw_zenoh numbers each publisher's messages on its own, from 1, under a GID of its
+        # own: a restarted agent is a new publisher, whose numbering from 1 again must not
+        # read as thousands of messages lost under the old one's GID.
+        self._map_seq, self._map_gid = itertools.count(1), secrets.token_bytes(16)
+        self._tf_seq, self._tf_gid = itertools.count(1), secrets.token_bytes(16)
         key = data_key(
             topic, OCCUPANCY_GRID, domain=opts.domain, distro=opts.distro, form=opts.form
         )
@@ -193,16 +212,15 @@ class RosMapPublisher:
             self._tokens = [
                 session.liveliness().declare_token(t)
                 for t in (
-                    node.token(),
                     node.entity_token("MP", 10, topic, OCCUPANCY_GRID, distro=opts.distro),
                     node.entity_token("MP", 11, "/tf", TF_MESSAGE, distro=opts.distro, qos=QOS_TF),
                 )
             ]
 
-    def _attachment(self, sequence: itertools.count, stamp_ns: int) -> bytes | None:
+    def _attachment(self, sequence: itertools.count, gid: bytes, stamp_ns: int) -> bytes | None:
         if self.opts.form != "rmw_zenoh":
             return None
-        return encode_attachment(Attachment(next(sequence), stamp_ns, self._gid))
+        return encode_attachment(Attachment(next(sequence), stamp_ns, gid))
 
     def publish(self, grid: Grid, placements: list[Placement], stamp_ns: int | None = None) -> int:
         """Publish ``grid`` and the TF of ``placements``; returns the map's bytes."""
@@ -214,7 +232,7 @@ class RosMapPublisher:
     def publish_map(self, grid: Grid, stamp_ns: int) -> int:
         """Publish ``grid`` on the latched map topic; returns its CDR bytes."""
         cdr = encode_occupancy_grid(grid, self.frame, stamp_ns)
-        self._map.put(cdr, attachment=self._attachment(self._map_seq, stamp_ns))
+        self._map.put(cdr, attachment=self._attachment(self._map_seq, self._map_gid, stamp_ns))
         return len(cdr)
 
     def publish_tf(self, placements: list[Placement], stamp_ns: int) -> int:
@@ -226,7 +244,7 @@ class RosMapPublisher:
         if not placements:
             return 0
         cdr = encode_tf(placements, stamp_ns)
-        self._tf.put(cdr, attachment=self._attachment(self._tf_seq, stamp_ns))
+        self._tf.put(cdr, attachment=self._attachment(self._tf_seq, self._tf_gid, stamp_ns))
         return len(cdr)
 
     def close(self) -> None:

@@ -27,6 +27,7 @@ enough, so every version is worth registering again (:mod:`agent.links`).
 from __future__ import annotations
 
 import hashlib
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,10 +37,13 @@ import numpy as np
 
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
 from pgvd.io import MapFormatError, map_image_path, read_map
+from protocol.ros2.occupancy import robot_map_frame
 
 if TYPE_CHECKING:
     from pgvd.carmen import LaserScan
     from protocol.ros2.occupancy import RosMap
+
+log = logging.getLogger("pgvd.agent")
 
 
 #: What ``--source`` accepts, for one-line errors.
@@ -422,8 +426,10 @@ class RosTopicSource:
     kind = "ros2"
     done = False
 
-    def __init__(self, spec: SourceSpec) -> None:
+    def __init__(self, spec: SourceSpec, frame: str) -> None:
+        """``frame`` is the TF frame the agent places this robot's map in (``<robot>/map``)."""
         self.spec = spec
+        self.frame = frame
         self.received = 0
         self._take: Callable[[], RosMap | None] | None = None
         self._map: RosMap | None = None
@@ -439,6 +445,15 @@ class RosTopicSource:
         self.received += 1
         if self._map is not None and _same_grid(ros.grid, self._map.grid):
             return False  # a latched map sent again (a reconnect, another cache)
+        if ros.frame_id != self.frame and (self._map is None or self._map.frame_id != ros.frame_id):
+            # once per frame seen: the merge is right either way, but the TF the agent
+            # publishes hangs under a frame the robot's own tree does not have
+            log.warning(
+                "%s: maps arrive in frame %r, but the agent places this robot's map as %r: "
+                "its TF tree stays apart from the merged frame (set slam_toolbox's map_frame "
+                "to %r)",
+                self.spec.topic, ros.frame_id, self.frame, self.frame,
+            )  # fmt: skip
         self._map = ros
         return True
 
@@ -559,7 +574,7 @@ def make_source(
         A missing or unreadable log/map (one line).
     """
     if spec.kind == "ros2":
-        return RosTopicSource(spec)
+        return RosTopicSource(spec, robot_map_frame(robot))
     assert spec.path is not None
     if not spec.path.exists():
         raise ValueError(f"source file not found: {spec.path}")

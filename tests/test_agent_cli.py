@@ -42,6 +42,8 @@ def agent(tmp_path: Path, *extra: str) -> list[str]:
         (["--source", "rosbag:/nonexistent_bag"], "source file not found"),
         (["--ros-publish", "map merged"], "not an absolute ROS 2 topic"),
         (["--ros-frame", "/world"], "--ros-frame"),
+        (["--ros-frame", "r1/map"], "is a robot's map frame"),
+        (["--resolution", "5"], "--resolution 5: a cell size of 5 m is outside"),
         (["--ros-domain", "300"], "domain id"),
         (["--ros-rate", "0"], "--ros-rate must be > 0"),
         (["--foxglove", "8765"], "HOST:PORT"),

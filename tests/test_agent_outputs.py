@@ -97,7 +97,7 @@ def test_tf_follows_the_global_map_as_it_changes() -> None:
             return got[-1]
 
     sub = session.declare_subscriber(ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage"), on_tf)
-    out = Outputs(OutputOptions(publish="/map_merged", rate=1.0), "a", session, Counters())
+    out = Outputs(OutputOptions(publish="/map_merged", rate=1.0), session, Counters())
     try:
         first = _component(
             {"a": (1, a), "b": (4, b)}, {"a": np.eye(3), "b": _b_in_a(a, 3.0, -2.0, 0.7)}

@@ -15,7 +15,7 @@ import pytest
 pytest.importorskip("rosbags")
 import ros2_peer
 
-from agent.ros2_io import RosMapPublisher, RosMapSubscription, RosOptions
+from agent.ros2_io import RosMapPublisher, RosMapSubscription, RosOptions, declare_node
 from pgvd.io import read_map
 from protocol.ros2.occupancy import Placement
 
@@ -172,7 +172,7 @@ def test_bad_samples_are_dropped_and_counted(sessions, kind: str, reason: str) -
 def test_merged_map_and_tf_reach_a_ros_subscriber_late_too(sessions) -> None:
     robot, agent = sessions
     grid = read_map("examples/intel_a.yaml")
-    out = RosMapPublisher(agent, "/map_merged", "world", RosOptions(), gid=b"g" * 16)
+    out = RosMapPublisher(agent, "/map_merged", "world", RosOptions())
     got: list[tuple[str, bytes, bytes | None]] = []
 
     def on_sample(sample) -> None:
@@ -203,3 +203,50 @@ def test_merged_map_and_tf_reach_a_ros_subscriber_late_too(sessions) -> None:
     payload, att = by_key[ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage")]
     tf = ros2_peer.TS.deserialize_cdr(payload, "tf2_msgs/msg/TFMessage")
     assert tf.transforms[0].child_frame_id == "r2/map" and len(att) == 33
+    # each publisher has a GID of its own, as in rmw_zenoh
+    assert by_key[ros2_peer.key("/map_merged")][1][17:] != att[17:]
+
+
+def test_a_restarted_publisher_numbers_from_1_under_a_new_gid(sessions) -> None:
+    # Under the old GID, numbering from 1 again would read to rmw_zenoh's lost-message
+    # tracking as every message since the last one lost.
+    robot, agent = sessions
+    got: list[bytes] = []
+    sub = robot.declare_subscriber(
+        ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage"),
+        lambda sample: got.append(sample.attachment.to_bytes()),
+    )
+    try:
+        for run in (1, 2):
+            out = RosMapPublisher(agent, "/map_merged", "world", RosOptions())
+            try:
+                time.sleep(0.3)
+                out.publish_tf([Placement("world", "r2/map", 0.0, 0.0, 0.0)], 10**9)
+                _wait(lambda run=run: len(got) == run)
+            finally:
+                out.close()
+    finally:
+        sub.undeclare()
+    assert [struct.unpack_from("<qqB", att)[0] for att in got] == [1, 1]
+    assert got[0][17:] != got[1][17:]
+
+
+def test_the_node_token_goes_after_its_publishers_tokens(sessions) -> None:
+    # rmw_zenoh's graph cache warns on every ROS node of a node removed before its entities
+    robot, agent = sessions
+    events: list[tuple[str, str]] = []
+    watch = robot.liveliness().declare_subscriber(
+        "@ros2_lv/**", lambda s: events.append((str(s.kind), str(s.key_expr).split("/")[5]))
+    )
+    try:
+        node = declare_node(agent, RosOptions())
+        out = RosMapPublisher(agent, "/map_merged", "world", RosOptions())
+        _wait(lambda: len(events) >= 3)
+        out.close()
+        node.undeclare()
+        _wait(lambda: len(events) >= 6)
+    finally:
+        watch.undeclare()
+    gone = [entity for kind, entity in events if "DELETE" in kind]
+    assert gone == ["MP", "MP", "NN"], events
+    assert declare_node(agent, RosOptions(form="bridge")) is None

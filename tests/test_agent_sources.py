@@ -92,6 +92,22 @@ def test_ros_topic_source_takes_each_new_map_once() -> None:
     assert src.describe()["received"] == 3 and src.describe()["topic"] == "/robot1/map"
 
 
+def test_a_map_in_another_frame_than_the_robots_map_frame_is_said_once(caplog) -> None:
+    # slam_toolbox left at its default map_frame "map": the agent places r1/map, so the
+    # robot's own TF tree would hang apart from the merged frame, silently
+    grids = [Grid(np.full((4, 4), v, np.float32), 0.05) for v in (1.0, -1.0, 2.0, 3.0)]
+    queue = [RosMap(g, f, 0) for g, f in zip(grids, ("map", "map", "r1/map", "odom"), strict=True)]
+    src = make_source(parse_source("ros2:/r1/map"), "r1", None, 0.1, 1.0)
+    src.attach(lambda: queue.pop(0) if queue else None)
+    with caplog.at_level("WARNING", logger="pgvd.agent"):
+        while src.step(0.0):
+            pass
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 2, said
+    assert "frame 'map'" in said[0] and "as 'r1/map'" in said[0] and "map_frame" in said[0]
+    assert "frame 'odom'" in said[1]
+
+
 def test_a_rosbag_replays_like_the_carmen_log_it_was_written_from(tmp_path: Path) -> None:
     """The same scans through a rosbag2 (LaserScan + TF) and through the log: the same map."""
     pytest.importorskip("rosbags")

@@ -35,6 +35,7 @@ from agent.zenoh_config import (
     zenoh_error,
 )
 from protocol.ros2.keys import FORMS, check_domain, check_topic
+from protocol.ros2.occupancy import robot_map_frame
 from protocol.ros2.types import DISTROS
 
 #: A TF frame id: tf2 refuses a leading slash; the rest as ROS names.
@@ -271,6 +272,14 @@ def _output_options(args: argparse.Namespace) -> OutputOptions:
         check_topic(args.ros_publish)
     if not _FRAME_ID.fullmatch(args.ros_frame):
         raise ValueError(f"--ros-frame must be a TF frame id like world, got {args.ros_frame!r}")
+    robot, _, rest = args.ros_frame.partition("/")
+    if rest and args.ros_frame == robot_map_frame(robot):
+        # the agent places every robot's map frame under it: a robot's own would be its own
+        # parent, a transform tf2 refuses
+        raise ValueError(
+            f"--ros-frame {args.ros_frame} is a robot's map frame (<robot>/map); the merged "
+            "frame needs a name of its own, such as world"
+        )
     foxglove = parse_endpoint(args.foxglove) if args.foxglove else None
     return OutputOptions(ros, args.ros_publish, args.ros_frame, args.ros_rate, foxglove)
 

@@ -202,6 +202,11 @@ def encode_occupancy_grid(grid: Grid, frame_id: str, stamp_ns: int) -> bytes:
     return bytes(ts.serialize_cdr(msg, OCCUPANCY_GRID))
 
 
+def robot_map_frame(robot: str) -> str:
+    """The TF frame of ``robot``'s own map (REP 105's ``map``, namespaced by robot)."""
+    return f"{robot}/map"
+
+
 @dataclass(frozen=True)
 class Placement:
     """One transform of a TF tree: ``child`` frame's pose in ``parent``'s, metres/radians."""
