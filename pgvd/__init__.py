@@ -22,7 +22,9 @@ Frames (x = column, y = row; a relative transform maps B pixels to A pixels)
     :func:`map_frame_pose`, :func:`map_frame_covariance`, :func:`pixel_to_world`,
     :func:`world_to_pixel`, :func:`warp`, :func:`union_canvas`.
 Merging (the paper's Fig. 1, eqs. (10)-(32))
-    :func:`merge`, :class:`MergeParams`, :class:`MergeResult`, :class:`MergeDiagnostics`.
+    :func:`merge`, :class:`MergeParams`, :class:`MergeResult`, :class:`MergeDiagnostics`;
+    :func:`verify` confirms or rejects a pose known beforehand (a chain of links, a known
+    initial pose) without the search.
 Fusion (eqs. (4)-(8) and (33)-(37))
     :func:`fuse_maps`, :func:`fuse`, :func:`fuse_many`, :func:`propagate`,
     :func:`compose_covariance`, :func:`inverse_covariance`.
@@ -75,6 +77,7 @@ _HOME = {
     "MergeParams": "pgvd.merge",
     "MergeResult": "pgvd.merge",
     "merge": "pgvd.merge",
+    "verify": "pgvd.verify",
     "compose_covariance": "pgvd.uncertainty",
     "inverse_covariance": "pgvd.uncertainty",
     "propagate": "pgvd.uncertainty",
@@ -113,6 +116,7 @@ __all__ = [
     "resample",
     "rigid_matrix",
     "union_canvas",
+    "verify",
     "warp",
     "world_to_pixel",
     "write_map",
@@ -141,7 +145,8 @@ class _Package(types.ModuleType):
     ``merge``, which would replace the function :func:`merge` -- or not,
     depending on what was imported first.  The binding is skipped, so
     ``pgvd.merge`` is always the function; the submodule stays importable
-    (``from pgvd.merge import coarsen``, ``importlib.import_module``).
+    (``from pgvd.merge import coarsen``, ``importlib.import_module``).  So is
+    ``pgvd.verify``.
     """
 
     def __setattr__(self, name: str, value: object) -> None:

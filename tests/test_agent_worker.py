@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 from pathlib import Path
@@ -325,24 +326,24 @@ def test_verify_check_on_real_maps(intel_pair, monkeypatch) -> None:
     off = rigid_matrix(np.radians(20.0), 60.0, 0.0) @ truth  # overlapping, disagreeing
     verdict = check(a, b, off)
     assert verdict is not None and not verdict.accepted and verdict.reason, verdict
-    monkeypatch.setattr("pgvd.verify.BASIN_M", 1e-3)  # any correction leaves the basin
+    # any correction leaves the basin
+    monkeypatch.setattr(importlib.import_module("pgvd.verify"), "BASIN_M", 1e-3)
     assert verify_check()(a, b, off) is None
 
 
 def test_a_chain_check_reads_each_map_once(intel_pair, monkeypatch) -> None:
     """A rejected prediction is verified, then measured where it put the maps: both on one
     reading of the maps, not one each."""
-    import pgvd.verify
-
+    module = importlib.import_module("pgvd.verify")  # pgvd.verify is the function
     a, b, truth = intel_pair
     read: list[int] = []
-    reading = pgvd.verify.registration_probability
+    reading = module.registration_probability
 
     def counted(grid: Grid, params: MergeParams) -> np.ndarray:
         read.append(id(grid))
         return reading(grid, params)
 
-    monkeypatch.setattr(pgvd.verify, "registration_probability", counted)
+    monkeypatch.setattr(module, "registration_probability", counted)
     off = rigid_matrix(np.radians(20.0), 60.0, 0.0) @ truth  # overlapping, disagreeing
     verdict = verify_check()(a, b, off)
     assert verdict is not None and not verdict.accepted

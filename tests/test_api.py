@@ -48,18 +48,27 @@ def test_import_loads_no_scientific_library():
 
 
 @pytest.mark.parametrize(
-    "first",
-    ["import pgvd.merge", "from pgvd.merge import MergeParams", "from pgvd import merge"],
+    ("name", "first"),
+    [
+        ("merge", "import pgvd.merge"),
+        ("merge", "from pgvd.merge import MergeParams"),
+        ("merge", "from pgvd import merge"),
+        # the README and docs name pgvd.verify; it once raised AttributeError after import pgvd
+        ("verify", "import pgvd"),
+        ("verify", "import pgvd.verify"),
+        ("verify", "from pgvd.verify import pooled_maps"),
+    ],
 )
-def test_merge_is_the_function_whatever_was_imported_first(first):
-    out = _run(f"{first}\nimport pgvd, inspect\nprint(inspect.isfunction(pgvd.merge))")
+def test_a_function_is_itself_whatever_was_imported_first(name, first):
+    out = _run(f"{first}\nimport pgvd, inspect\nprint(inspect.isfunction(pgvd.{name}))")
     assert out == "True"
 
 
-def test_the_merge_submodule_stays_reachable():
-    module = importlib.import_module("pgvd.merge")
+@pytest.mark.parametrize("name", ["merge", "verify"])
+def test_the_submodule_of_a_function_stays_reachable(name):
+    module = importlib.import_module(f"pgvd.{name}")
     assert inspect.ismodule(module)
-    assert module.merge is pgvd.merge
+    assert getattr(module, name) is getattr(pgvd, name)
 
 
 def _docstring_examples() -> list[doctest.DocTest]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import re
 
 import numpy as np
@@ -101,7 +102,7 @@ def test_basin_bounds_how_far_refinement_may_move(pair, monkeypatch):
     a, b, truth = pair
     guess = _perturbed(truth, b, 0.3, 2.0, 1.0)
     assert verify(a, b, guess, PARAMS).accepted
-    monkeypatch.setattr("pgvd.verify.BASIN_M", 0.05)
+    monkeypatch.setattr(importlib.import_module("pgvd.verify"), "BASIN_M", 0.05)
     res = verify(a, b, guess, PARAMS)
     assert not res.accepted and "basin" in res.reason
 
