@@ -4,9 +4,10 @@ What leaves is the component holding this agent's robot (:mod:`agent.globalmap`)
 frame (``--ros-frame``, ROS: ``world``) is the metric frame of the component's anchor map, in
 which the fused map's origin is expressed; each member robot's map frame ``<robot>/map`` is
 placed in it from the component's pixel matrices and the maps' origins
-(:func:`map_placements`). The map is published when it changes (latched, so nav2 and late
-RViz get it); TF and the view are sent again at the rate (``/tf`` is volatile, and a viewer
-that connects late sees the fleet on the next send).
+(:func:`map_placements`). The map and the placements are published when they change, both
+latched (nav2, a late RViz and tf2 listeners get them; the placements go on ``/tf_static``,
+:meth:`agent.ros2_io.RosMapPublisher.publish_tf`); the view is sent again at the rate (a
+viewer that connects late sees the fleet on the next send).
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ class OutputOptions:
     ros : the ROS 2 network's domain, distro and key form (inputs and outputs alike).
     publish : the merged map topic (``--ros-publish``, e.g. ``/map_merged``), or None.
     frame : the merged frame's id (``--ros-frame``).
-    rate : Hz of TF and view sends (``--ros-rate``; m-explore's ``merging_rate``).
+    rate : Hz at which a new global map is looked for and the view sent (``--ros-rate``;
+        m-explore's ``merging_rate``).
     foxglove : ``(host, port)`` of the Foxglove WebSocket server, or None.
     """
 
@@ -114,7 +116,7 @@ class Outputs:
             self._view = FoxgloveView(*opts.foxglove, frame=opts.frame)
 
     def tick(self, now: float, comp: Component | None, book: FleetBook) -> None:
-        """At the rate: publish ``comp``'s map if it changed, then TF and the view.
+        """At the rate: publish ``comp``'s map and placements if they changed, send the view.
 
         ``now`` is monotonic seconds; ``book`` holds the maps and links of now.
         """
@@ -133,10 +135,10 @@ class Outputs:
             # Until every member is placed (a map moved on since the rebuild), the previous
             # placements stand in: a robot missing from TF would vanish from RViz.
             self._placed = len(placements) == len(comp.members)
-            if self._placed or not self._placements:
+            if (self._placed or not self._placements) and placements != self._placements:
                 self._placements = placements
-        if self._ros is not None:
-            self.counters.add("ros_tf_bytes", self._ros.publish_tf(self._placements, stamp))
+                if self._ros is not None:
+                    self.counters.add("ros_tf_bytes", self._ros.publish_tf(placements, stamp))
         if self._view is not None:
             versions = book.versions()
             links = [link_json(rec, versions) for rec in book.links()]

@@ -40,8 +40,8 @@ from protocol.ros2.occupancy import (
 )
 from protocol.ros2.types import OCCUPANCY_GRID, TF_MESSAGE
 
-#: rmw_zenoh's QoS field for /tf: reliable, volatile, keep-last 100 (tf2's publisher profile).
-QOS_TF = "::,100:,:,:,,"
+#: Where the robots' placements go: latched, as tf2's StaticTransformBroadcaster sends.
+TF_STATIC = "/tf_static"
 
 #: ``on_drop(reason, detail)``: a sample was refused; reason is what was wrong with it:
 #: ``type_hash``, ``attachment`` or one of :data:`protocol.ros2.occupancy.REFUSALS`.
@@ -177,7 +177,8 @@ class RosMapSubscription:
 
 
 class RosMapPublisher:
-    """Publishes a map as ``nav_msgs/msg/OccupancyGrid`` (latched) and placements on ``/tf``.
+    """Publishes a map as ``nav_msgs/msg/OccupancyGrid`` and placements on ``/tf_static``,
+    both latched (transient local, depth 1).
 
     The node's own token is :func:`declare_node`'s; this declares its two publishers'.
 
@@ -200,12 +201,17 @@ class RosMapPublisher:
         key = data_key(
             topic, OCCUPANCY_GRID, domain=opts.domain, distro=opts.distro, form=opts.form
         )
-        tf_key = data_key("/tf", TF_MESSAGE, domain=opts.domain, distro=opts.distro, form=opts.form)
-        # Transient local, depth 1: a late subscriber's history query gets the last map.
-        self._map = zenoh.ext.declare_advanced_publisher(
-            session, key, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
+        tf_key = data_key(
+            TF_STATIC, TF_MESSAGE, domain=opts.domain, distro=opts.distro, form=opts.form
         )
-        self._tf = session.declare_publisher(tf_key)
+        # Transient local, depth 1: a late subscriber's history query gets the last map, and
+        # a late tf2 listener the last placements.
+        self._map, self._tf = (
+            zenoh.ext.declare_advanced_publisher(
+                session, k, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
+            )
+            for k in (key, tf_key)
+        )
         self._tokens = []
         if opts.form == "rmw_zenoh":
             node = opts.ros_node(session)
@@ -213,7 +219,7 @@ class RosMapPublisher:
                 session.liveliness().declare_token(t)
                 for t in (
                     node.entity_token("MP", 10, topic, OCCUPANCY_GRID, distro=opts.distro),
-                    node.entity_token("MP", 11, "/tf", TF_MESSAGE, distro=opts.distro, qos=QOS_TF),
+                    node.entity_token("MP", 11, TF_STATIC, TF_MESSAGE, distro=opts.distro),
                 )
             ]
 
@@ -236,10 +242,14 @@ class RosMapPublisher:
         return len(cdr)
 
     def publish_tf(self, placements: list[Placement], stamp_ns: int) -> int:
-        """Publish ``placements`` on ``/tf`` (nothing if empty); returns the bytes sent.
+        """Publish ``placements`` on ``/tf_static`` (nothing if empty); returns the bytes sent.
 
-        ``/tf`` is volatile: tf2 listeners forget a transform that is not sent again, so
-        the caller repeats it at its rate even when nothing moved.
+        A placement moves only when the global map is rebuilt, so it is a static transform
+        to tf2, sent again whole when it changes: a static transform holds at every time,
+        where one on ``/tf`` sent at 1 Hz with the wall clock's stamp made tf2 refuse
+        lookups at a sensor's newer stamp (it does not extrapolate) and every lookup under
+        ``use_sim_time``. One message holds all the placements, as tf2's
+        StaticTransformBroadcaster sends them, because the topic keeps only the last.
         """
         if not placements:
             return 0

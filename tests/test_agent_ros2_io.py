@@ -19,6 +19,8 @@ from agent.ros2_io import RosMapPublisher, RosMapSubscription, RosOptions, decla
 from pgvd.io import read_map
 from protocol.ros2.occupancy import Placement
 
+TF = "tf2_msgs/msg/TFMessage"
+
 
 def _port() -> int:
     with socket.socket() as sock:
@@ -179,18 +181,20 @@ def test_merged_map_and_tf_reach_a_ros_subscriber_late_too(sessions) -> None:
         att = sample.attachment.to_bytes() if sample.attachment is not None else None
         got.append((str(sample.key_expr), sample.payload.to_bytes(), att))
 
-    tf_sub = robot.declare_subscriber(ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage"), on_sample)
     try:
         time.sleep(0.3)
         size = out.publish(grid, [Placement("world", "r2/map", 3.0, -1.5, 0.5)], 7 * 10**9)
-        _wait(lambda: got)
-        # A subscriber that arrives after the publication still gets the map, as ROS 2's
-        # transient-local subscribers do: an advanced subscriber's history query.
-        late = ros2_peer.latched_subscriber(robot, ros2_peer.key("/map_merged"), on_sample)
+        # Subscribers that arrive after the publication still get the map and the static
+        # transforms, as ROS 2's transient-local subscribers (and tf2's /tf_static listener)
+        # do: an advanced subscriber's history query.
+        late = [
+            ros2_peer.latched_subscriber(robot, ros2_peer.key(topic, msgtype), on_sample)
+            for topic, msgtype in (("/map_merged", ros2_peer.GRID), ("/tf_static", TF))
+        ]
         _wait(lambda: len(got) >= 2)
-        late.undeclare()
+        for sub in late:
+            sub.undeclare()
     finally:
-        tf_sub.undeclare()
         out.close()
     by_key = {k: (p, a) for k, p, a in got}
     payload, att = by_key[ros2_peer.key("/map_merged")]
@@ -200,8 +204,8 @@ def test_merged_map_and_tf_reach_a_ros_subscriber_late_too(sessions) -> None:
     assert msg.header.frame_id == "world"
     seq, stamp, gid_len = struct.unpack_from("<qqB", att)
     assert (seq, stamp, gid_len, len(att)) == (1, 7 * 10**9, 16, 33)
-    payload, att = by_key[ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage")]
-    tf = ros2_peer.TS.deserialize_cdr(payload, "tf2_msgs/msg/TFMessage")
+    payload, att = by_key[ros2_peer.key("/tf_static", TF)]
+    tf = ros2_peer.TS.deserialize_cdr(payload, TF)
     assert tf.transforms[0].child_frame_id == "r2/map" and len(att) == 33
     # each publisher has a GID of its own, as in rmw_zenoh
     assert by_key[ros2_peer.key("/map_merged")][1][17:] != att[17:]
@@ -213,7 +217,7 @@ def test_a_restarted_publisher_numbers_from_1_under_a_new_gid(sessions) -> None:
     robot, agent = sessions
     got: list[bytes] = []
     sub = robot.declare_subscriber(
-        ros2_peer.key("/tf", "tf2_msgs/msg/TFMessage"),
+        ros2_peer.key("/tf_static", TF),
         lambda sample: got.append(sample.attachment.to_bytes()),
     )
     try:

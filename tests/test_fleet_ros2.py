@@ -4,7 +4,7 @@ The ROS side is tests/ros2_peer.py, written from rmw_zenoh's documentation (no p
 on the wire). It publishes two segments of the Intel log, each mapped in a random frame of
 its own (agent/scenario.py), as latched ``nav_msgs/msg/OccupancyGrid`` on ``/r1/map`` and
 ``/r2/map`` before any agent runs; agents r1 and r2 follow those topics (``--source ros2:``)
-and r1 publishes the merged map on ``/map_merged`` with ``/tf``. Then every kind of bad ROS
+and r1 publishes the merged map on ``/map_merged`` with ``/tf_static``. Then every kind of bad ROS
 message is sent to r2's topic. A second fleet replays a rosbag2 written from the Intel log
 beside a CARMEN-source peer.
 A DDS robot's map reaches an agent through zenoh-bridge-ros2dds's key form (``--ros-keys
@@ -109,8 +109,9 @@ def _grow(fleet: LocalFleet, publisher, tf: _Collector, merged: _Collector, fram
     """r2's SLAM map grows, as slam_toolbox's does: same map frame, a new origin and size.
 
     Its segment of the log is extended backwards, so the grid grows on its low side and its
-    origin moves. Returns the grown map's truth, the ``/tf`` and ``/map_merged`` that r1 sends
-    once its global map holds the grown version, and that map's component in r1's status.
+    origin moves. Returns the grown map's truth, the ``/tf_static`` and ``/map_merged`` that r1
+    sends once its global map holds the grown version, and that map's component in r1's
+    status.
     """
     start, end = segments(2)[1]
     grown = ros2_truth.ros_map((start - 0.15, end), frame)
@@ -123,7 +124,7 @@ def _grow(fleet: LocalFleet, publisher, tf: _Collector, merged: _Collector, fram
         return comp if comp.get("versions", {}).get("r2", held) > held else {}
 
     wait_for(rebuilt, 60)
-    time.sleep(1.0)  # a TF send at 4 Hz after the global map it places
+    time.sleep(1.0)  # the next tick at 4 Hz sends the placements of a new global map
     return {"map": grown, "component": rebuilt(), "tf": tf.last(), "merged_map": merged.last()}
 
 
@@ -145,7 +146,7 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
         # Published before any agent runs: only the publishers' caches hold the maps.
         for r, pub in zip(ROBOTS, publishers, strict=True):
             pub.put(maps[r]["cdr"])
-        subs.append(robot.declare_subscriber(ros2_peer.key("/tf", TF), tf))
+        subs.append(ros2_peer.latched_subscriber(robot, ros2_peer.key("/tf_static", TF), tf))
         subs.append(ros2_peer.latched_subscriber(robot, ros2_peer.key("/map_merged"), merged))
         with LocalFleet("ros", work, ["--connect", endpoint, "--link-timeout", "3"]) as fleet:
             fleet.add("r1", "ros2:/r1/map", ["--ros-publish", "/map_merged", "--ros-rate", "4"])
@@ -155,7 +156,7 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
             )
             out["statuses"] = fleet.statuses()
             digest = out["statuses"]["r1"]["global"]["digest"]
-            time.sleep(1.0)  # a TF send at 4 Hz after the global map it places
+            time.sleep(1.0)  # the next tick at 4 Hz sends the placements of a new global map
             out["tf"], out["merged_map"] = tf.last(), merged.last()
             out["global"] = read_map(fleet.agents["r1"].out_dir / "global.yaml")
             # A subscriber that comes after the publication still gets the map (transient local).

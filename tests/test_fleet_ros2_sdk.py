@@ -5,7 +5,7 @@ written by others, so what both agree on is not one reading of the design twice.
 publishers put two Intel segments as ``nav_msgs/msg/OccupancyGrid`` on ``/r1/map`` and
 ``/r2/map`` with its own data key (the type hash computed by the SDK from ``.msg`` texts), its
 33-byte attachment and its liveliness tokens; agents r1 and r2 follow those topics
-(``--source ros2:``) and r1 publishes ``/map_merged`` and ``/tf``, which the SDK's
+(``--source ros2:``) and r1 publishes ``/map_merged`` and ``/tf_static``, which the SDK's
 subscribers decode with its own typestore. The SDK's discovery (its ``ros2 topic info -v``)
 reads the agents' liveliness tokens, and its transient-local subscriber finds r1's
 publisher by its token and fetches the map from that publisher's cache.
@@ -201,7 +201,7 @@ def sdk_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
             nodes += pubs.values()
             out["keys"] = {r: p.keyexpr for r, p in pubs.items()}
             nodes.append(sdk.ROS2Subscriber("/map_merged", GRID, merged, router_port=port))
-            nodes.append(sdk.ROS2Subscriber("/tf", TF, tf, router_port=port))
+            nodes.append(sdk.ROS2Subscriber("/tf_static", TF, tf, router_port=port, qos=LATCHED))
             common = ["--connect", f"tcp/127.0.0.1:{port}", "--link-timeout", "3"]
             with LocalFleet("sdk", work, common) as fleet:
                 fleet.add("r1", "ros2:/r1/map", ["--ros-publish", "/map_merged", "--ros-rate", "4"])
@@ -211,14 +211,14 @@ def sdk_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
                     lambda: ros2_truth.one_global_map(fleet.statuses(), ROBOTS), 120
                 )
                 out["statuses"] = fleet.statuses()
-                time.sleep(1.0)  # a TF send at 4 Hz after the global map it places
+                time.sleep(1.0)  # the next tick at 4 Hz sends the placements of a new global map
                 out["tf"], out["merged_map"] = tf.last(), merged.last()
                 out["global"] = read_map(fleet.agents["r1"].out_dir / "global.yaml")
                 out["stored"] = {
                     r: StateDir(a.state_dir).load_maps()[0][r].grid for r, a in fleet.agents.items()
                 }
                 # publishers and subscriptions of each topic, as ROS 2 nodes are now
-                graph = {"/map_merged": (1, 1), "/tf": (1, 1), "/r1/map": (1, 1)}
+                graph = {"/map_merged": (1, 1), "/tf_static": (1, 1), "/r1/map": (1, 1)}
                 out["info"] = {t: _topic_info(t, *n) for t, n in graph.items()}
                 out["late"], out["late_tries"] = _late_subscriber(port)
                 out["drops"] = {r: a.status()["drops"] for r, a in fleet.agents.items()}
@@ -291,8 +291,12 @@ def test_the_sdk_discovery_reads_the_agents_liveliness_tokens(sdk_fleet: dict) -
     qos = QosProfile.decode(agent.qos)
     assert (qos.durability, qos.history_depth) == (QosDurability.TRANSIENT_LOCAL, 1)
     assert merged.subscriber_count == 1  # the SDK's own volatile one
-    assert info["/tf"].topic_types == [TF]
-    assert [p.node_name for p in info["/tf"].publishers] == ["pgvd_agent"]
+    assert info["/tf_static"].topic_types == [TF]
+    [static] = info["/tf_static"].publishers
+    assert static.node_name == "pgvd_agent"
+    # tf2's StaticTransformBroadcaster profile: a late listener gets the placements
+    qos = QosProfile.decode(static.qos)
+    assert (qos.durability, qos.history_depth) == (QosDurability.TRANSIENT_LOCAL, 1)
     follow = info["/r1/map"]  # the SDK's publisher and agent r1's subscription
     assert (follow.publisher_count, follow.subscriber_count) == (1, 1)
     assert [s.node_name for s in follow.subscribers] == ["pgvd_agent"]

@@ -153,11 +153,14 @@ def configure(p: argparse.ArgumentParser) -> None:
         "--ros-publish",
         metavar="TOPIC",
         help="publish the global map as a latched nav_msgs/OccupancyGrid here "
-        "(e.g. /map_merged), with /tf from --ros-frame to each <robot>/map",
+        "(e.g. /map_merged), with /tf_static from --ros-frame to each <robot>/map",
     )
     ros.add_argument("--ros-frame", default="world", help="the merged map's frame (default world)")
     ros.add_argument(
-        "--ros-rate", type=float, default=1.0, help="Hz of /tf and Foxglove sends (default 1)"
+        "--ros-rate",
+        type=float,
+        default=1.0,
+        help="Hz at which a new global map is looked for and Foxglove sent (default 1)",
     )
     p.add_argument(
         "--foxglove", metavar="HOST:PORT", help="serve a live view to Foxglove or Lichtblick"
