@@ -57,7 +57,7 @@ class RosOptions:
     domain : ROS_DOMAIN_ID.
     distro : ``humble``, ``jazzy`` or ``kilted`` (the type-hash field of keys and tokens).
     form : ``rmw_zenoh`` (keys, attachment, tokens) or ``bridge`` (zenoh-bridge-ros2dds).
-    node : node name the agent's tokens carry.
+    node : node name the agent's tokens carry (:func:`agent_node_name` of its robot).
     namespace : the node's namespace, ``/`` or e.g. ``/robot1``.
     """
 
@@ -69,6 +69,17 @@ class RosOptions:
 
     def ros_node(self, session: zenoh.Session) -> RosNode:
         return RosNode(str(session.zid()), self.node, self.namespace, 0, self.domain)
+
+
+def agent_node_name(robot: str) -> str:
+    """The ROS 2 node name of ``robot``'s agent, ``pgvd_agent_<robot>``.
+
+    One name per robot: agents sharing a ROS graph (robots' routers linked, a site router)
+    would otherwise be one node name many times over, which ``ros2 node list`` flags and
+    tools that address a node by name cannot tell apart. A robot id may hold ``-``, which a
+    ROS name may not: it becomes ``_``.
+    """
+    return "pgvd_agent_" + robot.replace("-", "_")
 
 
 def declare_node(session: zenoh.Session, opts: RosOptions) -> zenoh.LivelinessToken | None:

@@ -4,18 +4,29 @@ counted by reason, and the merged map and TF published by the agent decode with 
 
 from __future__ import annotations
 
+import re
 import socket
+import string
 import struct
 import time
 from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
 
 pytest.importorskip("rosbags")
 import ros2_peer
 
-from agent.ros2_io import RosMapPublisher, RosMapSubscription, RosOptions, declare_node
+from agent.keys import is_name
+from agent.ros2_io import (
+    RosMapPublisher,
+    RosMapSubscription,
+    RosOptions,
+    agent_node_name,
+    declare_node,
+)
 from pgvd.io import read_map
 from protocol.ros2.occupancy import Placement
 
@@ -254,3 +265,12 @@ def test_the_node_token_goes_after_its_publishers_tokens(sessions) -> None:
     gone = [entity for kind, entity in events if "DELETE" in kind]
     assert gone == ["MP", "MP", "NN"], events
     assert declare_node(agent, RosOptions(form="bridge")) is None
+
+
+@given(st.text(alphabet=string.ascii_letters + string.digits + "_-", min_size=1, max_size=64))
+def test_each_robots_agent_is_a_ros_node_of_its_own_name(robot: str) -> None:
+    assume(is_name(robot))
+    name = agent_node_name(robot)
+    # a ROS 2 node name: letters, digits and underscores, not starting with a digit
+    assert re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name), name
+    assert agent_node_name(robot + "x") != name

@@ -286,17 +286,18 @@ def test_the_sdk_discovery_reads_the_agents_liveliness_tokens(sdk_fleet: dict) -
     merged = info["/map_merged"]
     assert merged.topic_types == [GRID]
     [agent] = merged.publishers
-    assert (agent.node_name, agent.node_namespace) == ("pgvd_agent", "/")
+    # one node name per agent: r1's publishes the merged map
+    assert (agent.node_name, agent.node_namespace) == ("pgvd_agent_r1", "/")
     assert agent.type_hash == ros2_peer.TS.hash_rihs01(GRID)
     qos = QosProfile.decode(agent.qos)
     assert (qos.durability, qos.history_depth) == (QosDurability.TRANSIENT_LOCAL, 1)
     assert merged.subscriber_count == 1  # the SDK's own volatile one
     assert info["/tf_static"].topic_types == [TF]
     [static] = info["/tf_static"].publishers
-    assert static.node_name == "pgvd_agent"
+    assert static.node_name == "pgvd_agent_r1"
     # tf2's StaticTransformBroadcaster profile: a late listener gets the placements
     qos = QosProfile.decode(static.qos)
     assert (qos.durability, qos.history_depth) == (QosDurability.TRANSIENT_LOCAL, 1)
     follow = info["/r1/map"]  # the SDK's publisher and agent r1's subscription
     assert (follow.publisher_count, follow.subscriber_count) == (1, 1)
-    assert [s.node_name for s in follow.subscribers] == ["pgvd_agent"]
+    assert [s.node_name for s in follow.subscribers] == ["pgvd_agent_r1"]

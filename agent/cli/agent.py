@@ -24,7 +24,7 @@ from agent.inbox import MAX_BYTES
 from agent.keys import check_name
 from agent.outputs import OutputOptions
 from agent.priors import parse_known_poses
-from agent.ros2_io import RosOptions
+from agent.ros2_io import RosOptions, agent_node_name
 from agent.sources import parse_frame, parse_source
 from agent.view import parse_endpoint
 from agent.zenoh_config import (
@@ -269,7 +269,10 @@ def _require_extras(source_kind: str, outputs: OutputOptions) -> None:
 def _output_options(args: argparse.Namespace) -> OutputOptions:
     """The ROS 2 and Foxglove options (``ValueError`` with one line if bad)."""
     ros = RosOptions(
-        domain=check_domain(args.ros_domain), distro=args.ros_distro, form=args.ros_keys
+        domain=check_domain(args.ros_domain),
+        distro=args.ros_distro,
+        form=args.ros_keys,
+        node=agent_node_name(args.robot),
     )
     if args.ros_publish is not None:
         check_topic(args.ros_publish)
