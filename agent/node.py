@@ -169,6 +169,12 @@ class FleetNode:
             # Own maps are persisted as the source holds them (to resume integrating).
             grid = wire.on_the_wire(stored.grid) if robot == self.me else stored.grid
             self.book.put_map(robot, stored.version, grid)
+            if robot != self.me and not self.alive.get(robot):
+                # Gone until its liveliness token says otherwise (the membership history
+                # reports every robot present): a robot that left while this agent was down
+                # is forgotten on the same bound as everywhere else, not kept for good in
+                # this agent's global map alone.
+                self._left.setdefault(robot, now.mono)
         for rec in links:
             self.book.add_link(rec)
         own = self.book.map_of(self.me)

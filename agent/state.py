@@ -29,7 +29,7 @@ import numpy as np
 from agent.failpoints import failpoint
 from agent.keys import check_name
 from agent.links import LinkRecord, dumps, loads
-from pgvd.grid import Grid
+from pgvd.grid import Grid, check_cell_size
 from pgvd.io import atomic_write
 
 
@@ -142,11 +142,26 @@ def remove_temporaries(*patterns: Path) -> list[str]:
 
 
 def _read_map(path: Path) -> StoredMap:
-    with np.load(path, allow_pickle=False) as z:
-        logodds = np.asarray(z["logodds"], dtype=np.float32)
-        origin = tuple(float(v) for v in z["origin"])
-        if len(origin) != 3 or not np.isfinite(logodds).all():
+    """One persisted map; ``ValueError`` for any array of the wrong shape or value (a file
+    written by something else, or damaged on disk), so that loading skips it."""
+    # the file opened here, not by np.load: np.load leaves it open when it is no zip
+    with path.open("rb") as f, np.load(f, allow_pickle=False) as z:
+        with np.errstate(over="ignore"):  # a value past float32 fails the finite check below
+            logodds = np.asarray(z["logodds"], dtype=np.float32)
+        origin = np.asarray(z["origin"], dtype=np.float64)
+        resolution, version = np.asarray(z["resolution"]), np.asarray(z["version"])
+        if (
+            logodds.ndim != 2
+            or origin.shape != (3,)
+            or resolution.shape != ()
+            or version.shape != ()
+            or version.dtype.kind not in "iu"
+            or not (np.isfinite(logodds).all() and np.isfinite(origin).all())
+        ):
             raise ValueError("corrupt map arrays")
         extra = json.loads(bytes(z["extra"]).decode() or "{}")
-        grid = Grid(logodds, float(z["resolution"]), origin)  # type: ignore[arg-type]
-        return StoredMap(int(z["version"]), grid, extra)
+        if not isinstance(extra, dict):
+            raise ValueError("corrupt resume state: not a JSON object")
+        check_cell_size(float(resolution))
+        grid = Grid(logodds, float(resolution), tuple(origin.tolist()))  # type: ignore[arg-type]
+        return StoredMap(int(version), grid, extra)

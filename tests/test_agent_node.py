@@ -333,6 +333,19 @@ def test_a_robot_gone_for_forget_after_is_forgotten_and_one_back_in_time_is_not(
     assert Fetch("pgvd/lab/latest/r2/**") in r1.on_alive("r2", True, at(201.0))
 
 
+def test_a_restored_robot_that_never_shows_up_is_forgotten_like_any_gone_one(crops) -> None:
+    # A robot that left while this agent was down: every other agent forgot it, and this one
+    # once kept it in its global map for good.
+    r1 = FleetNode(NodeOptions("r1", "lab", KEY, forget_after=60.0), at(0.0))
+    stored = {"r2": StoredMap(3 << 31, crops[0]), "r3": StoredMap(5 << 31, crops[1])}
+    r1.restore(stored, [], at(10.0))
+    r1.on_alive("r3", True, at(10.5))  # the membership history: r3 is there, r2 is not
+    assert not any(isinstance(a, ForgetMap) for a in r1.tick(at(69.9)))
+    actions = r1.tick(at(70.0))
+    assert ForgetMap("r2") in actions and ForgetMap("r3") not in actions
+    assert r1.book.version("r2") is None and r1.book.version("r3") == 5 << 31
+
+
 # ------------------------------------------------------------------- own-map publication
 
 

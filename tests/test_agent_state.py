@@ -87,6 +87,34 @@ def test_corrupt_files_are_skipped_with_one_line_each(tmp_path: Path) -> None:
     assert links == [] and "links.json" in errors[0]
 
 
+def test_well_formed_archives_of_the_wrong_arrays_are_skipped_too(tmp_path: Path) -> None:
+    # A 0-d origin once raised TypeError out of load_maps: the agent could not start.
+    sd = StateDir(tmp_path)
+    good = {
+        "logodds": np.zeros((4, 4), np.float32),
+        "resolution": np.float64(0.1),
+        "origin": np.zeros(3),
+        "version": np.int64(1 << 31),
+        "extra": np.frombuffer(b"{}", np.uint8),
+    }
+    bad = {
+        "r1": {"origin": np.float64(0.0)},
+        "r2": {"logodds": np.zeros(4, np.float32)},
+        "r3": {"version": np.float64(np.nan)},
+        "r4": {"extra": np.frombuffer(b"[1]", np.uint8)},
+        "r5": {"logodds": np.full((4, 4), 1e300)},
+        "r6": {"resolution": np.float64(1e9)},
+        "r7": {"origin": np.array([0.0, np.inf, 0.0])},
+        "r8": {"resolution": np.zeros(2)},
+    }
+    for robot, change in bad.items():
+        np.savez(sd.maps_dir / f"{robot}.npz", **{**good, **change})
+    np.savez(sd.maps_dir / "r9.npz", **good)
+    maps, errors = sd.load_maps()
+    assert sorted(maps) == ["r9"] and len(errors) == len(bad)
+    assert all("\n" not in e for e in errors)
+
+
 def test_leftover_temporaries_are_removed_at_start_and_never_loaded(tmp_path: Path) -> None:
     sd = StateDir(tmp_path)
     sd.save_map("r1", StoredMap(1, grid(1)))
