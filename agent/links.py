@@ -123,8 +123,19 @@ class LinkRecord:
             raise ValueError(f"malformed link record: {exc}") from None
 
 
-def _preference(rec: LinkRecord) -> tuple[str, int, int]:
-    return (rec.decided_by, rec.version_a, rec.version_b)
+def _bits(values: object) -> bytes:
+    """Float64 bytes with -0.0 read as 0.0 (the wire drops the sign of a zero)."""
+    return (np.asarray(values, dtype=np.float64) + 0.0).tobytes()
+
+
+def _preference(rec: LinkRecord) -> tuple[str, int, int, bool, bytes, bytes, bytes]:
+    """The order in which the candidates of one key are preferred: who decided, on which
+    versions, then the decision itself. The order is total, so that agents holding the same
+    candidates use the same one whatever order they came in: one robot can decide a pair
+    twice on the same versions (after a crash lost its links file, or after it was forgotten
+    and came back) and reach another matrix the second time."""
+    content = (not rec.accepted, _bits(rec.matrix), _bits(rec.covariance), _bits(rec.score))
+    return (rec.decided_by, rec.version_a, rec.version_b, *content)
 
 
 class LinkCache:

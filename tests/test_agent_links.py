@@ -231,3 +231,30 @@ def test_open_keys_always_leave_something_to_do(n: int, data: st.DataObject) -> 
     assert opened and predicted <= set(opened) and set(opened) <= set(keys)
     waves = {ring_distance(k[0], k[2], ring) for k in opened if k not in predicted}
     assert len(waves) <= 1
+
+
+@given(st.permutations(range(4)))
+def test_one_robots_two_decisions_on_the_same_versions_are_chosen_alike_everywhere(order):
+    # A robot that decided a pair, crashed before its links file was written and decided it
+    # again on the same versions holds the second decision first; its peers hold the first.
+    # Both come to hold both, in whatever order: each must then use the same one.
+    v = 5 << EPOCH_SHIFT
+    cov = np.diag([0.5, 0.5, 1e-5])
+
+    def decided(matrix, accepted=True, score=0.9):
+        return LinkRecord("r1", v, "r2", v, accepted, matrix, cov, score, "r1")
+
+    candidates = [
+        decided(rigid_matrix(0.0, 10.0, 0.0)),
+        decided(rigid_matrix(0.02, 13.0, 1.0), score=0.8),
+        decided(rigid_matrix(0.0, 10.0, 0.0), accepted=False, score=0.0),
+        decided(rigid_matrix(-0.0, 10.0, -0.0)),  # the first as the wire gives it back
+    ]
+    cache = LinkCache()
+    for i in order:
+        cache.add(candidates[i])
+    used = cache.get(candidates[0].key)
+    reference = LinkCache(candidates)
+    assert used is not None and used.to_json() == reference.get(candidates[0].key).to_json()
+    # the two copies of one decision that differ only in the sign of a zero are one
+    assert len(cache.candidates()) == 3
