@@ -128,7 +128,7 @@ def _bits(values: object) -> bytes:
     return (np.asarray(values, dtype=np.float64) + 0.0).tobytes()
 
 
-def _preference(rec: LinkRecord) -> tuple[str, int, int, bool, bytes, bytes, bytes]:
+def preference(rec: LinkRecord) -> tuple[str, int, int, bool, bytes, bytes, bytes]:
     """The order in which the candidates of one key are preferred: who decided, on which
     versions, then the decision itself. The order is total, so that agents holding the same
     candidates use the same one whatever order they came in: one robot can decide a pair
@@ -149,15 +149,15 @@ class LinkCache:
     def add(self, rec: LinkRecord) -> bool:
         """Store ``rec``; True if it is the link now used for its key (it changed)."""
         held = self._by_key.setdefault(rec.key, [])
-        if any(_preference(r) == _preference(rec) for r in held):
+        if any(preference(r) == preference(rec) for r in held):
             return False
         held.append(rec)
-        return min(held, key=_preference) is rec
+        return min(held, key=preference) is rec
 
     def get(self, key: LinkKey) -> LinkRecord | None:
         """The link used for ``key``: the same on every agent that saw the same candidates."""
         held = self._by_key.get(key)
-        return min(held, key=_preference) if held else None
+        return min(held, key=preference) if held else None
 
     def __len__(self) -> int:
         return len(self._by_key)
@@ -168,7 +168,7 @@ class LinkCache:
 
     def candidates(self) -> list[LinkRecord]:
         """Every link held, for persistence and for peers' queries."""
-        return [r for k in sorted(self._by_key) for r in sorted(self._by_key[k], key=_preference)]
+        return [r for k in sorted(self._by_key) for r in sorted(self._by_key[k], key=preference)]
 
     def forget(self, robot: str) -> None:
         """Drop every link of ``robot``."""

@@ -38,7 +38,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -47,7 +47,7 @@ import numpy as np
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, Soundness, build_components, usable_links
-from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys
+from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys, preference
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
 from pgvd.grid import Grid
@@ -200,7 +200,21 @@ def _rejected_before(links: list[LinkRecord], a: str, b: str) -> bool:
 
 def _identity(ln: LinkRecord) -> tuple[object, ...]:
     """What tells one link candidate from another (:meth:`agent.links.LinkCache.get`)."""
-    return (ln.key, ln.decided_by, ln.version_a, ln.version_b)
+    return (ln.key, *preference(ln))
+
+
+def _current_chain(snap: Snapshot, group: Collection[str]) -> bool:
+    """Whether every accepted link within ``group`` is of its robots' current epochs.
+
+    A link of an older epoch stands in while the current one is computed
+    (:func:`agent.links.select_links`), but its matrix maps the pixels of the maps of its
+    epochs: a robot whose SLAM grew its canvas starts an epoch whose pixels are not those,
+    and a prediction through such a link can be metres off.
+    """
+    versions = {r: v for r, (v, _) in snap.maps.items()}
+    return all(
+        ln.current(versions) for ln in snap.links if ln.accepted and ln.a in group and ln.b in group
+    )
 
 
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
@@ -594,19 +608,23 @@ class FusionWorker:
             return None
         self.counters.add("checks")
         res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
+        group = next((g for g in self._chains_of(snap).groups if a in g and b in g), ())
         if (
             res is not None
             and not res.accepted
-            and not _rejected_before(snap.links, a, b)
-            and not any(a in g and b in g for g in solved[1])
+            and not (
+                (_rejected_before(snap.links, a, b) or any(a in g and b in g for g in solved[1]))
+                and _current_chain(snap, group)
+            )
         ):
             # A first rejection needs a search unless the chain from a to b runs only
             # over links on triangles: were it wrong (a false link on a bridge, or on a
             # long cycle alone, where its error spreads thin), skipping the search would
             # lose the true link that closes a short cycle around the false one and lets
-            # the pose graph reject it.  A recent solution may lack links that arrived
-            # meanwhile and put the pair on triangles: those are worth a second check
-            # (~0.1 s with the solve) before a search (seconds).
+            # the pose graph reject it.  Nor may it stand on a chain through an older
+            # epoch's link (:func:`_current_chain`).  A recent solution may lack links that
+            # arrived meanwhile and put the pair on triangles: those are worth a second
+            # check (~0.1 s with the solve) before a search (seconds).
             if not fresh and self._solution[0] is not self._chains_of(snap):
                 return self._checked(snap, a, b, fresh=True)
             return _Unproven()

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.linalg import inv
 
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
@@ -348,6 +349,40 @@ def test_a_chain_check_reads_each_map_once(intel_pair, monkeypatch) -> None:
     verdict = verify_check()(a, b, off)
     assert verdict is not None and not verdict.accepted
     assert sorted(read) == sorted([id(a), id(b)])
+
+
+def test_a_canvas_that_moved_lets_no_older_epochs_chain_reject_a_true_link(intel_pair) -> None:
+    """r2's SLAM grew its map 10 m to the left and up (a new origin, new pixels): a new
+    epoch. The links of the old epoch, which stand in meanwhile, map the old pixels, so
+    the chain's prediction for r1-r2 is 10 m off and its check rejects the true overlap.
+    That rejection once stood (the chain ran over a triangle) and the pair was published
+    as disjoint with no search."""
+    a, b, truth = intel_pair
+    pad = 200
+    lo = np.zeros((b.shape[0] + pad, b.shape[1] + pad), np.float32)
+    lo[pad:, pad:] = b.logodds
+    grown = Grid(lo, b.resolution, (b.origin[0] - pad * b.resolution, *b.origin[1:]))
+    to_old = np.array([[1.0, 0.0, -pad], [0.0, 1.0, -pad], [0.0, 0.0, 1.0]])  # new px -> old
+    cov = np.diag([0.5, 0.5, 1e-5])
+    searches = []
+
+    def search(x: Grid, y: Grid) -> Registration:
+        searches.append((x, y))
+        return Registration(True, truth @ to_old, cov, 0.9)
+
+    book, decided = FleetBook(), []
+    worker = FusionWorker(
+        "r1", book, search, decided.append, lambda state: None, 4.0, shifted_fuse,
+        check=verify_check(),
+    )  # fmt: skip
+    for robot, grid in (("r1", a), ("r2", b), ("r3", a)):
+        book.put_map(robot, V(1), grid)
+    for x, y, m in (("r1", "r2", truth), ("r1", "r3", np.eye(3)), ("r2", "r3", inv(truth))):
+        book.add_link(LinkRecord(x, V(1), y, V(1), True, m, cov, 0.9, "r1"))
+    book.put_map("r2", V(2), grown)
+    assert worker.step(now=0.0)
+    (link,) = [ln for ln in decided if ln.pair == ("r1", "r2")]
+    assert link.version_b == V(2) and link.accepted and searches == [(a, grown)]
 
 
 def test_a_merge_registration_carries_the_merges_reason(intel_pair) -> None:
