@@ -181,6 +181,11 @@ class FleetNode:
         if own is not None:
             self.outbound.prepare(own[0], own[1], previous=None)
             self.gate.reset(own[1], now.mono)
+            # The epoch goes on from the last version held: with no base, the first version
+            # after every restart began an epoch, and all of this robot's links were
+            # registered again. The base is the map the epoch began with, not saved; the
+            # last version stands for it, so the next epoch begins a little later.
+            self._epoch_base = own[1]
 
     # ------------------------------------------------------------------ inputs
 

@@ -408,8 +408,14 @@ def test_after_a_restart_the_own_map_is_served_and_versions_move_on(crops) -> No
     assert any(isinstance(a, Publish) and a.key.endswith("manifest/r1") for a in r1.tick(at(0.0)))
     # The change gate starts from the persisted map: the same map is no new version.
     assert r1.on_source(crops[0], at(5.0), final=True) == []
-    new = _version(publish(r1, crops[1], 6.0))
-    assert epoch_of(new) == epoch_of(old) + 1  # a new epoch (the first of this run), and newer
+    # A small change goes on in the persisted epoch: a restart alone does not make every
+    # link of this robot be registered again.
+    lo = crops[0].logodds.copy()
+    lo[:3, :3] = np.where(lo[:3, :3] > 0, -2.0, 2.0)
+    minor = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 6.0))
+    assert minor == old + 1
+    new = _version(publish(r1, crops[1], 8.0))  # another part of the building
+    assert epoch_of(new) == epoch_of(old) + 1  # a new epoch, and newer
 
 
 def test_the_manifest_is_re_announced_every_period(crops) -> None:
