@@ -139,7 +139,7 @@ class Agent:
             opts.robot,
             self.node.book,
             register or merge_registration(opts.min_agreement),
-            lambda rec: self._call(self.node.on_link, rec),  # from the worker's thread
+            lambda rec: self._call(self.node.on_link, rec, _now()),  # from the worker's thread
             lambda state: self._call(self.node.on_global, state, _now()),
             opts.link_timeout,
             fuse,

@@ -199,7 +199,7 @@ class FleetNode:
         if msg.fleet != self.opts.fleet:
             return [Drop("foreign_fleet", sender, f"fleet {msg.fleet!r}")]
         if isinstance(msg, wire.Link):
-            return self._admit_link(msg, sender)
+            return self._admit_link(msg, sender, now)
         if not isinstance(msg, wire.MAP_MESSAGES):
             return [Drop("unexpected_kind", sender, type(msg).__name__)]
         if sender != msg.robot:
@@ -266,8 +266,9 @@ class FleetNode:
         log.info("published own map v%d (%d tile messages)", version, len(tiles))
         return actions
 
-    def on_link(self, rec: LinkRecord) -> list[Action]:
+    def on_link(self, rec: LinkRecord, now: Instant) -> list[Action]:
         """The fusion worker decided ``rec`` (and cached it): publish it."""
+        self._absent_until_seen(rec, now)  # a robot forgotten while it was registered
         self._links_dirty = True
         self.counters.add("links_published")
         data = wire.encode_link(self.opts.fleet, rec, self.opts.key)
@@ -391,13 +392,26 @@ class FleetNode:
         self.counters.add("robots_forgotten")
         return [ForgetMap(robot), Register()]
 
-    def _admit_link(self, msg: wire.Link, sender: str) -> list[Action]:
+    def _absent_until_seen(self, rec: LinkRecord, now: Instant) -> None:
+        """A robot a link names that is not present counts as gone from now on.
+
+        Links of robots a peer still held when this agent joined, or of one forgotten while
+        the worker registered it, were kept for good, persisted and served to the next
+        joiner: links circulated of robots nobody had. They are forgotten on the bound of
+        any robot that left, unless its liveliness token appears meanwhile.
+        """
+        for robot in (rec.a, rec.b):
+            if robot != self.me and not self.alive.get(robot):
+                self._left.setdefault(robot, now.mono)
+
+    def _admit_link(self, msg: wire.Link, sender: str, now: Instant) -> list[Action]:
         try:
             rec = wire.link_record(msg)
         except ValueError as exc:
             return [Drop("bad_link", sender, str(exc))]
         if not self.book.add_link(rec):
             return []
+        self._absent_until_seen(rec, now)
         self.counters.add("links_received")
         self._links_dirty = True
         return [Register()]

@@ -477,11 +477,32 @@ def test_a_link_received_is_cached_once_and_persisted_at_the_next_status() -> No
     assert r1.flush() == [WriteStatus()]  # nothing new to persist
 
 
+def test_links_of_robots_nobody_has_are_forgotten_and_not_served_on(crops) -> None:
+    # A joiner fetched links of robots its peer still held but that had left: they were
+    # kept, persisted and served to the next joiner for good.
+    r1 = FleetNode(NodeOptions("r1", "lab", KEY, forget_after=60.0), at(0.0))
+    r1.on_alive("r2", True, at(0.0))
+    for a, b in (("r8", "r9"), ("r2", "r3")):
+        peer = link(a, b, np.eye(3), decided_by=a)
+        r1.on_message(f"pgvd/lab/link/{a}/{b}", wire.encode_link("lab", peer, KEY), at(1.0))
+    r1.on_alive("r3", True, at(30.0))  # r3 turns up: its link stays
+    assert len(r1.book.links()) == 2
+    actions = r1.tick(at(61.0))
+    assert ForgetMap("r8") in actions and ForgetMap("r9") in actions
+    assert [(ln.a, ln.b) for ln in r1.book.links()] == [("r2", "r3")]
+    assert [ln.a for ln in wire_links(r1)] == ["r2"]
+
+
+def wire_links(r: FleetNode) -> list[LinkRecord]:
+    inbound = wire.Inbound("lab", KEY)
+    return [wire.link_record(inbound.decode(reply.payload)) for reply in r.answer_links()]
+
+
 def test_a_link_decided_here_is_published_served_and_persisted() -> None:
     r1 = node("r1")
     rec = link("r1", "r2", rigid_matrix(-1.2, 10.0, 3.0), decided_by="r1")
     r1.book.add_link(rec)  # as the fusion worker does before it reports
-    (sent,) = r1.on_link(rec)
+    (sent,) = r1.on_link(rec, at(0.0))
     assert sent.key == "pgvd/lab/link/r1/r2"
     got = wire.link_record(wire.Inbound("lab", KEY).decode(sent.payload))
     np.testing.assert_allclose(got.matrix, rec.matrix)
