@@ -23,7 +23,9 @@ neighbours on the circle of robots first, a pair further apart only once the nea
 decided, and by then most pairs are checks.  A search that a new epoch of either map
 superseded while it ran is checked on the new maps (:meth:`FusionWorker._carry_forward`)
 rather than searched again.  So full searches grow with the robots (each joins its component
-once, plus the pairs whose chain is off), not with the pairs.
+once, plus the pairs whose chain is off), not with the pairs -- within one connected fleet:
+pairs between groups no link joins are searched in each new epoch of either map, (N/2)^2 for
+two groups of N/2.
 
 Known initial poses (``--known-pose``, :mod:`agent.priors`) are checked the same way, and
 before a chain's prediction: a pair whose two poses are known is checked at their prior
