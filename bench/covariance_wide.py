@@ -88,7 +88,8 @@ def markdown(records: list[dict], source: str) -> str:
         "",
         f"From the pgvd records of `{source}` (`python3 -m bench.covariance_wide`): every "
         f"overlapping pair accepted at a right pose ({len(right)}; {wrong} accepted at a wrong "
-        "pose are left out). The covariance was calibrated on other pairs of the intel "
+        "pose are left out, and so are the fr079 gmapping pairs, whose truth is itself a "
+        "fit). The covariance was calibrated on other pairs of the intel "
         "and freiburg-079 logs only (`bench/results/covariance.md`).",
         "",
         "| poses | n | mean NEES | chi2(3) 95 % band of the mean | inside 95 % ellipsoid | "

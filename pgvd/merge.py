@@ -126,18 +126,13 @@ class MergeParams:
         twice the coarse cell) is a candidate too (:func:`_with_refined`).  The spectrum's
         peak is broad and a partial or drifted map shifts it: 28 of 182 development pairs
         had no searched heading within 2 degrees of the truth, most 3-6 degrees off.  Off
-        (``heading_span=0``) by default: on the development bench (``python -m bench.merge
-        --methods pgvd pgvd-heading``, then ``python -m bench.recall``), ``heading_span=6``
-        searches the true heading in 167 of 182 pairs instead of 154 and finds the pose in
-        131 instead of 128, but succeeds on 104 instead of 102, accepts 2 drifted pairs at a
-        wrong translation and takes 0.38 s a pair instead of 0.27 (median): the decision,
-        not the search, loses most of the pairs it helps.  With the decision of
-        :mod:`pgvd.decision` as it is now (a contradicted winner has no margin, the noise
-        term, ``drift_shift`` 0.75 m), its finalists replayed (``python3 -m bench.redecide
-        RUN/merge.json --method pgvd-heading``) succeed on 76/11/20 (standard/low/drifted)
-        against 75/12/19 by default, and still accept one wrong pose at margin 0.81:
-        stata's drifted ov03, 0.9 degrees and 12 cells off (tolerance 7), 725 walls on
-        walls and 13 on free space, a crisp fit of part of a drifted overlap.
+        (``heading_span=0``) by default: in the run of ``bench/results/merge.md``
+        (``python -m bench.merge``, every method), ``heading_span=6`` succeeds on 76/11/15
+        (standard/low/drifted) against 74/12/16 by default, accepts one wrong pose at
+        margin 0.81 (stata's drifted ov03, 12 cells off, tolerance 7: a crisp fit of part
+        of a drifted overlap) and takes 0.49 s at 1000^2 instead of 0.35: the decision,
+        not the search, loses most of the pairs it helps (``python -m bench.recall
+        --method pgvd-heading`` shows what it finds).
     search_headings : candidates that go through the PGVD stages: those whose whole-map
         overlay (best ``agree - disagreement_weight * disagree`` over all translations)
         is largest.
@@ -190,10 +185,10 @@ class MergeParams:
         true pose (bench records' ``info.drift_rms_m``); with 0.5 m, 18 of 48 drifted
         pairs were accepted right, with 0.75 m 19, the other sets alike (replayed,
         ``python3 -m bench.redecide --param drift_shift=0.75``).  0 scores the rigid
-        overlay (ablation: without drift tolerance).  On the wide bench since walls are
-        their faces it accepts 77/12/14 standard/low/drifted pairs against 74/13/18:
-        3 standard pairs more, 4 drifted fewer (before the faces it also accepted the two
-        disjoint halves of fr079_albertB's map312, which it now rejects).
+        overlay (ablation: without drift tolerance).  In the run of
+        ``bench/results/merge.md`` that accepts 75/12/11 standard/low/drifted pairs against
+        74/12/16, and a uos_avz look-alike at margin 0.60 (before walls were their faces it
+        also accepted the two disjoint halves of fr079_albertB's map312).
     disagreement_weight : refined finalists are scored by ``agree - weight * disagree``
         (:mod:`pgvd.decision`): a wall on clear free space is strong evidence against, a
         wall on a wall weak evidence for (walls are everywhere in a building), so a large
@@ -213,16 +208,13 @@ class MergeParams:
     search_finalists : finalists more, the best by the search evidence among the
         hypotheses that beat every walls-ranked finalist by it (:func:`_finalists`),
         proposed from the overlay peaks and slides by that evidence too.  Off (0) by
-        default: on the development bench with the decision as it is now (``python -m
-        bench.merge``, every method, then ``python -m bench.recall --method
-        pgvd-search``), 4 find the pose in 135 of 182 pairs instead of 129 (low overlap
-        19/48 instead of 15) but succeed on 105 instead of 106 (standard 75, low 12,
-        drifted 18 instead of 19): the extra finalists are rivals too, and lower true
-        winners' margins.  They also accept fr079-log's low-overlap ov05 3.6 cells off
-        (margin 0.88) and a disjoint pair of the intel log (margin 0.83).  Without the
-        bar (every hypothesis may be one of the extra finalists) they found 138 but
-        succeeded on 98 with the decision before its noise term.  14 % slower (median
-        over 63 pairs, interleaved with the default in one process).
+        default: in the run of ``bench/results/merge.md`` (``python -m bench.merge``,
+        every method; ``python -m bench.recall --method pgvd-search`` shows what it
+        finds), 4 succeed on 74/14/15 (standard/low/drifted) against 74/12/16, with no
+        wrong or false accept, at 0.45 s at 1000^2 instead of 0.35: the extra finalists
+        are rivals too, and lower true winners' margins.  With an earlier decision they
+        also accepted fr079-log's low-overlap ov05 3.6 cells off and a disjoint pair of
+        the intel log.
     finalists : best coarse hypotheses (by walls only, ``agree - disagreement_weight *
         disagree``) refined and compared at full resolution.
     refine_points : wall cells per map used when refining and scoring the finalists.

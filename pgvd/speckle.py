@@ -7,7 +7,7 @@ registration reads every speckle cell as a wall: coarsened to the search's
 0.2 m cells it becomes a wall block, its PGVD grows edges around it, and on
 the other map it lands on free space as a contradiction.  Cut from the
 development map images with 0.5 % of their free cells turned into lone
-walls, independently in each part, 13 of 18 pairs merged right instead of 18
+walls, independently in each part, 15 of 18 pairs merged right instead of 18
 of 18 (walls as drawn); with 2 %, 1 of 18 (``python3 -m bench.mapimages
 --speckle 0.005``, ``bench/results/mapimages-speckle-*.md``).
 
