@@ -177,6 +177,7 @@ class FleetNode:
                 self._left.setdefault(robot, now.mono)
         for rec in links:
             self.book.add_link(rec)
+            self._absent_until_seen(rec, now)
         own = self.book.map_of(self.me)
         if own is not None:
             self.outbound.prepare(own[0], own[1], previous=None)

@@ -338,11 +338,13 @@ def test_a_restored_robot_that_never_shows_up_is_forgotten_like_any_gone_one(cro
     # once kept it in its global map for good.
     r1 = FleetNode(NodeOptions("r1", "lab", KEY, forget_after=60.0), at(0.0))
     stored = {"r2": StoredMap(3 << 31, crops[0]), "r3": StoredMap(5 << 31, crops[1])}
-    r1.restore(stored, [], at(10.0))
+    # and a persisted link names r7, of whom nothing else is held
+    r1.restore(stored, [link("r3", "r7", np.eye(3), versions=(5 << 31, 1 << 31))], at(10.0))
     r1.on_alive("r3", True, at(10.5))  # the membership history: r3 is there, r2 is not
     assert not any(isinstance(a, ForgetMap) for a in r1.tick(at(69.9)))
     actions = r1.tick(at(70.0))
-    assert ForgetMap("r2") in actions and ForgetMap("r3") not in actions
+    assert ForgetMap("r2") in actions and ForgetMap("r7") in actions
+    assert ForgetMap("r3") not in actions and r1.book.links() == []
     assert r1.book.version("r2") is None and r1.book.version("r3") == 5 << 31
 
 
