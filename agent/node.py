@@ -169,15 +169,14 @@ class FleetNode:
             # Own maps are persisted as the source holds them (to resume integrating).
             grid = wire.on_the_wire(stored.grid) if robot == self.me else stored.grid
             self.book.put_map(robot, stored.version, grid)
-            if robot != self.me and not self.alive.get(robot):
-                # Gone until its liveliness token says otherwise (the membership history
-                # reports every robot present): a robot that left while this agent was down
-                # is forgotten on the same bound as everywhere else, not kept for good in
-                # this agent's global map alone.
-                self._left.setdefault(robot, now.mono)
+            # Gone until its liveliness token says otherwise (the membership history reports
+            # every robot present): a robot that left while this agent was down is forgotten
+            # on the same bound as everywhere else, not kept for good in this agent's global
+            # map alone.
+            self._absent_until_seen((robot,), now)
         for rec in links:
             self.book.add_link(rec)
-            self._absent_until_seen(rec, now)
+            self._absent_until_seen(rec.pair, now)
         own = self.book.map_of(self.me)
         if own is not None:
             self.outbound.prepare(own[0], own[1], previous=None)
@@ -269,7 +268,7 @@ class FleetNode:
 
     def on_link(self, rec: LinkRecord, now: Instant) -> list[Action]:
         """The fusion worker decided ``rec`` (and cached it): publish it."""
-        self._absent_until_seen(rec, now)  # a robot forgotten while it was registered
+        self._absent_until_seen(rec.pair, now)  # a robot forgotten while it was registered
         self._links_dirty = True
         self.counters.add("links_published")
         data = wire.encode_link(self.opts.fleet, rec, self.opts.key)
@@ -393,15 +392,16 @@ class FleetNode:
         self.counters.add("robots_forgotten")
         return [ForgetMap(robot), Register()]
 
-    def _absent_until_seen(self, rec: LinkRecord, now: Instant) -> None:
-        """A robot a link names that is not present counts as gone from now on.
+    def _absent_until_seen(self, robots: Iterable[str], now: Instant) -> None:
+        """Each of ``robots`` that is not present counts as gone from now on.
 
-        Links of robots a peer still held when this agent joined, or of one forgotten while
-        the worker registered it, were kept for good, persisted and served to the next
-        joiner: links circulated of robots nobody had. They are forgotten on the bound of
-        any robot that left, unless its liveliness token appears meanwhile.
+        Held maps and links of robots this agent never saw leave (a peer still held them
+        when this agent joined, or the worker registered one after it was forgotten) were
+        kept for good, persisted and served to the next joiner: links circulated of robots
+        nobody had. They are forgotten on the bound of any robot that left, unless its
+        liveliness token appears meanwhile.
         """
-        for robot in (rec.a, rec.b):
+        for robot in robots:
             if robot != self.me and not self.alive.get(robot):
                 self._left.setdefault(robot, now.mono)
 
@@ -412,7 +412,7 @@ class FleetNode:
             return [Drop("bad_link", sender, str(exc))]
         if not self.book.add_link(rec):
             return []
-        self._absent_until_seen(rec, now)
+        self._absent_until_seen(rec.pair, now)
         self.counters.add("links_received")
         self._links_dirty = True
         return [Register()]
