@@ -85,24 +85,22 @@ def parse_source(spec: str) -> SourceSpec:
 def _parse_carmen(rest: str) -> SourceSpec:
     """``LOG[@FROM-TO]``: what follows the last ``@`` is the segment, unless the whole of
     ``rest`` names an existing file (a log whose name holds an ``@``)."""
-    log, sep, segment = rest.rpartition("@")
+    path, sep, segment = rest.rpartition("@")
     if not sep or Path(rest).is_file():
         return SourceSpec("carmen", Path(rest))
-    if not log:
+    if not path:
         raise ValueError(f"carmen source needs a log before @{segment}: carmen:LOG[@FROM-TO]")
-    lo_text, dash, hi_text = segment.partition("-")
+    lo_text, _, hi_text = segment.partition("-")  # no "-": hi_text is "", no number
     try:
         lo, hi = float(lo_text), float(hi_text)
     except ValueError:
-        dash = ""
-    if not dash:
         raise ValueError(
             f"carmen segment must be @FROM-TO, fractions of the log such as @0.2-0.6, "
             f"got @{segment}"
-        )
+        ) from None
     if not 0.0 <= lo < hi <= 1.0:
         raise ValueError(f"segment must satisfy 0 <= FROM < TO <= 1, got {lo}-{hi}")
-    return SourceSpec("carmen", Path(log), (lo, hi))
+    return SourceSpec("carmen", Path(path), (lo, hi))
 
 
 def _parse_rosbag(rest: str) -> SourceSpec:
@@ -446,8 +444,9 @@ class RosTopicSource:
         if self._map is not None and _same_grid(ros.grid, self._map.grid):
             return False  # a latched map sent again (a reconnect, another cache)
         if ros.frame_id != self.frame and (self._map is None or self._map.frame_id != ros.frame_id):
-            # once per frame seen: the merge is right either way, but the TF the agent
-            # publishes hangs under a frame the robot's own tree does not have
+            # said when such a frame first arrives or comes back, not with every map: the
+            # merge is right either way, but the TF the agent publishes hangs under a frame
+            # the robot's own tree does not have
             log.warning(
                 "%s: maps arrive in frame %r, but the agent places this robot's map as %r: "
                 "its TF tree stays apart from the merged frame (set slam_toolbox's map_frame "

@@ -53,6 +53,8 @@ FREE_THRESH = 0.196
 MAX_CELLS = 8000 * 8000
 #: Resolution given to ``.npy`` maps, which carry none.
 NPY_RESOLUTION = 0.05
+#: Suffixes of map_server YAML files.
+YAML_SUFFIXES = (".yaml", ".yml")
 #: Suffixes of bare map images, read without a YAML (:func:`read_map`'s ``image_resolution``).
 IMAGE_SUFFIXES = (".pgm", ".png")
 _IS_DIRECTORY = "is a directory, not a map file"
@@ -437,7 +439,8 @@ def read_map(
     Raises
     ------
     MapFormatError
-        Missing/unreadable file, bad YAML or keys, resolution <= 0, empty map,
+        Missing/unreadable file, bad YAML or keys, a cell size outside
+        :data:`pgvd.grid.CELL_SIZE_RANGE`, empty map,
         no occupied cells, too many cells, NaN or out-of-range values, a bare image
         without ``image_resolution``.
     """
@@ -445,7 +448,7 @@ def read_map(
     if path.is_dir():  # whatever its name: "unknown map format" would send the user astray
         raise MapFormatError(path, _IS_DIRECTORY)
     suffix = path.suffix.lower()
-    if suffix in (".yaml", ".yml"):
+    if suffix in YAML_SUFFIXES:
         return _read_yaml_map(path, max_cells)
     if suffix == ".npy":
         return _read_npy_map(path, max_cells, npy_resolution)
@@ -598,7 +601,7 @@ def written_files(path: str | os.PathLike[str]) -> tuple[Path, ...]:
     tuple of pathlib.Path
     """
     path = Path(path)
-    if path.suffix.lower() in (".yaml", ".yml"):
+    if path.suffix.lower() in YAML_SUFFIXES:
         return (path, path.with_suffix(".pgm"))
     return (path,)
 
@@ -631,7 +634,7 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     if suffix == ".npy":
         atomic_write(path, lambda f: np.save(f, prob.astype(np.float32), allow_pickle=False))
         return
-    if suffix not in (".yaml", ".yml"):
+    if suffix not in YAML_SUFFIXES:
         raise ValueError(f"{path}: unknown map format (expected .yaml, .yml or .npy)")
     pixels = np.full(prob.shape, 205, dtype=np.uint8)
     pixels[prob > OCCUPIED_THRESH] = 0

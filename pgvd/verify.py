@@ -155,6 +155,15 @@ def pooled_maps(a: Grid, b: Grid, params: MergeParams) -> PooledMaps:
     return PooledMaps(wall_a, wall_b, pool, a.resolution * pool)
 
 
+def _held_or_read(a: Grid, b: Grid, params: MergeParams, maps: PooledMaps | None) -> PooledMaps:
+    """``maps`` as the caller read them, the pair checked beside them, or the pair read here
+    (:func:`pooled_maps` checks it before reading)."""
+    if maps is None:
+        return pooled_maps(a, b, params)
+    _check_pair(a, b, params)
+    return maps
+
+
 @dataclass(frozen=True)
 class PredictedOverlap:
     """What two maps show where a prediction puts them, and how far a refinement moved it.
@@ -207,10 +216,7 @@ def predicted_overlap(
     PredictedOverlap
     """
     m0 = _check(predicted)
-    if maps is None:
-        maps = pooled_maps(a, b, params)  # checks the pair before reading it
-    else:
-        _check_pair(a, b, params)
+    maps = _held_or_read(a, b, params, maps)
     start = to_pooled(m0, maps.pool)
     seen = map_agreement(maps.a, maps.b, start)
     overlap_m = 0.5 * (seen.agree + seen.disagree) * maps.cell
@@ -292,10 +298,7 @@ def verify(
 
     nan = np.full((3, 3), np.nan)
     # checked on maps pooled to about 5 cm cells, as the merge decides (pgvd.pooling)
-    if maps is None:
-        maps = pooled_maps(a, b, params)  # checks the pair before reading it
-    else:
-        _check_pair(a, b, params)
+    maps = _held_or_read(a, b, params, maps)
     pool, res, fine_a, fine_b = maps.pool, maps.cell, maps.a, maps.b
     start = to_pooled(m0, pool)
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:

@@ -278,8 +278,7 @@ def _output_options(args: argparse.Namespace) -> OutputOptions:
         check_topic(args.ros_publish)
     if not _FRAME_ID.fullmatch(args.ros_frame):
         raise ValueError(f"--ros-frame must be a TF frame id like world, got {args.ros_frame!r}")
-    robot, _, rest = args.ros_frame.partition("/")
-    if rest and args.ros_frame == robot_map_frame(robot):
+    if args.ros_frame == robot_map_frame(args.ros_frame.partition("/")[0]):
         # the agent places every robot's map frame under it: a robot's own would be its own
         # parent, a transform tf2 refuses
         raise ValueError(

@@ -25,6 +25,7 @@ from pgvd.grid import Grid, map_frame_covariance, map_frame_pose, matrix_to_pose
 from pgvd.io import (
     MAX_CELLS,
     NPY_RESOLUTION,
+    YAML_SUFFIXES,
     MapFormatError,
     map_image_path,
     read_map,
@@ -37,7 +38,7 @@ if TYPE_CHECKING:
     from agent.multimerge import ManyMerge
     from pgvd.merge import MergeResult
 
-_MAP_SUFFIXES = (".yaml", ".yml", ".npy")
+_MAP_SUFFIXES = (*YAML_SUFFIXES, ".npy")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -121,6 +122,17 @@ def _read(path: Path, args: argparse.Namespace) -> Grid:
         )
     except MapFormatError as exc:
         raise CliError(str(exc)) from None
+
+
+def _check_resampled(path: Path, grid: Grid, resolution: float, max_cells: int) -> None:
+    """Refuse a map that, resampled to ``resolution`` (:func:`pgvd.transform.resample`'s
+    size), would hold more than ``--max-cells``: checked before it is built, since a map of
+    far coarser cells than the first one's would otherwise be built however large."""
+    rows, cols = (round(n * grid.resolution / resolution) for n in grid.shape)
+    if rows * cols > max_cells:
+        raise CliError(
+            f"{path}: resampled to {resolution:g} m/cell, {rows} x {cols} cells, over --max-cells"
+        )
 
 
 def _finite_or_none(value: object) -> object:
@@ -229,7 +241,7 @@ def _check_inputs_kept(args: argparse.Namespace, files: list[Path]) -> None:
     inputs = []
     for f in files:
         inputs.append(f)
-        if f.suffix.lower() in (".yaml", ".yml"):
+        if f.suffix.lower() in YAML_SUFFIXES:
             with contextlib.suppress(MapFormatError):
                 inputs.append(map_image_path(f))
     outputs = [("-o", t) for t in written_files(args.output)] if args.output else []
@@ -264,7 +276,7 @@ def run(args: argparse.Namespace) -> int:
     _check_output("fused map", args.output)
     files = [args.a, args.b, *args.more]
     _check_inputs_kept(args, files)
-    if args.resolution is not None and all(f.suffix.lower() in (".yaml", ".yml") for f in files):
+    if args.resolution is not None and all(f.suffix.lower() in YAML_SUFFIXES for f in files):
         # not an error (the merge is the same), but the user believed it set something
         print(
             f"pgvd merge: note: --resolution {args.resolution:g} is not used: each map's YAML "
@@ -288,11 +300,7 @@ def run(args: argparse.Namespace) -> int:
 
     b_scale = None
     if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
-        # the size is checked before resampling: a B of far coarser cells than A's would
-        # otherwise be built first, however large (memory), and refused afterwards
-        rows, cols = (round(n * b.resolution / a.resolution) for n in b.shape)
-        if rows * cols > args.max_cells:
-            raise CliError(f"{args.b}: resampled to {(rows, cols)} cells, over --max-cells")
+        _check_resampled(args.b, b, a.resolution, args.max_cells)
         say(f"resampling B from {b.resolution} to {a.resolution} m/cell")
         resampled = resample(b, a.resolution)
         b_scale = scale_matrix(b.resolution, a.resolution, b.shape[0], resampled.shape[0])
@@ -336,9 +344,7 @@ def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     say(f"reading {len(files)} maps")
     grids = [_read(f, args) for f in files]
     for f, g in zip(files, grids, strict=True):
-        cells = g.logodds.size * (g.resolution / grids[0].resolution) ** 2
-        if cells > args.max_cells:
-            raise CliError(f"{f}: resampled to {grids[0].resolution} m/cell, over --max-cells")
+        _check_resampled(f, g, grids[0].resolution, args.max_cells)
     from agent.multimerge import merge_many
     from pgvd.render import grid_image
 
