@@ -73,6 +73,7 @@ import numpy as np
 
 from bench import acceptance, covariance_wide, report
 from bench.capture import Finalists, SearchedHeadings, result_json, to_json
+from bench.environment import describe, environment
 from bench.pairs import MapPair, make_pair, painted_pair
 from bench.report import MAX_CELL_ERROR, mark, pose_right
 from bench.sets import (
@@ -364,7 +365,9 @@ def main(argv: list[str] | None = None) -> int:
     records = run_pairs(entries, table)
     scaling = [] if args.no_scaling else run_scaling(table, args.seed, args.repeats)
     summary = report.summarise(records, list(table))
+    env = environment()
     notes = [
+        describe(env),
         f"Pairs per source: {dataclasses.asdict(counts)} (seed {args.seed}); overlap of the "
         f"standard and drifted sets in {list(STANDARD_BAND)} (half of the standard pairs drawn "
         f"in {list(MIDDLE_BAND)}), of the low set in {list(LOW_BAND)}.",
@@ -398,6 +401,7 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "merge.md").write_text(text)
     doc = {
         "command": command.strip(),
+        "environment": env,
         "summary": summary,
         "records": records,
         "scaling": to_json(scaling),

@@ -59,6 +59,10 @@ def test_tiny_bench_run(shared, tmp_path):
     assert any(r["success"] for r in exhaustive)
     table = (tmp_path / "merge.md").read_text()
     assert all(f"| {n} |" in table for n in names) and "| intel-log |" in table
+    # what the run was measured with, so that two runs are compared only on the same libraries
+    env = doc["environment"]
+    assert env["libraries"]["numpy"] == np.__version__ and env["cpus"] >= 1
+    assert f"numpy {np.__version__}" in table and "Python " in table
     assert (tmp_path / "merge.png").stat().st_size > 10_000
 
 
