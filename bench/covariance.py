@@ -40,7 +40,7 @@ from scipy.stats import chi2
 
 from bench.report import MAX_CELL_ERROR, MAX_HEADING_DEG
 from pgvd.grid import matrix_to_pose
-from pgvd.matching import AlignmentFit, CovarianceModel, calibrated_covariance
+from pgvd.matching import CALIBRATED, AlignmentFit, CovarianceModel, calibrated_covariance
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -205,6 +205,9 @@ MODELS = {
 }
 
 
+#: The row of the constants the merge reports with, whatever this run's fit gives.
+IN_USE = "in use: pgvd.matching.CALIBRATED"
+
 #: Models refitted on random halvings (``fit --splits``): chosen before and with the heading scale.
 RESPLIT = ("misfit + floor", CHOSEN)
 
@@ -283,6 +286,9 @@ def report(pairs_file: Path, out: Path, splits: int = 0) -> int:
         rows[name + " (fit half)"] = consistency(
             np.array([r["error"] for r in fit_half]), _covs(fit_half, model)
         )
+    # The constants the merge reports with: when the decision changes, so do the accepted
+    # pairs, and this row says whether the constants still hold before they are refitted.
+    rows[IN_USE] = consistency(errors, _covs(test_half, CALIBRATED))
     summary = {
         "pairs": len(records),
         "accepted": sum(r["accepted"] for r in records),
@@ -317,7 +323,9 @@ def markdown(summary: dict) -> str:
         f"{summary['seed']}), {summary['accepted']} accepted, {summary['gross']} of them gross "
         f"errors (left out). Constants fitted (maximum likelihood) on {summary['fit_half']} "
         f"pairs; every row without '(fit half)' is on the other {summary['test_half']} pairs, "
-        "which the fit never saw.",
+        f"which the fit never saw. '{IN_USE}' is the covariance the merge reports, on the "
+        "same held-out pairs: the row above it when its constants are this run's fit, and "
+        "otherwise whether they still hold for the pairs the merge accepts now.",
         "",
         "| covariance | n | mean NEES | chi2(3) 95 % band | inside 95 % ellipsoid "
         "| heading NEES | chi2(1) band | heading inside 95 % | median sigma_psi (deg) "
