@@ -9,12 +9,16 @@ scikit-image 0.26.0, opencv-python-headless 4.14.0.94, Pillow 13.0.0), 42 of
 the 292 pgvd margins differed from the committed run's, two stata standard
 pairs changed outcome (one each way) and every total stayed the same; two runs
 in the same environment, each from an empty pair cache, agree to the last bit.
-So a result is recorded with what it was measured on, and runs are compared
-only where this record matches.
+So a result is recorded with what it was measured on, runs are compared only
+where this record matches, and the bench's pair cache is kept per set of
+library versions (:func:`libraries_key`): pairs made under other versions are
+made again, not mixed into a run that records these.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import platform
 import subprocess
@@ -72,6 +76,12 @@ def environment() -> dict:
         "cpus": os.cpu_count(),
         "libraries": {name: _version(name) for name in LIBRARIES},
     }
+
+
+def libraries_key() -> str:
+    """A short stable name for this Python and :data:`LIBRARIES` versions, for cache keys."""
+    versions = {"python": platform.python_version(), **{n: _version(n) for n in LIBRARIES}}
+    return hashlib.sha1(json.dumps(versions, sort_keys=True).encode()).hexdigest()[:8]
 
 
 def describe(env: dict) -> str:

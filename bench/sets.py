@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.drift import Drift
+from bench.environment import libraries_key
 from bench.gmapping import gmapping_pairs
 from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
 from bench.pairs import MAX_DRAWS, MapPair, make_pairs
@@ -79,8 +80,14 @@ def _digest(params: dict) -> str:
 
 
 def cached(cache: Path | None, key: str, make):
-    """``make()``, pickled under ``cache/key`` (loaded from there when present)."""
-    path = None if cache is None else cache / f"{key}-v{PAIRS_VERSION}-s{SIM_VERSION}.pkl"
+    """``make()``, pickled under ``cache/key`` (loaded from there when present).
+
+    The file name carries the pair generation's versions and the numerical
+    libraries' (:func:`bench.environment.libraries_key`): the simulated-lidar
+    pairs move with those, so pairs made under others are made again.
+    """
+    name = f"{key}-v{PAIRS_VERSION}-s{SIM_VERSION}-e{libraries_key()}.pkl"
+    path = None if cache is None else cache / name
     if path is not None and path.exists():
         return pickle.loads(path.read_bytes())
     t0 = time.perf_counter()

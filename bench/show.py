@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.environment import libraries_key
 from bench.merge import CACHE, RESULTS
 from bench.pairs import MapPair
 from pgvd.transform import warp
@@ -29,9 +30,8 @@ def find_pair(name: str, cache: Path = CACHE) -> MapPair:
     LookupError
         If no cached file holds it.
     """
-    for path in sorted(cache.glob("*.pkl")):
-        if path.name.startswith("run-"):
-            continue
+    # pairs made under this environment's libraries, as the bench run reads them
+    for path in sorted(cache.glob(f"*-e{libraries_key()}.pkl")):
         for pair in pickle.loads(path.read_bytes()):
             if pair.name == name:
                 return pair

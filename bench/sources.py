@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.environment import libraries_key
 from bench.lidar import LMS200, RayCaster, scan_at
 from bench.trajectory import tour
 from pgvd.carmen import LaserScan, read_carmen
@@ -82,11 +83,13 @@ def load_run(
     """A source's run: the log as read, or a simulated run (stored in ``cache`` if given).
 
     A cached run is plain arrays (ranges, poses, field of view), not pickled scans, so
-    it survives a move of the scan class.
+    it survives a move of the scan class; it is kept per set of library versions
+    (:func:`bench.environment.libraries_key`), as the pairs are.
     """
     if not source.simulated:
         return read_carmen(shared / source.path)
-    key = None if cache is None else cache / f"run-{source.name}-{seed}-v{SIM_VERSION}.npz"
+    name = f"run-{source.name}-{seed}-v{SIM_VERSION}-e{libraries_key()}.npz"
+    key = None if cache is None else cache / name
     if key is not None and key.exists():
         with np.load(key) as z:
             fov = float(z["fov"])

@@ -37,3 +37,22 @@ def test_an_uninstalled_library_is_none_and_left_out_of_the_line(monkeypatch):
     env = environment.environment()
     assert env["libraries"]["no-such-distribution-pgvd"] is None
     assert "no-such-distribution-pgvd" not in environment.describe(env)
+
+
+def test_pairs_made_under_other_library_versions_are_made_again(monkeypatch, tmp_path):
+    from bench.sets import cached
+
+    made = []
+
+    def make():
+        made.append(1)
+        return len(made)
+
+    assert cached(tmp_path, "pairs", make) == 1
+    assert cached(tmp_path, "pairs", make) == 1  # read back, not made again
+    (path,) = tmp_path.iterdir()
+    assert path.name.endswith(f"-e{environment.libraries_key()}.pkl")
+    versions = {name: "0.0" for name in environment.LIBRARIES}
+    monkeypatch.setattr(environment, "_version", versions.get)
+    assert cached(tmp_path, "pairs", make) == 2  # another numpy: another cache entry
+    assert len(list(tmp_path.iterdir())) == 2
