@@ -36,6 +36,7 @@ import zlib
 from collections.abc import Callable
 from io import BytesIO
 from pathlib import Path
+from tokenize import TokenError
 from typing import BinaryIO
 
 import numpy as np
@@ -506,7 +507,9 @@ def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
                 else np.lib.format.read_array_header_2_0
             )
             shape, fortran, dtype = header(f)
-        except (ValueError, OSError, SyntaxError, EOFError) as exc:
+        except (ValueError, OSError, SyntaxError, EOFError, TokenError) as exc:
+            # numpy reads the header's dict with the tokenizer: an unclosed bracket is a
+            # TokenError, not a SyntaxError
             raise MapFormatError(path, f"not a valid .npy file: {exc}") from None
         if len(shape) != 2:
             raise MapFormatError(path, f"expected a 2-D array, got shape {shape}")
