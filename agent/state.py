@@ -22,6 +22,7 @@ import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from tokenize import TokenError
 from typing import BinaryIO
 
 import numpy as np
@@ -100,7 +101,17 @@ class StateDir:
         for path in sorted(self.maps_dir.glob("*.npz")):
             try:
                 maps[check_name(path.stem, "robot id")] = _read_map(path)
-            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            # numpy parses an array header as Python: a mangled one is a SyntaxError or,
+            # left mid-statement, a TokenError
+            except (
+                OSError,
+                ValueError,
+                KeyError,
+                EOFError,
+                SyntaxError,
+                TokenError,
+                zipfile.BadZipFile,
+            ) as exc:
                 errors.append(f"{path.name}: {exc}")
         return maps, errors
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -129,3 +130,13 @@ def test_leftover_temporaries_are_removed_at_start_and_never_loaded(tmp_path: Pa
     again = StateDir(tmp_path)
     assert again.removed_temporaries == sorted(p.name for p in left)
     assert not any(p.exists() for p in left) and all(p.exists() for p in keep)
+
+
+def test_an_archive_whose_array_header_does_not_parse_is_skipped(tmp_path: Path) -> None:
+    # numpy reads a .npy header with the tokenizer: "(" left open is a TokenError
+    sd = StateDir(tmp_path)
+    sd.save_map("r1", StoredMap(1, grid(1)))
+    with zipfile.ZipFile(sd.maps_dir / "r2.npz", "w") as z:
+        z.writestr("logodds.npy", b"\x93NUMPY\x01\x00\x03\x00\x00\x00(")
+    maps, errors = sd.load_maps()
+    assert sorted(maps) == ["r1"] and len(errors) == 1 and "r2.npz" in errors[0]
