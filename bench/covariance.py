@@ -324,8 +324,8 @@ def markdown(summary: dict) -> str:
         f"errors (left out). Constants fitted (maximum likelihood) on {summary['fit_half']} "
         f"pairs; every row without '(fit half)' is on the other {summary['test_half']} pairs, "
         f"which the fit never saw. '{IN_USE}' is the covariance the merge reports, on the "
-        "same held-out pairs: the row above it when its constants are this run's fit, and "
-        "otherwise whether they still hold for the pairs the merge accepts now.",
+        f"same held-out pairs: the same as the '{CHOSEN}' row when its constants are this "
+        "run's fit, and otherwise whether they still hold for the pairs the merge accepts now.",
         "",
         "| covariance | n | mean NEES | chi2(3) 95 % band | inside 95 % ellipsoid "
         "| heading NEES | chi2(1) band | heading inside 95 % | median sigma_psi (deg) "

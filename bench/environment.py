@@ -1,63 +1,97 @@
 """What a bench result was measured with: the code's commit, Python, and the numerical libraries.
 
-Two runs of the merge bench on the same commit can differ when the libraries
-under it differ: the pairs drawn from map images are rendered by a simulated
+Two runs of the merge bench on the same commit can differ when the machine
+under it differs: the pairs drawn from map images are rendered by a simulated
 lidar and cut with numpy, scipy, scikit-image, OpenCV and Pillow, and their
-cells move with those versions.  Measured on one commit (c597ba2): with the
-libraries of a fresh install on 2026-12-02 (numpy 2.4.6, scipy 1.17.1,
-scikit-image 0.26.0, opencv-python-headless 4.14.0.94, Pillow 13.0.0), 42 of
-the 292 pgvd margins differed from the committed run's, two stata standard
-pairs changed outcome (one each way) and every total stayed the same; two runs
-in the same environment, each from an empty pair cache, agree to the last bit.
-So a result is recorded with what it was measured on, runs are compared only
-where this record matches, and the bench's pair cache is kept per set of
-library versions (:func:`libraries_key`): pairs made under other versions are
-made again, not mixed into a run that records these.
+cells move with those libraries.  Measured on one commit (c597ba2): on this
+session's machine, with the libraries of a fresh install on 2026-12-02 (numpy
+2.4.6, scipy 1.17.1, scikit-image 0.26.0, OpenCV 4.14.0, Pillow 13.0.0), 42 of
+the 292 pgvd margins differed from the committed run's, made on the last
+session's machine, two stata standard pairs changed outcome (one each way) and
+every total stayed the same; two runs on one machine and install, each from an
+empty pair cache, agree to the last bit.  The library versions and the CPU
+changed together there, so either may move the pairs.
+
+So a result is recorded with what it was measured on, and runs are compared
+only where the Python and library versions match.  The bench's pair cache is
+kept per set of them (:func:`cache_suffix`): pairs made under other versions
+are made again, not mixed into a run that records these.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import os
 import platform
 import subprocess
-from importlib import metadata
 from pathlib import Path
 
-#: The distributions whose versions move a bench result.
-LIBRARIES = ("numpy", "scipy", "scikit-image", "opencv-python-headless", "pillow")
+#: The libraries whose versions move a bench result: name -> module.  The version is
+#: the imported module's own, whichever distribution installed it (OpenCV comes as
+#: opencv-python, -headless or -contrib).
+LIBRARIES = {
+    "numpy": "numpy",
+    "scipy": "scipy",
+    "scikit-image": "skimage",
+    "opencv": "cv2",
+    "pillow": "PIL",
+}
 
 ROOT = Path(__file__).resolve().parents[1]
 
+#: Written by the benches themselves: a change there does not make the code dirty.
+RESULTS = "bench/results"
 
-def _version(name: str) -> str | None:
+
+def _version(module: str) -> str | None:
     try:
-        return metadata.version(name)
-    except metadata.PackageNotFoundError:
+        return str(importlib.import_module(module).__version__)
+    except ImportError:
         return None
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(
+        ["git", *args], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.strip()
 
 
 def commit() -> str | None:
-    """The checkout's commit, with ``+dirty`` when tracked files are changed; None outside git."""
+    """This checkout's commit, with ``+dirty`` when tracked code is changed.
+
+    Returns
+    -------
+    str or None
+        The commit (12 hex digits), ``+dirty`` when a tracked file outside
+        ``bench/results`` differs from it; None without git, or when this file is
+        not tracked by the repository git finds (a source export unpacked inside
+        another repository).
+    """
     try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        _git("ls-files", "--error-unmatch", str(Path(__file__).relative_to(ROOT)))
+        head = _git("rev-parse", "--short=12", "HEAD")
+        dirty = _git("status", "--porcelain", "--untracked-files=no", "--", ".", f":!{RESULTS}")
     except (OSError, subprocess.CalledProcessError):
         return None
     return f"{head}+dirty" if dirty else head
+
+
+def digest(values: dict) -> str:
+    """A short stable name for a dict of JSON values, for cache keys."""
+    return hashlib.sha1(json.dumps(values, sort_keys=True).encode()).hexdigest()[:8]
+
+
+def libraries() -> dict[str, str | None]:
+    """The version of each of :data:`LIBRARIES` (None when it cannot be imported)."""
+    return {name: _version(module) for name, module in LIBRARIES.items()}
+
+
+def cache_suffix() -> str:
+    """``-e`` and the :func:`digest` of Python's and :func:`libraries` versions: the end of
+    every cached file's stem that the simulated pairs come from."""
+    return "-e" + digest({"python": platform.python_version(), **libraries()})
 
 
 def environment() -> dict:
@@ -74,14 +108,8 @@ def environment() -> dict:
         "python": platform.python_version(),
         "machine": f"{platform.system()} {platform.machine()}",
         "cpus": os.cpu_count(),
-        "libraries": {name: _version(name) for name in LIBRARIES},
+        "libraries": libraries(),
     }
-
-
-def libraries_key() -> str:
-    """A short stable name for this Python and :data:`LIBRARIES` versions, for cache keys."""
-    versions = {"python": platform.python_version(), **{n: _version(n) for n in LIBRARIES}}
-    return hashlib.sha1(json.dumps(versions, sort_keys=True).encode()).hexdigest()[:8]
 
 
 def describe(env: dict) -> str:
@@ -90,5 +118,6 @@ def describe(env: dict) -> str:
     return (
         f"Measured on commit {env['commit'] or 'unknown'}, Python {env['python']}, "
         f"{env['machine']}, {env['cpus']} CPUs; {libs}. Sim pairs' cells move with these "
-        "libraries' versions (bench.environment): compare runs only where this line matches."
+        "libraries (bench.environment): compare runs only where Python and the library "
+        "versions match."
     )

@@ -15,7 +15,6 @@ Every pair is a pure function of its source, the set, the seed and the counts.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import pickle
 import time
@@ -23,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.drift import Drift
-from bench.environment import libraries_key
+from bench.environment import cache_suffix, digest
 from bench.gmapping import gmapping_pairs
 from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
 from bench.pairs import MAX_DRAWS, MapPair, make_pairs
@@ -74,19 +73,14 @@ def _log(msg: str) -> None:
     print(msg, flush=True)
 
 
-def _digest(params: dict) -> str:
-    """A short stable name for a parameter set, for cache keys."""
-    return hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
-
-
 def cached(cache: Path | None, key: str, make):
     """``make()``, pickled under ``cache/key`` (loaded from there when present).
 
     The file name carries the pair generation's versions and the numerical
-    libraries' (:func:`bench.environment.libraries_key`): the simulated-lidar
+    libraries' (:func:`bench.environment.cache_suffix`): the simulated-lidar
     pairs move with those, so pairs made under others are made again.
     """
-    name = f"{key}-v{PAIRS_VERSION}-s{SIM_VERSION}-e{libraries_key()}.pkl"
+    name = f"{key}-v{PAIRS_VERSION}-s{SIM_VERSION}{cache_suffix()}.pkl"
     path = None if cache is None else cache / name
     if path is not None and path.exists():
         return pickle.loads(path.read_bytes())
@@ -132,7 +126,7 @@ def source_pairs(
     ):
         if n:
             own_seed = seed * 100 + k
-            what = tag if noise is None else f"{tag}-{_digest({**noise.json(), 'truth': 2})}"
+            what = tag if noise is None else f"{tag}-{digest({**noise.json(), 'truth': 2})}"
             pairs = cached(
                 cache,
                 f"{name}-{what}-{n}-{own_seed}",

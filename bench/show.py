@@ -12,30 +12,35 @@ from __future__ import annotations
 import argparse
 import json
 import pickle
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from bench.environment import libraries_key
+from bench.environment import cache_suffix, libraries
 from bench.merge import CACHE, RESULTS
 from bench.pairs import MapPair
 from pgvd.transform import warp
 
 
 def find_pair(name: str, cache: Path = CACHE) -> MapPair:
-    """The pair called ``name`` in any cached list of pairs.
+    """The pair called ``name`` among the cached pairs made under this environment's libraries.
 
     Raises
     ------
     LookupError
-        If no cached file holds it.
+        If no cached file of this environment (:func:`bench.environment.cache_suffix`)
+        holds it.
     """
-    # pairs made under this environment's libraries, as the bench run reads them
-    for path in sorted(cache.glob(f"*-e{libraries_key()}.pkl")):
+    suffix = cache_suffix()
+    for path in sorted(cache.glob(f"*{suffix}.pkl")):
         for pair in pickle.loads(path.read_bytes()):
             if pair.name == name:
                 return pair
-    raise LookupError(f"no pair {name!r} under {cache}; run python3 -m bench.merge first")
+    raise LookupError(
+        f"no pair {name!r} under {cache} made with these libraries ({suffix[1:]}); "
+        "run python3 -m bench.merge first"
+    )
 
 
 def overlay(pair: MapPair, matrix: np.ndarray) -> np.ndarray:
@@ -70,6 +75,15 @@ def main(argv: list[str] | None = None) -> int:
     if rec is None:
         print(f"{args.json}: no record of {args.pair} by {args.method}")
         return 1
+    # the run's matrix drawn over pairs made again under other libraries may not fit them
+    recorded, here = doc.get("environment", {}).get("libraries", {}), libraries()
+    moved = sorted(k for k in recorded.keys() & here.keys() if recorded[k] != here[k])
+    if moved:
+        print(
+            f"warning: {args.json} was measured with other versions of {', '.join(moved)} "
+            "than this environment's: its pairs may differ from these by a cell",
+            file=sys.stderr,
+        )
     pair = find_pair(args.pair, args.cache)
     panels = [(f"{args.method}: accepted={rec['accepted']}", np.array(rec["matrix"]))]
     if pair.truth is not None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.environment import libraries_key
+from bench.environment import cache_suffix
 from bench.lidar import LMS200, RayCaster, scan_at
 from bench.trajectory import tour
 from pgvd.carmen import LaserScan, read_carmen
@@ -84,11 +84,11 @@ def load_run(
 
     A cached run is plain arrays (ranges, poses, field of view), not pickled scans, so
     it survives a move of the scan class; it is kept per set of library versions
-    (:func:`bench.environment.libraries_key`), as the pairs are.
+    (:func:`bench.environment.cache_suffix`), as the pairs are.
     """
     if not source.simulated:
         return read_carmen(shared / source.path)
-    name = f"run-{source.name}-{seed}-v{SIM_VERSION}-e{libraries_key()}.npz"
+    name = f"run-{source.name}-{seed}-v{SIM_VERSION}{cache_suffix()}.npz"
     key = None if cache is None else cache / name
     if key is not None and key.exists():
         with np.load(key) as z:
