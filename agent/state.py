@@ -152,25 +152,33 @@ def remove_temporaries(*patterns: Path) -> list[str]:
     return sorted(removed)
 
 
+def _member(archive: np.lib.npyio.NpzFile, name: str, kinds: str) -> np.ndarray:
+    """The array ``name`` of ``archive``; ``ValueError`` unless its dtype kind is in ``kinds``
+    (a structured, complex or string array cannot be cast to a map's numbers)."""
+    arr = np.asarray(archive[name])
+    if arr.dtype.kind not in kinds:
+        raise ValueError(f"corrupt map arrays: {name} is {arr.dtype}")
+    return arr
+
+
 def _read_map(path: Path) -> StoredMap:
     """One persisted map; ``ValueError`` for any array of the wrong shape or value (a file
     written by something else, or damaged on disk), so that loading skips it."""
     # the file opened here, not by np.load: np.load leaves it open when it is no zip
     with path.open("rb") as f, np.load(f, allow_pickle=False) as z:
         with np.errstate(over="ignore"):  # a value past float32 fails the finite check below
-            logodds = np.asarray(z["logodds"], dtype=np.float32)
-        origin = np.asarray(z["origin"], dtype=np.float64)
-        resolution, version = np.asarray(z["resolution"]), np.asarray(z["version"])
+            logodds = _member(z, "logodds", "biuf").astype(np.float32)
+        origin = _member(z, "origin", "iuf").astype(np.float64)
+        resolution, version = _member(z, "resolution", "iuf"), _member(z, "version", "iu")
         if (
             logodds.ndim != 2
             or origin.shape != (3,)
             or resolution.shape != ()
             or version.shape != ()
-            or version.dtype.kind not in "iu"
             or not (np.isfinite(logodds).all() and np.isfinite(origin).all())
         ):
             raise ValueError("corrupt map arrays")
-        extra = json.loads(bytes(z["extra"]).decode() or "{}")
+        extra = json.loads(bytes(_member(z, "extra", "u")).decode() or "{}")
         if not isinstance(extra, dict):
             raise ValueError("corrupt resume state: not a JSON object")
         check_cell_size(float(resolution))

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import io
 import os
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from agent.links import LinkRecord
 from agent.state import StateDir, StoredMap
@@ -140,3 +143,62 @@ def test_an_archive_whose_array_header_does_not_parse_is_skipped(tmp_path: Path)
         z.writestr("logodds.npy", b"\x93NUMPY\x01\x00\x03\x00\x00\x00(")
     maps, errors = sd.load_maps()
     assert sorted(maps) == ["r1"] and len(errors) == 1 and "r2.npz" in errors[0]
+
+
+_GOOD_MEMBERS = {
+    "logodds": np.zeros((4, 4), np.float32),
+    "resolution": np.float64(0.1),
+    "origin": np.zeros(3),
+    "version": np.int64(7),
+    "extra": np.frombuffer(b"{}", np.uint8),
+}
+_ODD_ARRAYS = st.sampled_from(
+    [
+        np.zeros((2, 2), [("a", "f4"), ("b", "i4")]),  # structured
+        np.array(["0.1"]),
+        np.array(0.1 + 2j),
+        np.zeros((0, 3)),
+        np.full(3, np.nan),
+        np.array(True),
+        np.zeros((2, 2, 2), np.float16),
+        np.array(2**40, np.int64),
+        np.frombuffer(b"\xff\xfe", np.uint8),
+    ]
+)
+
+
+def _npy(arr: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    return buf.getvalue()
+
+
+@settings(max_examples=150, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    members=st.dictionaries(
+        st.sampled_from(sorted(_GOOD_MEMBERS)),
+        st.one_of(
+            _ODD_ARRAYS.map(_npy),
+            st.binary(max_size=64).map(lambda b: b"\x93NUMPY\x01\x00" + b),
+            st.binary(max_size=64),
+        ),
+    ),
+    whole=st.one_of(st.none(), st.binary(max_size=200)),
+)
+def test_loading_any_archive_skips_it_or_reads_a_sound_map(
+    tmp_path: Path, members: dict[str, bytes], whole: bytes | None
+) -> None:
+    """Whatever a stored map file holds, load_maps returns: a sound map or one error line."""
+    sd = StateDir(tmp_path)
+    path = sd.maps_dir / "r1.npz"
+    if whole is not None:
+        path.write_bytes(whole)
+    else:
+        with zipfile.ZipFile(path, "w") as z:
+            for name, arr in _GOOD_MEMBERS.items():
+                z.writestr(f"{name}.npy", members.get(name, _npy(arr)))
+    maps, errors = sd.load_maps()
+    assert len(maps) + len(errors) == 1
+    assert all("\n" not in e for e in errors)
+    for stored in maps.values():
+        assert np.isfinite(stored.grid.logodds).all() and stored.grid.resolution > 0
