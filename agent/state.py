@@ -22,7 +22,6 @@ import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from tokenize import TokenError
 from typing import BinaryIO
 
 import numpy as np
@@ -31,7 +30,7 @@ from agent.failpoints import failpoint
 from agent.keys import check_name
 from agent.links import LinkRecord, dumps, loads
 from pgvd.grid import Grid, check_cell_size
-from pgvd.io import atomic_write
+from pgvd.io import NPY_HEADER_ERRORS, atomic_write
 
 
 @dataclass(frozen=True)
@@ -101,17 +100,7 @@ class StateDir:
         for path in sorted(self.maps_dir.glob("*.npz")):
             try:
                 maps[check_name(path.stem, "robot id")] = _read_map(path)
-            # numpy parses an array header as Python: a mangled one is a SyntaxError or,
-            # left mid-statement, a TokenError
-            except (
-                OSError,
-                ValueError,
-                KeyError,
-                EOFError,
-                SyntaxError,
-                TokenError,
-                zipfile.BadZipFile,
-            ) as exc:
+            except (*NPY_HEADER_ERRORS, KeyError, zipfile.BadZipFile) as exc:
                 errors.append(f"{path.name}: {exc}")
         return maps, errors
 

@@ -490,6 +490,18 @@ def _read_yaml_map(path: Path, max_cells: int) -> Grid:
     return Grid.from_probability(prob, _number(meta, "resolution", path), (ox, oy, yaw))
 
 
+#: What numpy raises reading a damaged ``.npy`` (alone or in an ``.npz``): it parses the
+#: header's dict as Python, so a mangled header is a SyntaxError, or a TokenError when an
+#: unclosed bracket leaves it mid-statement.
+NPY_HEADER_ERRORS: tuple[type[Exception], ...] = (
+    ValueError,
+    OSError,
+    SyntaxError,
+    EOFError,
+    TokenError,
+)
+
+
 def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
     _check_resolution(path, resolution)
     try:
@@ -507,9 +519,7 @@ def _read_npy_map(path: Path, max_cells: int, resolution: float) -> Grid:
                 else np.lib.format.read_array_header_2_0
             )
             shape, fortran, dtype = header(f)
-        except (ValueError, OSError, SyntaxError, EOFError, TokenError) as exc:
-            # numpy reads the header's dict with the tokenizer: an unclosed bracket is a
-            # TokenError, not a SyntaxError
+        except NPY_HEADER_ERRORS as exc:
             raise MapFormatError(path, f"not a valid .npy file: {exc}") from None
         if len(shape) != 2:
             raise MapFormatError(path, f"expected a 2-D array, got shape {shape}")
