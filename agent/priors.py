@@ -4,7 +4,7 @@
 frame, in metres and radians (REP 103), as m-explore's ``init_pose_x/_y/_yaw``. For two robots
 with known poses, the prior of their maps' B-pixel -> A-pixel transform follows from the poses
 and the grids' origins. The fusion worker checks a pair at its prior first (a local refinement
-and the merge's overlay acceptance, :func:`pgvd.verify.verify`, as in the merge of Saeedi et
+and the merge's own acceptance test, :func:`pgvd.verify.verify`, as in the merge of Saeedi et
 al., IROS 2012, Sec. IV) and takes the link only if the check confirms it; otherwise the pair is
 decided as if no pose were known (a chain's check or the full search), so a wrong prior is
 never accepted as it stands, nor does it keep the true link from being found.

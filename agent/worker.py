@@ -11,8 +11,8 @@ job at a time:
 
 Verify before you search: when the accepted links already place both robots of a pair in one
 component (the robust pose graph's placements, :func:`predict`), that prediction is checked
-first (:func:`verify_check`: a local refinement and the overlay acceptance, tens of
-milliseconds) and the full search of the merge (Fig. 1, seconds) runs only where the check is
+first (:func:`verify_check`: a local refinement and the merge's own acceptance test, about
+0.05 s) and the full search of the merge (Fig. 1, seconds) runs only where the check is
 inconclusive.  A prediction under which the two maps share too few walls, or disagree once
 refined within the basin, is a decided rejection -- a search could only find a transform the
 chain contradicts -- but only for a pair a search already rejected in an earlier epoch, or
@@ -164,8 +164,9 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
     for a pair a search rejected before, or joined by a chain over cycles) when, at the place
     the chain puts the maps, they cannot pass the merge's tests: fewer than ``min_overlap``
     metres of walls of either map on the other's known space (agreeing or not) at the
-    *predicted* transform, or the overlay refined within the basin
-    (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still disagrees.  A search there could
+    *predicted* transform, or the pose refined within the basin
+    (:data:`pgvd.verify.BASIN_M`, ``BASIN_DEG``) still fails the merge's tests (it does not
+    stand out from itself shifted, or the overlay disagrees).  A search there could
     only find a transform the chain contradicts.  A correction beyond the basin is
     inconclusive: the chain may be off, the search decides.
     """
