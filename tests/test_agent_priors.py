@@ -9,7 +9,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agent.priors import pair_prior, parse_known_pose, parse_known_poses, prior_matrix
+from agent.priors import (
+    pair_prior,
+    parse_known_pose,
+    parse_known_poses,
+    parse_pose,
+    prior_matrix,
+)
 from pgvd.grid import Grid, relative_matrix
 from pgvd.integrate import se2
 from pgvd.io import read_map
@@ -82,6 +88,23 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 @given(st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_-]{0,11}", fullmatch=True), finite, finite, finite)
 def test_known_poses_round_trip(robot: str, x: float, y: float, yaw: float) -> None:
     assert parse_known_pose(f"{robot}={x!r},{y!r},{yaw!r}") == (robot, (x, y, yaw))
+
+
+@given(finite, finite, finite)
+def test_bare_poses_round_trip(x: float, y: float, yaw: float) -> None:
+    """``pgvd merge --prior x,y,yaw``: the pose alone, as after ``ROBOT=``."""
+    assert parse_pose(f"{x!r},{y!r},{yaw!r}") == (x, y, yaw)
+
+
+@given(st.text(max_size=40))
+def test_any_text_is_a_bare_pose_or_gets_one_line(text: str) -> None:
+    try:
+        pose = parse_pose(text)
+    except ValueError as exc:
+        why = str(exc)
+        assert "\n" not in why and ("x,y,yaw" in why or "finite" in why)
+    else:
+        assert len(pose) == 3 and all(math.isfinite(v) for v in pose)
 
 
 @given(st.text(max_size=40))

@@ -36,7 +36,8 @@ from pgvd.io import (
 
 if TYPE_CHECKING:
     from agent.multimerge import ManyMerge
-    from pgvd.merge import MergeResult
+    from agent.priors import Pose
+    from pgvd.merge import MergeParams, MergeResult
 
 _MAP_SUFFIXES = (*YAML_SUFFIXES, ".npy")
 
@@ -83,6 +84,13 @@ def configure(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="read lone wall cells as unknown, for raw map images saved without cleaning "
         "(two maps only; not for a laser's own maps, whose far walls are sparse dots)",
+    )
+    p.add_argument(
+        "--prior",
+        metavar="X,Y,YAW",
+        help="B's map frame in A's (m, m, rad; REP 103), e.g. from the robots' known initial "
+        "poses: the merge is checked there first (pgvd.verify, within 1 m and 5 deg) and "
+        "searched only if the check fails (two maps only)",
     )
     p.add_argument(
         "--resolution",
@@ -263,6 +271,43 @@ def _write(what: str, path: Path, write: Callable[[], None]) -> None:
         raise CliError(f"cannot write {what} {path}: {exc.strerror or exc}") from None
 
 
+def _prior(args: argparse.Namespace) -> Pose | None:
+    """``--prior`` as a pose, None without it; ``CliError`` for a bad one or with more maps."""
+    if args.prior is None:
+        return None
+    if args.more:
+        raise CliError("--prior places B in A: two maps, not more")
+    from agent.priors import parse_pose
+
+    try:
+        return parse_pose(args.prior)
+    except ValueError as exc:
+        raise CliError(f"--prior {args.prior}: {exc}") from None
+
+
+def _merge_from_prior(
+    a: Grid,
+    b: Grid,
+    prior: Pose,
+    params: MergeParams,
+    say: Callable[[str], None],
+    progress: Callable[[str], None] | None,
+) -> MergeResult:
+    """The merge checked at B's map frame ``prior`` in A's first (:func:`pgvd.verify.verify`),
+    as an agent checks a ``--known-pose``, and searched (:func:`pgvd.merge.merge`) only if the
+    check does not confirm it: a wrong prior is neither taken as it stands nor in the way."""
+    from agent.priors import prior_matrix
+    from pgvd.merge import merge
+    from pgvd.verify import verify
+
+    checked = verify(a, b, prior_matrix(a, (0.0, 0.0, 0.0), b, prior), params)
+    if checked.accepted:
+        say("confirmed at the prior (pgvd.verify); no search")
+        return checked
+    say(f"not confirmed at the prior: {checked.reason}; searching")
+    return merge(a, b, params, progress=progress)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.output is not None and args.output.suffix.lower() not in _MAP_SUFFIXES:
         raise CliError(f"-o {args.output}: the fused map must end in .yaml, .yml or .npy")
@@ -285,6 +330,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.despeckle and args.more:
         raise CliError("--despeckle merges two maps, not more")
+    prior = _prior(args)
     progress = _progress(args)
     say = progress or (lambda line: None)
     if args.more:
@@ -315,7 +361,11 @@ def run(args: argparse.Namespace) -> int:
             diagnostics=args.plot is not None,
             speckle_radius=DESPECKLE_RADIUS if args.despeckle else 0.0,
         )
-        result = merge(a, b, params, progress=progress)
+        result = (
+            merge(a, b, params, progress=progress)
+            if prior is None
+            else _merge_from_prior(a, b, prior, params, say, progress)
+        )
     except ValueError as exc:
         raise CliError(str(exc)) from None
     doc = report(result, a, b, b_scale)
