@@ -31,7 +31,7 @@ from agent.globalmap import Component, FuseFn
 from agent.inbox import MAX_BYTES, Inbox, offer_or_drop
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
-from agent.priors import Pose
+from agent.pose import Pose
 from agent.ros2_io import RosMapSubscription, declare_node
 from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap

@@ -19,26 +19,11 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from agent.keys import check_name
+from agent.pose import POSE, Pose
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
 from pgvd.integrate import se2
 
-Pose = tuple[float, float, float]
-
-_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-_POSE = rf"(?P<x>{_NUMBER}),(?P<y>{_NUMBER}),(?P<yaw>{_NUMBER})"
-_KNOWN_POSE = re.compile(rf"(?P<robot>[^=]+)={_POSE}")
-_BARE_POSE = re.compile(_POSE)
-
-
-def parse_pose(text: str) -> Pose:
-    """``x,y,yaw`` (metres, radians) -> a finite pose; ``ValueError`` (one line) otherwise."""
-    m = _BARE_POSE.fullmatch(text.strip())
-    if m is None:
-        raise ValueError(f"a pose is x,y,yaw (metres, radians), e.g. 4.0,-1.5,0.3; got {text!r}")
-    pose = (float(m["x"]), float(m["y"]), float(m["yaw"]))
-    if not all(math.isfinite(v) for v in pose):
-        raise ValueError(f"a pose must be finite, got {text!r}")
-    return pose
+_KNOWN_POSE = re.compile(rf"(?P<robot>[^=]+)={POSE}")
 
 
 def parse_known_pose(text: str) -> tuple[str, Pose]:

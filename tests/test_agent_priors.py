@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from agent.pose import parse_pose
 from agent.priors import (
     pair_prior,
     parse_known_pose,
     parse_known_poses,
-    parse_pose,
     prior_matrix,
 )
 from pgvd.grid import Grid, relative_matrix

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from agent.cli.dispatch import COMMANDS
 from agent.launcher import ROOT
 
@@ -128,10 +130,13 @@ def test_nothing_outside_the_cli_imports_it() -> None:
     assert {m for m in users if not m.startswith("agent.cli")} == set()
 
 
-def test_merge_loads_no_heavy_library_before_reading_its_files(tmp_path: Path) -> None:
-    loaded = loaded_by("merge", str(tmp_path / "a.yaml"), str(tmp_path / "b.yaml"))
+@pytest.mark.parametrize("extra", [(), ("--prior=-1.5,2,0.3",)])
+def test_merge_loads_no_heavy_library_before_reading_its_files(tmp_path: Path, extra) -> None:
+    loaded = loaded_by("merge", str(tmp_path / "a.yaml"), str(tmp_path / "b.yaml"), *extra)
     assert "agent.cli.merge" in loaded and "pgvd.io" in loaded
     assert [m for m in loaded if m.split(".")[0] in HEAVY] == []
+    # --prior is parsed without the agent's protocol stack
+    assert "protocol" not in {m.split(".")[0] for m in loaded}
 
 
 def test_help_loads_no_command() -> None:

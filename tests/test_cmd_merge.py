@@ -94,6 +94,9 @@ def _bad_inputs(tmp: Path, maps: Path) -> list[tuple[str, list[str | Path], str]
         ("--prior of 3 maps", [intel, intel, intel, "--prior", "0,0,0"], "two maps, not more"),
         ("--prior not a pose", [intel, intel, "--prior", "1,2"], "a pose is x,y,yaw"),
         ("--prior not finite", [intel, intel, "--prior", "1e999,0,0"], "must be finite"),
+        ("--prior beyond any map", [intel, intel, "--prior=-1e307,0,0"], "1e+06 m or more away"),
+        # the pose's text is quoted: a newline in it stays on the error's one line
+        ("--prior with a newline", [intel, intel, "--prior", "1,2\n3"], "got '1,2\\n3'"),
         ("--plot not a PNG", [intel, intel, "--plot", tmp / "m.jpg"], "must end in .png"),
         ("bare image, no cell size", [ROOT / "examples/intel_a.pgm", intel], "--resolution M"),
         ("zero --resolution", [intel, intel, "--resolution", "0"], "--resolution 0: "),
@@ -415,7 +418,7 @@ def test_verbose_says_the_candidate_headings_and_which_were_searched() -> None:
 
 def test_a_prior_near_b_is_confirmed_without_a_search_and_a_wrong_one_searched() -> None:
     """The bundled pair with ``--prior``: B's map frame in A's from a plain merge, off by
-    0.3 m and 0.3 deg, is confirmed by the check alone (no search stage ran) at the pose the
+    0.36 m and 0.3 deg, is confirmed by the check alone (no search stage ran) at the pose the
     search finds; at the identity, 55 m and 69 deg off, the check fails and the search
     merges the pair all the same."""
     examples = ROOT / "examples"
@@ -426,11 +429,13 @@ def test_a_prior_near_b_is_confirmed_without_a_search_and_a_wrong_one_searched()
     proc = pgvd_merge(*maps, "--json", "-v", f"--prior={near}")
     assert proc.returncode == 0, proc.stderr
     checked = json.loads(proc.stdout)
-    assert "confirmed at the prior" in proc.stderr
+    assert "confirmed at the prior" in proc.stderr and "not confirmed" not in proc.stderr
+    assert checked["reason"] == "confirmed at the prior"
     assert not {"pgvd", "gamma"} & set(checked["timings_ms"])  # no search
     assert abs(checked["rotation_deg"] - plain["rotation_deg"]) < 0.1
     assert np.hypot(*np.subtract(checked["translation_px"], plain["translation_px"])) < 1.0
     proc = pgvd_merge(*maps, "--json", "-v", "--prior=0,0,0")
     assert proc.returncode == 0, proc.stderr
     assert "not confirmed at the prior" in proc.stderr and "searching" in proc.stderr
-    assert json.loads(proc.stdout)["matrix"] == plain["matrix"]
+    searched = json.loads(proc.stdout)
+    assert searched["matrix"] == plain["matrix"] and "prior" in searched["timings_ms"]

@@ -15,12 +15,14 @@ import math
 import os
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError, check_resolution_option
+from agent.pose import Pose, parse_pose
 from pgvd.grid import Grid, map_frame_covariance, map_frame_pose, matrix_to_pose
 from pgvd.io import (
     MAX_CELLS,
@@ -36,10 +38,11 @@ from pgvd.io import (
 
 if TYPE_CHECKING:
     from agent.multimerge import ManyMerge
-    from agent.priors import Pose
     from pgvd.merge import MergeParams, MergeResult
 
 _MAP_SUFFIXES = (*YAML_SUFFIXES, ".npy")
+#: Largest ``--prior`` offset (m) of B's map frame from A's.
+_MAX_PRIOR_M = 1e6
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -88,9 +91,11 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--prior",
         metavar="X,Y,YAW",
-        help="B's map frame in A's (m, m, rad; REP 103), e.g. from the robots' known initial "
-        "poses: the merge is checked there first (pgvd.verify, within 1 m and 5 deg) and "
-        "searched only if the check fails (two maps only)",
+        help="B's map frame in A's (m, m, rad; REP 103; write --prior=X,Y,YAW when X is "
+        "negative), e.g. from the robots' known initial poses: the merge is checked there "
+        "first (pgvd.verify: confirmed if refining it moves B's walls by at most 1 m and 5 "
+        "deg; give it to a few tenths of a metre at B's walls) and searched only if the "
+        "check fails (two maps only)",
     )
     p.add_argument(
         "--resolution",
@@ -277,12 +282,14 @@ def _prior(args: argparse.Namespace) -> Pose | None:
         return None
     if args.more:
         raise CliError("--prior places B in A: two maps, not more")
-    from agent.priors import parse_pose
-
     try:
-        return parse_pose(args.prior)
+        pose = parse_pose(args.prior)
     except ValueError as exc:
-        raise CliError(f"--prior {args.prior}: {exc}") from None
+        raise CliError(f"--prior: {exc}") from None
+    if max(abs(pose[0]), abs(pose[1])) > _MAX_PRIOR_M:
+        # farther than any map reaches, and past it the pixel matrix overflows
+        raise CliError(f"--prior: B's map frame {_MAX_PRIOR_M:g} m or more away from A's")
+    return pose
 
 
 def _merge_from_prior(
@@ -303,9 +310,14 @@ def _merge_from_prior(
     checked = verify(a, b, prior_matrix(a, (0.0, 0.0, 0.0), b, prior), params)
     if checked.accepted:
         say("confirmed at the prior (pgvd.verify); no search")
-        return checked
+        return replace(checked, reason="confirmed at the prior")
     say(f"not confirmed at the prior: {checked.reason}; searching")
-    return merge(a, b, params, progress=progress)
+    searched = merge(a, b, params, progress=progress)
+    # the check's time is part of the work: "prior" beside the search's stages, in the total
+    spent = checked.timings_ms["total"]
+    timings = {**searched.timings_ms, "prior": spent}
+    timings["total"] = searched.timings_ms["total"] + spent
+    return replace(searched, timings_ms=timings)
 
 
 def run(args: argparse.Namespace) -> int:
