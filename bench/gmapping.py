@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from bench.pairs import MapPair, overlap_fraction
+from bench.pairs import MapPair, overlap_fraction, turn_about
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.transform import warp
@@ -98,12 +98,6 @@ def _chamfer(dist_a: np.ndarray, pts: np.ndarray, m: np.ndarray) -> float:
     return float(np.minimum(d, 3.0).mean())
 
 
-def _about(psi_deg: float, tx: float, ty: float, centre: np.ndarray) -> np.ndarray:
-    m = rigid_matrix(np.radians(psi_deg), 0.0, 0.0)
-    m[:2, 2] = centre - m[:2, :2] @ centre + (tx, ty)
-    return m
-
-
 def best_fit(a: Grid, b: Grid, pts_mask: np.ndarray | None = None) -> tuple[float, float, float]:
     """Exhaustive rigid fit of B's walls onto A's near the identity: (deg, tx, ty) in cells.
 
@@ -122,7 +116,7 @@ def best_fit(a: Grid, b: Grid, pts_mask: np.ndarray | None = None) -> tuple[floa
     ):
         psi0, tx0, ty0 = best[1]
         for psi, tx, ty in itertools.product(grid[0] + psi0, grid[1] + tx0, grid[1] + ty0):
-            score = _chamfer(dist_a, pts, _about(psi, tx, ty, centre))
+            score = _chamfer(dist_a, pts, turn_about(psi, centre, (tx, ty)))
             if score < best[0]:
                 best = (score, (float(psi), float(tx), float(ty)))
     return best[1]

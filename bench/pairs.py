@@ -24,7 +24,7 @@ from scipy import ndimage
 
 from bench.drift import Drift, overlap_fit
 from pgvd.carmen import LaserScan
-from pgvd.grid import Grid, heading, world_pose_to_pixel_matrix
+from pgvd.grid import Grid, heading, rigid_matrix, world_pose_to_pixel_matrix
 from pgvd.integrate import (
     DEFAULT_MODEL,
     InverseSensorModel,
@@ -145,6 +145,15 @@ def speckled_pair(pair: MapPair, density: float, seed: int) -> MapPair:
         pair.name,
         pair.info,
     )
+
+
+def turn_about(
+    degrees: float, centre: np.ndarray, shift: tuple[float, float] | np.ndarray = (0.0, 0.0)
+) -> np.ndarray:
+    """3x3 pixel transform: a turn of ``degrees`` (eq. (2)) about ``centre``, then ``shift``."""
+    m = rigid_matrix(np.radians(degrees), 0.0, 0.0)
+    m[:2, 2] = centre - m[:2, :2] @ centre + shift
+    return m
 
 
 def random_frame(rng: np.random.Generator) -> np.ndarray:

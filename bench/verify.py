@@ -35,9 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.merge import CACHE, RESULTS, evaluate
-from bench.pairs import MapPair
+from bench.pairs import MapPair, turn_about
 from bench.sets import FULL, build
-from pgvd.grid import rigid_matrix
 from pgvd.merge import MergeParams
 from pgvd.verify import BASIN_DEG, BASIN_M, verify
 
@@ -60,10 +59,7 @@ def moved(
 ) -> np.ndarray:
     """``matrix`` (B -> A pixels) turned by ``degrees`` about B's ``point``, then shifted
     ``shift_px`` in A."""
-    centre = (matrix @ np.append(point, 1.0))[:2]
-    turn = rigid_matrix(np.radians(degrees), 0.0, 0.0)
-    turn[:2, 2] = centre - turn[:2, :2] @ centre + shift_px
-    return turn @ matrix
+    return turn_about(degrees, (matrix @ np.append(point, 1.0))[:2], shift_px) @ matrix
 
 
 def predictions(

@@ -20,9 +20,9 @@ the cost:
    to meet fixed floors, an overlay agreement of 0.92 over 15 m of walls (the merge's
    acceptance before its decision), and its pose was not refined further.  Checked at
    the truth turned by N(0, 3 deg) and shifted by N(0, 0.5 m) along each axis, on every pair
-   of the merge bench (``python -m
-   bench.verify``, ``bench/results/verify.md``), the floors confirmed 55 of 86 standard,
-   8 of 48 low-overlap and 9 of 48 drifted pairs, against 59, 18 and 14 now.  Either way
+   of the merge bench (``python -m bench.verify``, ``bench/results/verify.md``), the
+   floors confirmed 55 of 86 standard, 8 of 48 low-overlap and 9 of 48 drifted pairs,
+   against 59, 18 and 14 now.  Either way
    4 of the 656 checks confirmed a wrong pose: with the floors two mirror images (a map
    against its mirror image, checked where the two look most alike), a drifted pair and
    an intel pair refined off the truth; now three mirror images and the same drifted pair;
