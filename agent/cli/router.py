@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -27,6 +28,9 @@ import zenoh
 
 from agent.cli.common import EXIT_OK, CliError
 from agent.zenoh_config import zenoh_error
+
+#: Longest wait (s) for the Zenoh session to close on a stop signal.
+CLOSE_TIMEOUT_S = 3.0
 
 
 def router_config(
@@ -66,24 +70,48 @@ def run_router(config: zenoh.Config, stop: threading.Event) -> None:
         session = zenoh.open(config)
     except zenoh.ZError as exc:
         raise CliError(f"cannot start the router: {zenoh_error(exc)}") from exc
-    with session:
-        endpoints = json.loads(config.get_json("listen/endpoints") or "[]")
-        # "ready" first: declared before it, the listener's callback thread could print a
-        # session's "open" line ahead of it (seen under load), breaking the one-line contract.
-        print(f"ready {session.info.zid()} listening on {json.dumps(endpoints)}", flush=True)
-        # history: a router linking to us while we were opening is reported too.
-        listener = session.info.declare_transport_events_listener(
-            _print_transport_event, history=True
-        )
-        # Polled, not one untimed wait: SIGTERM may be delivered to one of Zenoh's own
-        # threads, and then nothing interrupts the main thread's untimed wait, so the
-        # Python handler that sets ``stop`` never runs (the router hung on SIGTERM in 2
-        # of 20 tries with the CPU loaded).  Each timeout returns to the interpreter,
-        # which runs pending handlers.
-        while not stop.wait(0.2):
-            pass
-        # A callback listener still declared when the session closes can hang the process.
+    endpoints = json.loads(config.get_json("listen/endpoints") or "[]")
+    # "ready" first: declared before it, the listener's callback thread could print a
+    # session's "open" line ahead of it (seen under load), breaking the one-line contract.
+    print(f"ready {session.info.zid()} listening on {json.dumps(endpoints)}", flush=True)
+    # history: a router linking to us while we were opening is reported too.
+    listener = session.info.declare_transport_events_listener(_print_transport_event, history=True)
+    # Polled, not one untimed wait: SIGTERM may be delivered to one of Zenoh's own
+    # threads, and then nothing interrupts the main thread's untimed wait, so the
+    # Python handler that sets ``stop`` never runs (the router hung on SIGTERM in 2
+    # of 20 tries with the CPU loaded).  Each timeout returns to the interpreter,
+    # which runs pending handlers.
+    while not stop.wait(0.2):
+        pass
+    _close(session, listener)
+
+
+def _close(session: zenoh.Session, listener: object) -> None:
+    """Undeclare the listener (one still declared can hang the close) and close the session,
+    waiting at most :data:`CLOSE_TIMEOUT_S`.
+
+    With a ``--connect`` endpoint where nobody listens, the close sometimes never returned
+    (CI, SIGINT: still running 14 minutes later, deaf to further signals).  The process
+    then exits without it; the operating system closes its sockets.
+    """
+
+    def close() -> None:
         listener.undeclare()
+        session.close()
+
+    closer = threading.Thread(target=close, name="zenoh-close", daemon=True)
+    closer.start()
+    closer.join(CLOSE_TIMEOUT_S)
+    if closer.is_alive():
+        print(
+            f"the Zenoh session did not close within {CLOSE_TIMEOUT_S:g} s; exiting without it",
+            file=sys.stderr,
+            flush=True,
+        )
+        print("closed", file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        # not sys.exit: interpreter shutdown would wait on Zenoh's close again
+        os._exit(EXIT_OK)
 
 
 def _print_transport_event(event: zenoh.TransportEvent) -> None:
