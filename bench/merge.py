@@ -21,6 +21,9 @@ Methods, all in this one process:
                 and ``pgvd-as-drawn``: a map without unknown cells read as drawn, its
                 free space outside its walls' convex hull not made unknown
                 (``MergeParams.min_unknown = 0``, :mod:`pgvd.unexplored`);
+``pgvd-no-retry`` without the retry of a rejected raw map with its lone wall cells read
+                as unknown (``MergeParams.speckle_retry = 0``; it runs only on maps that
+                ``--speckle`` makes raw);
 ``pgvd-heading`` an option that is off by default: the Radon candidates refined on
                 the whole-map overlay, ``MergeParams(heading_span=6)``
                 (``python -m bench.recall --method pgvd-heading`` shows what it finds);
@@ -47,6 +50,9 @@ decision, each marked a success or not) is in ``merge.json``.
 
 ``--unknown free`` paints every unknown cell of both maps of each pair free
 (:func:`bench.pairs.painted_free`): the maps as images with no unknown cell.
+``--speckle D`` turns a share ``D`` of each map's free cells into lone walls, drawn
+independently for the two maps of a pair (:func:`bench.pairs.speckled_pair`): raw maps
+saved without cleaning.
 
 Run from the project root::
 
@@ -74,7 +80,7 @@ import numpy as np
 from bench import acceptance, covariance_wide, report
 from bench.capture import Finalists, SearchedHeadings, result_json, to_json
 from bench.environment import describe, environment
-from bench.pairs import MapPair, make_pair, painted_pair
+from bench.pairs import MapPair, make_pair, painted_pair, speckled_pair
 from bench.report import MAX_CELL_ERROR, mark, pose_right
 from bench.sets import (
     DRIFT,
@@ -144,6 +150,7 @@ ABLATIONS = {
     "pgvd-no-blur": {"heading_blur": False},
     "pgvd-rigid": {"drift_shift": 0.0},
     "pgvd-as-drawn": {"min_unknown": 0.0},
+    "pgvd-no-retry": {"speckle_retry": 0.0},
 }
 #: Options of pgvd that are off by default, measured beside it: MergeParams overrides.
 OPTIONS = {
@@ -350,7 +357,16 @@ def main(argv: list[str] | None = None) -> int:
         default="drawn",
         help="free: every pair's unknown cells painted free, as a map image without unknown",
     )
+    parser.add_argument(
+        "--speckle",
+        type=float,
+        default=0.0,
+        metavar="D",
+        help="turn this share of each map's free cells into lone walls (raw maps)",
+    )
     args = parser.parse_args(argv)
+    if not 0 <= args.speckle < 1:
+        parser.error(f"--speckle must be in [0, 1), got {args.speckle}")
     command = "python3 -m bench.merge " + " ".join(argv if argv is not None else sys.argv[1:])
     names = tuple(args.methods or (("pgvd",) if args.quick else ("pgvd", "m-explore", "hough")))
     counts = QUICK if args.quick else FULL
@@ -361,6 +377,11 @@ def main(argv: list[str] | None = None) -> int:
     entries = build(counts, args.seed, cache, sources, gmapping=args.sources is None)
     if args.unknown == "free":
         entries = [dataclasses.replace(e, pair=painted_pair(e.pair)) for e in entries]
+    if args.speckle > 0:
+        entries = [
+            dataclasses.replace(e, pair=speckled_pair(e.pair, args.speckle, args.seed))
+            for e in entries
+        ]
     _log(f"[pairs] {len(entries)} pairs ready in {time.perf_counter() - t0:.0f} s")
     records = run_pairs(entries, table)
     scaling = [] if args.no_scaling else run_scaling(table, args.seed, args.repeats)
@@ -386,6 +407,13 @@ def main(argv: list[str] | None = None) -> int:
             "Unknown painted free: every cell of both maps of each pair that a saved map draws "
             "unknown reads free (bench.pairs.painted_free), as in a map image whose unexplored "
             "area was painted white; the scaling pair is not painted."
+        )
+    if args.speckle > 0:
+        notes.append(
+            f"Speckle: {args.speckle:g} of each map's free cells turned into lone walls, "
+            "drawn independently for the two maps of a pair (bench.pairs.speckled_pair, "
+            f"seed {args.seed}): raw maps saved without cleaning; the scaling pair is not "
+            "speckled."
         )
     if scaling:
         notes.append(

@@ -119,3 +119,10 @@ def test_speed_table_gives_each_size_and_ratios_against_the_peers():
     assert small == "| 500^2 | 0.20 | 0.40 | 0.80 | 0.50 | 0.25 | 0.50 | 0.25 |"
     # a method or a CPU time missing at a size gives a dash, not a ratio against nothing
     assert large == "| 1000^2 | 0.30 | 0.20 | - | 1.50 | - | - | - |"
+
+
+def test_a_speckle_share_outside_0_to_1_is_refused(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["--speckle", "1.5", "--no-scaling"])
+    assert stop.value.code == 2
+    assert "--speckle must be in [0, 1), got 1.5" in capsys.readouterr().err
