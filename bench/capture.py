@@ -102,9 +102,13 @@ class SearchedHeadings:
     @contextlib.contextmanager
     def watching(self) -> Iterator[None]:
         seen: list = []
-        with _wrapping(
-            "_search_heading", lambda turned, *_, **__: seen.append(turned.heading)
-        ) as ok:
+        # a merge retried (a raw map, MergeParams.speckle_retry) reports its last pass
+        with (
+            _wrapping("_merge_pass", lambda *_, **__: seen.clear()),
+            _wrapping(
+                "_search_heading", lambda turned, *_, **__: seen.append(turned.heading)
+            ) as ok,
+        ):
             yield
         self.degrees = [float(np.degrees(h.psi)) for h in seen] if ok else None
         self.sigmas = [float(np.degrees(np.sqrt(h.variance))) for h in seen] if ok else None
@@ -125,7 +129,11 @@ class Finalists:
         # decide() is called once for the finalists and again with the shifted probes:
         # the finalists are the ``scored`` argument of the last call.
         calls: list[list] = []
-        with _wrapping("decide", lambda scored, *_, **__: calls.append(list(scored))) as ok:
+        # of a merge retried (a raw map), the last pass's
+        with (
+            _wrapping("_merge_pass", lambda *_, **__: calls.clear()),
+            _wrapping("decide", lambda scored, *_, **__: calls.append(list(scored))) as ok,
+        ):
             yield
         self.matrices = [np.asarray(s.matrix) for s in calls[-1]] if calls else []
         if not ok:

@@ -53,6 +53,10 @@ Stages (``timings_ms`` keys):
     covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
     curvature, inflated by the misfit and its heading widened, calibrated on real
     pairs (:func:`pgvd.matching.pose_covariance`).
+``speckle_share``, ``as_drawn``
+    after a rejection, the lone wall cells of both maps counted (``speckle_retry``);
+    when that retries the merge, the stages are the retry's and ``as_drawn`` is the
+    first try's total.
 """
 
 from __future__ import annotations
@@ -1147,25 +1151,45 @@ def merge(
             )
     params = params or MergeParams()
     result = _merge_pass(a, b, params, progress)
-    share = _raw_share(a, b, result, params)
-    if share is None:
+    if result.accepted or params.speckle_radius > 0 or params.speckle_retry <= 0:
         return result
+    return _retried(a, b, result, params, progress)
+
+
+def _retried(
+    a: Grid,
+    b: Grid,
+    first: MergeResult,
+    params: MergeParams,
+    progress: Callable[[str], None] | None,
+) -> MergeResult:
+    """The rejection ``first`` tried again with speckle read as unknown if a map is raw
+    (``params.speckle_retry``), else as it is; measuring the maps is timed into its total
+    (``timings_ms["speckle_share"]``)."""
+    t0 = time.perf_counter()
+    share = _raw_share(a, b, params)
+    spent = 1e3 * (time.perf_counter() - t0)
+    total = first.timings_ms["total"] + spent
+    first = replace(first, timings_ms={**first.timings_ms, "speckle_share": spent, "total": total})
+    if share < params.speckle_retry:
+        return first
     if progress is not None:
         progress(
             f"{share:.1%} of a map's free cells are lone wall cells (a raw map?): trying "
             "again with them read as unknown (as --despeckle)"
         )
-    again = _merge_pass(a, b, replace(params, speckle_radius=DESPECKLE_RADIUS), progress)
-    return _after_retry(result, again, share)
+    try:
+        again = _merge_pass(a, b, replace(params, speckle_radius=DESPECKLE_RADIUS), progress)
+    except ValueError as exc:  # e.g. every wall of a map was lone: nothing left to register
+        why = f"{first.reason}; with lone wall cells read as unknown: {exc}"
+        return replace(first, reason=why)
+    return _after_retry(first, again, share)
 
 
-def _raw_share(a: Grid, b: Grid, result: MergeResult, params: MergeParams) -> float | None:
-    """The larger share of lone wall cells among the two maps' free cells
-    (:func:`pgvd.speckle.speckle_share`) when ``result`` is a rejection that
-    ``params.speckle_retry`` retries with speckle read as unknown; None otherwise."""
-    if result.accepted or params.speckle_radius > 0 or params.speckle_retry <= 0:
-        return None
-    share = max(
+def _raw_share(a: Grid, b: Grid, params: MergeParams) -> float:
+    """The larger share of lone wall cells among the two maps' free cells, read as the
+    despeckle reading finds them (:func:`pgvd.speckle.speckle_share`)."""
+    return max(
         speckle_share(
             g.probability(),
             params.occupied,
@@ -1175,7 +1199,6 @@ def _raw_share(a: Grid, b: Grid, result: MergeResult, params: MergeParams) -> fl
         )
         for g in (a, b)
     )
-    return share if share >= params.speckle_retry else None
 
 
 def _after_retry(first: MergeResult, again: MergeResult, share: float) -> MergeResult:

@@ -193,3 +193,48 @@ def test_a_clean_rejection_is_not_retried():
     res = merge(read_map(EXAMPLES / "intel_a.yaml"), mirror, progress=said.append)
     assert not res.accepted and "as_drawn" not in res.timings_ms
     assert not any("read as unknown" in line for line in said)
+
+
+def test_a_map_of_lone_walls_only_is_rejected_not_refused():
+    """Every wall of this map is lone, so the retry reads it empty; the merge stays a
+    rejection (exit 3 for ``pgvd merge``), not an error about the input."""
+    from pgvd.merge import merge
+
+    p = np.full((60, 60), 0.1, np.float32)
+    p[::10, ::10] = 0.9  # a wall dot every 10 cells
+    p[50:, :] = 0.5  # unknown, so the map is not read as painted free
+    grid = Grid.from_probability(p, 0.05)
+    res = merge(grid, grid, MergeParams(diagnostics=False))
+    assert not res.accepted
+    assert "with lone wall cells read as unknown: map A has no occupied cells" in res.reason
+    assert res.timings_ms["speckle_share"] > 0
+
+
+def test_a_retry_that_is_rejected_too_gives_both_reasons():
+    """A raw map against its own mirror image: rejected as drawn and despeckled."""
+    from pgvd.io import read_map
+    from pgvd.merge import merge
+
+    b = _raw(read_map(EXAMPLES / "intel_b.yaml"), 0.02, 203)
+    mirror = Grid(b.logodds[:, ::-1].copy(), b.resolution, b.origin)
+    res = merge(_raw(read_map(EXAMPLES / "intel_a.yaml"), 0.02, 103), mirror)
+    assert not res.accepted
+    assert ", with lone wall cells read as unknown (" in res.reason and "; as drawn: " in res.reason
+    assert res.timings_ms["total"] > res.timings_ms["as_drawn"] > 0
+
+
+def test_the_bench_records_the_pass_that_decided_a_retried_merge():
+    """bench.capture's watchers keep the last pass of a retried merge: the headings it
+    searched are those the result reports, and its finalists are the despeckled maps'."""
+    from bench.capture import Finalists, SearchedHeadings
+    from pgvd.io import read_map
+    from pgvd.merge import merge
+
+    a = _raw(read_map(EXAMPLES / "intel_a.yaml"), 0.02, 103)
+    b = _raw(read_map(EXAMPLES / "intel_b.yaml"), 0.02, 203)
+    searched, finalists = SearchedHeadings(), Finalists()
+    with searched.watching(), finalists.watching():
+        res = merge(a, b, MergeParams(diagnostics=False))
+    assert "as_drawn" in res.timings_ms
+    assert searched.degrees == pytest.approx(list(res.headings_deg))
+    assert finalists.matrices and len(finalists.matrices) <= MergeParams().finalists
