@@ -22,9 +22,9 @@ cell or a pair has none.  With ``MergeParams.speckle_radius`` (``pgvd merge
 off by default: a laser's own map holds lone cells that are real (far walls drawn as
 sparse dots, chair legs), and reading them as unknown loses pairs of the development
 bench (:class:`pgvd.merge.MergeParams`).  A merge that is rejected is tried once more
-with speckle read as unknown when a map's lone wall cells are 1 % of its free cells or
-more (:func:`speckle_share`, ``MergeParams.speckle_retry``): that many only a raw map
-has on the development data.
+with speckle read as unknown when a map's lone wall cells are 0.4 % of its free cells or
+more (:func:`speckle_share`, ``MergeParams.speckle_retry``): more than most laser maps
+have, as raw images with half a per cent of speckle do.
 """
 
 from __future__ import annotations

@@ -87,8 +87,8 @@ def configure(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="read lone wall cells as unknown, for raw map images saved without cleaning "
         "(two maps only; not for a laser's own maps, whose far walls are sparse dots). "
-        "Without it a rejected merge is retried so when a map's lone wall cells are 1 %% "
-        "of its free cells or more",
+        "Without it a rejected merge is retried so when a map's lone wall cells are "
+        "0.4 %% of its free cells or more",
     )
     p.add_argument(
         "--prior",
