@@ -22,8 +22,9 @@ Methods, all in this one process:
                 free space outside its walls' convex hull not made unknown
                 (``MergeParams.min_unknown = 0``, :mod:`pgvd.unexplored`);
 ``pgvd-no-retry`` without the retry of a rejected raw map with its lone wall cells read
-                as unknown (``MergeParams.speckle_retry = 0``; it runs only on maps that
-                ``--speckle`` makes raw);
+                as unknown (``MergeParams.speckle_retry = 0``; the retry runs on maps with
+                many lone walls: those ``--speckle`` makes raw, and 12 of the 190 rejected
+                pairs of the maps as they are, where it accepts none);
 ``pgvd-heading`` an option that is off by default: the Radon candidates refined on
                 the whole-map overlay, ``MergeParams(heading_span=6)``
                 (``python -m bench.recall --method pgvd-heading`` shows what it finds);
