@@ -375,6 +375,12 @@ class MergeResult:
     distortion_px: float = float("nan")
     headings_deg: tuple[float, ...] = ()
 
+    def with_time(self, step: str, ms: float) -> MergeResult:
+        """This result with ``ms`` milliseconds of work done beside its stages (a check
+        before the search, a retry's first try) as ``timings_ms[step]``, in the total."""
+        total = self.timings_ms["total"] + ms
+        return replace(self, timings_ms={**self.timings_ms, step: ms, "total": total})
+
     def to_json(self) -> dict:
         """The object ``pgvd merge --json`` prints, plus ``reason``.
 
@@ -1171,9 +1177,7 @@ def _retried(
     (``timings_ms["speckle_share"]``)."""
     t0 = time.perf_counter()
     share = _raw_share(a, b, params)
-    spent = 1e3 * (time.perf_counter() - t0)
-    total = first.timings_ms["total"] + spent
-    first = replace(first, timings_ms={**first.timings_ms, "speckle_share": spent, "total": total})
+    first = first.with_time("speckle_share", 1e3 * (time.perf_counter() - t0))
     if share < params.speckle_retry:
         return first
     if progress is not None:
@@ -1213,9 +1217,7 @@ def _after_retry(first: MergeResult, again: MergeResult, share: float) -> MergeR
         reason = f"accepted with {read}"
     else:
         reason = f"{again.reason}, with {read}; as drawn: {first.reason}"
-    timings = {**again.timings_ms, "as_drawn": first.timings_ms["total"]}
-    timings["total"] = first.timings_ms["total"] + again.timings_ms["total"]
-    return replace(again, reason=reason, timings_ms=timings)
+    return replace(again.with_time("as_drawn", first.timings_ms["total"]), reason=reason)
 
 
 def _merge_pass(

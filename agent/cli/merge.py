@@ -314,12 +314,8 @@ def _merge_from_prior(
         say("confirmed at the prior (pgvd.verify); no search")
         return replace(checked, reason="confirmed at the prior")
     say(f"not confirmed at the prior: {checked.reason}; searching")
-    searched = merge(a, b, params, progress=progress)
     # the check's time is part of the work: "prior" beside the search's stages, in the total
-    spent = checked.timings_ms["total"]
-    timings = {**searched.timings_ms, "prior": spent}
-    timings["total"] = searched.timings_ms["total"] + spent
-    return replace(searched, timings_ms=timings)
+    return merge(a, b, params, progress=progress).with_time("prior", checked.timings_ms["total"])
 
 
 def run(args: argparse.Namespace) -> int:
