@@ -54,6 +54,9 @@ decision, each marked a success or not) is in ``merge.json``.
 ``--speckle D`` turns a share ``D`` of each map's free cells into lone walls, drawn
 independently for the two maps of a pair (:func:`bench.pairs.speckled_pair`): raw maps
 saved without cleaning.
+``--held-out`` cuts the same sets from the laser logs the shared data keeps to evaluate
+the merge on buildings it was never tuned on (:func:`bench.sources.held_out_logs`), and
+writes to ``bench/results/held-out/``.
 
 Run from the project root::
 
@@ -93,7 +96,7 @@ from bench.sets import (
     Entry,
     build,
 )
-from bench.sources import SOURCES
+from bench.sources import SOURCES, held_out_logs
 from pgvd.carmen import read_carmen
 from pgvd.grid import Grid, heading
 from pgvd.speckle import DESPECKLE_RADIUS
@@ -351,7 +354,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats per size")
     parser.add_argument("--cache", type=Path, default=CACHE, help="generated runs and pairs")
     parser.add_argument("--no-cache", action="store_true")
-    parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help="the laser logs the shared data keeps for evaluation, not the development "
+        "sources (default --out: bench/results/held-out)",
+    )
+    parser.add_argument("--out", type=Path, help="default: bench/results")
     parser.add_argument(
         "--unknown",
         choices=("drawn", "free"),
@@ -368,14 +377,21 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 0 <= args.speckle < 1:
         parser.error(f"--speckle must be in [0, 1), got {args.speckle}")
+    if args.held_out and args.sources:
+        parser.error("--held-out and --sources: the held-out logs are not development sources")
+    out = args.out or (RESULTS / "held-out" if args.held_out else RESULTS)
     command = "python3 -m bench.merge " + " ".join(argv if argv is not None else sys.argv[1:])
     names = tuple(args.methods or (("pgvd",) if args.quick else ("pgvd", "m-explore", "hough")))
     counts = QUICK if args.quick else FULL
     table = methods(args.exhaustive_step, args.exhaustive_coarse, names)
     t0 = time.perf_counter()
-    sources = tuple(s for s in SOURCES if args.sources is None or s.name in args.sources)
+    if args.held_out:
+        sources = held_out_logs()
+    else:
+        sources = tuple(s for s in SOURCES if args.sources is None or s.name in args.sources)
     cache = None if args.no_cache else args.cache
-    entries = build(counts, args.seed, cache, sources, gmapping=args.sources is None)
+    gmapping = args.sources is None and not args.held_out
+    entries = build(counts, args.seed, cache, sources, gmapping=gmapping)
     if args.unknown == "free":
         entries = [dataclasses.replace(e, pair=painted_pair(e.pair)) for e in entries]
     if args.speckle > 0:
@@ -403,6 +419,12 @@ def main(argv: list[str] | None = None) -> int:
         "Wrong accepts: accepted on an overlapping pair with a pose outside those bounds. "
         "False accepts: accepted on a negative pair.",
     ]
+    if args.held_out:
+        notes.append(
+            "Held out: the laser logs of the buildings the shared data keeps for evaluation "
+            "(bench.sources.held_out_logs: every log no development source reads), cut as "
+            "the development logs are. No parameter was set on them."
+        )
     if args.unknown == "free":
         notes.append(
             "Unknown painted free: every cell of both maps of each pair that a saved map draws "
@@ -425,9 +447,9 @@ def main(argv: list[str] | None = None) -> int:
             "clock and in CPU time (all threads of this process: the one to read on a busy "
             "machine)."
         )
-    args.out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     text = report.markdown(summary, scaling, command.strip(), notes)
-    (args.out / "merge.md").write_text(text)
+    (out / "merge.md").write_text(text)
     doc = {
         "command": command.strip(),
         "environment": env,
@@ -435,13 +457,13 @@ def main(argv: list[str] | None = None) -> int:
         "records": records,
         "scaling": to_json(scaling),
     }
-    (args.out / "merge.json").write_text(json.dumps(to_json(doc), indent=1) + "\n")
-    report.chart(summary, records, scaling, args.out / "merge.png")
+    (out / "merge.json").write_text(json.dumps(to_json(doc), indent=1) + "\n")
+    report.chart(summary, records, scaling, out / "merge.png")
     if "pgvd" in table:
-        acceptance.write(records, args.out, "merge.json")
-        covariance_wide.write(records, args.out, "merge.json")
+        acceptance.write(records, out, "merge.json")
+        covariance_wide.write(records, out, "merge.json")
     _log(text)
-    _log(f"wrote {args.out / 'merge.md'}, merge.json, merge.png")
+    _log(f"wrote {out / 'merge.md'}, merge.json, merge.png")
     return 0
 
 

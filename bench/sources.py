@@ -5,7 +5,8 @@ the corrected intel and freiburg-079 logs; simulated runs are a
 :mod:`bench.trajectory` tour through a development map image, scanned by
 :mod:`bench.lidar`'s LMS200 model.  Both feed the same pair generator
 (:mod:`bench.pairs`), so a simulated pair is made exactly as a log pair is.
-Only development data (the project's shared data notes) is used here.
+The bench uses only development data (the project's shared data notes);
+:func:`held_out_logs` finds the logs kept for evaluation, for ``bench.merge --held-out``.
 """
 
 from __future__ import annotations
@@ -62,6 +63,23 @@ SOURCES = (
     Source("stata-sim", "mit_stata_basement", "maps/mit_stata_basement/stata_basement.yaml"),
     Source("avz-sim", "uos_avz", "maps/uos_avz/avz.yaml"),
 )
+
+
+def held_out_logs(shared: Path = SHARED) -> tuple[Source, ...]:
+    """Every laser log of the shared data that no development source reads.
+
+    The shared data keeps these buildings to evaluate the merge on places its
+    parameters were never tuned on.  They are found by leaving out what
+    :data:`SOURCES` reads, so the project's code names none of them; each log is
+    a building of its own, named after its file.
+    """
+    used = {s.path for s in SOURCES}
+    return tuple(
+        Source(f"{building}-log", building, f"logs/{path.name}")
+        for path in sorted((shared / "logs").glob("*.log.gz"))
+        if f"logs/{path.name}" not in used
+        for building in [path.name.removesuffix(".log.gz").removesuffix("-corrected")]
+    )
 
 
 def caster_for(source: Source, shared: Path = SHARED) -> RayCaster:

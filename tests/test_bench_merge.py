@@ -126,3 +126,10 @@ def test_a_speckle_share_outside_0_to_1_is_refused(capsys):
         main(["--speckle", "1.5", "--no-scaling"])
     assert stop.value.code == 2
     assert "--speckle must be in [0, 1), got 1.5" in capsys.readouterr().err
+
+
+def test_held_out_and_sources_together_are_refused(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["--held-out", "--sources", "intel-log", "--no-scaling"])
+    assert stop.value.code == 2
+    assert "the held-out logs are not development sources" in capsys.readouterr().err
