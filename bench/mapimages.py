@@ -12,7 +12,7 @@ merge bench judges (:func:`bench.merge.evaluate`: accepted, heading within 2
 degrees, B's walls within 3 cells on average).
 
     python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--unknown free] [--speckle D]
-        [--clutter C] [--ablation NAME] [--out bench/results]
+        [--clutter C] [--ablation NAME] [--held-out] [--out bench/results]
 
 ``--unknown free`` paints every unknown cell of both parts free, the padding of
 B's frame included (:func:`bench.pairs.painted_free`): images whose unexplored
@@ -24,11 +24,14 @@ draws furniture into each image before its parts are cut, ``C`` filled discs of
 an office with a desk, chair or bin every 3 square metres).  ``--ablation
 pgvd-as-drawn`` (any name of :data:`bench.merge.ABLATIONS`) merges with that stage
 off, ``--ablation pgvd-despeckle`` (or another of :data:`bench.merge.OPTIONS`) with that
-option on; the report's name gains its name.
+option on; the report's name gains its name.  ``--held-out`` cuts the same parts
+from the map images the shared data keeps to evaluate the merge on buildings it was
+never tuned on (:func:`bench.sources.held_out_maps`) and writes to
+``bench/results/held-out/``.
 
 Writes ``mapimages.md`` (``mapimages-painted.md`` with ``--unknown free``,
 ``mapimages-speckle-D.md`` with ``--speckle D``, ``mapimages-clutter-C.md`` with
-``--clutter C``): per
+``--clutter C``) to ``bench/results/``: per
 growth, right / accepted pairs and the median and largest mean cell error of the
 right ones, and a row per map image.
 """
@@ -44,7 +47,7 @@ import numpy as np
 from bench.merge import RESULTS, VARIANTS, evaluate
 from bench.pairs import MapPair, cluttered, painted_pair, speckled_pair
 from bench.report import mark
-from bench.sources import SHARED, SOURCES
+from bench.sources import SHARED, SOURCES, held_out_maps
 from pgvd.grid import Grid, rigid_matrix
 from pgvd.io import read_map
 from pgvd.merge import MergeParams, merge
@@ -93,7 +96,19 @@ def part_pairs(name: str, p: np.ndarray, frames: int, rng: np.random.Generator) 
     return out
 
 
+def development_images() -> list[tuple[str, Path]]:
+    """(row label, YAML path) of every development map image: the ``*-sim`` sources."""
+    return [(s.name, SHARED / s.path) for s in SOURCES if s.simulated]
+
+
+def held_out_images() -> list[tuple[str, Path]]:
+    """(row label, YAML path) of every map image the shared data keeps for evaluation
+    (:func:`bench.sources.held_out_maps`), labelled ``directory/name``."""
+    return [(f"{p.parent.name}/{p.stem}", p) for p in held_out_maps()]
+
+
 def run(
+    images: list[tuple[str, Path]],
     frames: int,
     growths: list[int],
     seed: int,
@@ -102,7 +117,8 @@ def run(
     speckle: float = 0.0,
     clutter: float = 0.0,
 ) -> list[dict]:
-    """Every map image's pairs at every growth, merged; one record each (``painted``: with
+    """Every map image's pairs at every growth, merged; one record each (``images``: row
+    label and YAML path of each image; ``painted``: with
     :func:`bench.pairs.painted_pair`'s maps; ``speckle``: with that share of free cells
     lone walls, :func:`bench.pairs.speckled_pair`; ``clutter``: with that many discs of
     furniture per square metre of free space, :func:`bench.pairs.cluttered`; ``ablation``: a key of
@@ -110,8 +126,8 @@ def run(
     stage off or that option on)."""
     params = MergeParams(diagnostics=False, **VARIANTS.get(ablation, {}))
     records = []
-    for source in (s for s in SOURCES if s.simulated):
-        grid = read_map(SHARED / source.path)
+    for label, path in images:
+        grid = read_map(path)
         if not np.isclose(grid.resolution, RESOLUTION):
             grid = resample(grid, RESOLUTION)
         for cells in growths:
@@ -119,12 +135,12 @@ def run(
             rng = np.random.default_rng(seed)
             p = thickened(grid.probability(), cells)
             p = cluttered(p, clutter, RESOLUTION, seed) if clutter > 0 else p
-            for pair in part_pairs(source.name, p, frames, rng):
+            for pair in part_pairs(label, p, frames, rng):
                 pair = speckled_pair(pair, speckle, seed) if speckle > 0 else pair
                 pair = painted_pair(pair) if painted else pair
                 result = merge(pair.a, pair.b, params)
                 rec = evaluate(pair, result.accepted, result.matrix)
-                rec.update(source=source.name, grow=cells, pair=pair.name)
+                rec.update(source=label, grow=cells, pair=pair.name)
                 records.append(rec)
                 outcome = mark(rec["success"], rec["accepted"])
                 print(
@@ -168,7 +184,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=3, help="random frames of B per image")
     parser.add_argument("--grow", type=int, nargs="+", default=[0, 1, 2], help="cells")
     parser.add_argument("--seed", type=int, default=21)
-    parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help="the map images the shared data keeps for evaluation, not the development ones "
+        "(default --out: bench/results/held-out)",
+    )
+    parser.add_argument("--out", type=Path, help="default: bench/results")
     parser.add_argument(
         "--unknown",
         choices=("drawn", "free"),
@@ -204,10 +226,19 @@ def main(argv: list[str] | None = None) -> int:
     if not args.clutter >= 0:
         parser.error("--clutter must be >= 0")
     painted = args.unknown == "free"
+    images = held_out_images() if args.held_out else development_images()
     records = run(
-        args.frames, args.grow, args.seed, painted, args.ablation, args.speckle, args.clutter
+        images,
+        args.frames,
+        args.grow,
+        args.seed,
+        painted,
+        args.ablation,
+        args.speckle,
+        args.clutter,
     )
-    args.out.mkdir(parents=True, exist_ok=True)
+    out_dir = args.out or (RESULTS / "held-out" if args.held_out else RESULTS)
+    out_dir.mkdir(parents=True, exist_ok=True)
     command = "python3 -m bench.mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
     name = (
         "mapimages"
@@ -216,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         + (f"-clutter-{args.clutter:g}" if args.clutter else "")
         + (f"-{args.ablation}" if args.ablation else "")
     )
-    out = args.out / f"{name}.md"
+    out = out_dir / f"{name}.md"
     out.write_text(report(records, command.strip()))
     print(f"wrote {out}")
     return 0

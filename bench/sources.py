@@ -6,7 +6,8 @@ the corrected intel and freiburg-079 logs; simulated runs are a
 :mod:`bench.lidar`'s LMS200 model.  Both feed the same pair generator
 (:mod:`bench.pairs`), so a simulated pair is made exactly as a log pair is.
 The bench uses only development data (the project's shared data notes);
-:func:`held_out_logs` finds the logs kept for evaluation, for ``bench.merge --held-out``.
+:func:`held_out_logs` and :func:`held_out_maps` find the logs and map images kept for
+evaluation (``bench.merge --held-out``, ``bench.mapimages --held-out``).
 """
 
 from __future__ import annotations
@@ -63,6 +64,35 @@ SOURCES = (
     Source("stata-sim", "mit_stata_basement", "maps/mit_stata_basement/stata_basement.yaml"),
     Source("avz-sim", "uos_avz", "maps/uos_avz/avz.yaml"),
 )
+
+
+#: The map directories the shared data notes give to development (tests and the bench);
+#: every other one is kept to evaluate the merge on buildings it was never tuned on.
+DEVELOPMENT_MAPS = frozenset(
+    {
+        "intel",
+        "intel_split_gt",
+        "fr079_albertB",
+        "fr079_split_gt",
+        "willow",
+        "ritsumeikan_cc4f",
+        "mit_stata_basement",
+        "uos_avz",
+    }
+)
+
+
+def held_out_maps(shared: Path = SHARED) -> tuple[Path, ...]:
+    """Every map image (map_server YAML) of the shared data outside :data:`DEVELOPMENT_MAPS`.
+
+    Found by leaving the development directories out, so the project's code names
+    none of the held-out ones.
+    """
+    return tuple(
+        sorted(
+            p for p in (shared / "maps").glob("*/*.yaml") if p.parent.name not in DEVELOPMENT_MAPS
+        )
+    )
 
 
 def held_out_logs(shared: Path = SHARED) -> tuple[Source, ...]:
