@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.merge import RESULTS, VARIANTS, evaluate
+from bench.merge import VARIANTS, add_output_arguments, evaluate, output_dir
 from bench.pairs import MapPair, cluttered, painted_pair, speckled_pair
 from bench.report import mark
 from bench.sources import SHARED, SOURCES, held_out_maps
@@ -184,13 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=3, help="random frames of B per image")
     parser.add_argument("--grow", type=int, nargs="+", default=[0, 1, 2], help="cells")
     parser.add_argument("--seed", type=int, default=21)
-    parser.add_argument(
-        "--held-out",
-        action="store_true",
-        help="the map images the shared data keeps for evaluation, not the development ones "
-        "(default --out: bench/results/held-out)",
-    )
-    parser.add_argument("--out", type=Path, help="default: bench/results")
+    add_output_arguments(parser, "map images")
     parser.add_argument(
         "--unknown",
         choices=("drawn", "free"),
@@ -237,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         args.speckle,
         args.clutter,
     )
-    out_dir = args.out or (RESULTS / "held-out" if args.held_out else RESULTS)
+    out_dir = output_dir(args)
     out_dir.mkdir(parents=True, exist_ok=True)
     command = "python3 -m bench.mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
     name = (

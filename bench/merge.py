@@ -103,6 +103,8 @@ from pgvd.speckle import DESPECKLE_RADIUS
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
+#: Reports measured on the data kept for evaluation (``--held-out``).
+HELD_OUT = RESULTS / "held-out"
 CACHE = ROOT / "bench" / "cache"
 #: Cell size of the scaling pair: intel at 0.07 m is ~500 cells per side.
 SCALE_RESOLUTION = 0.07
@@ -335,6 +337,24 @@ def run_scaling(table: dict[str, Method], seed: int, repeats: int) -> list[dict]
     return records
 
 
+def add_output_arguments(parser: argparse.ArgumentParser, data: str) -> None:
+    """``--held-out`` (run on the ``data`` the shared data keeps for evaluation) and
+    ``--out``, whose default follows it (:func:`output_dir`)."""
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help=f"the {data} the shared data keeps for evaluation, not the development ones "
+        "(default --out: bench/results/held-out)",
+    )
+    parser.add_argument("--out", type=Path, help="default: bench/results")
+
+
+def output_dir(args: argparse.Namespace) -> Path:
+    """Where a report goes: ``--out``, else ``bench/results/held-out`` with ``--held-out``,
+    else ``bench/results``."""
+    return args.out or (HELD_OUT if args.held_out else RESULTS)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a few pairs per source and set")
@@ -354,13 +374,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats per size")
     parser.add_argument("--cache", type=Path, default=CACHE, help="generated runs and pairs")
     parser.add_argument("--no-cache", action="store_true")
-    parser.add_argument(
-        "--held-out",
-        action="store_true",
-        help="the laser logs the shared data keeps for evaluation, not the development "
-        "sources (default --out: bench/results/held-out)",
-    )
-    parser.add_argument("--out", type=Path, help="default: bench/results")
+    add_output_arguments(parser, "laser logs")
     parser.add_argument(
         "--unknown",
         choices=("drawn", "free"),
@@ -379,7 +393,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--speckle must be in [0, 1), got {args.speckle}")
     if args.held_out and args.sources:
         parser.error("--held-out and --sources: the held-out logs are not development sources")
-    out = args.out or (RESULTS / "held-out" if args.held_out else RESULTS)
+    out = output_dir(args)
     command = "python3 -m bench.merge " + " ".join(argv if argv is not None else sys.argv[1:])
     names = tuple(args.methods or (("pgvd",) if args.quick else ("pgvd", "m-explore", "hough")))
     counts = QUICK if args.quick else FULL
