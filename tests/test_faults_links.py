@@ -72,7 +72,9 @@ def test_lab_drops_the_set_share_and_partitions_heal() -> None:
     with Lab(3, loss_pct=20) as lab:
         got = udp_burst(lab, 0, 1)
         # 2000 Bernoulli(0.8) trials: mean 1600, sd 18; the bounds are > 8 sd away.
-        assert 1450 < got < 1750, got
+        # the rule's own count in the message: a low count with few rule drops is a loss
+        # outside the rule (a queue on a loaded machine), not the rule misbehaving
+        assert 1450 < got < 1750, f"received {got} of 2000, the rule dropped {lab.dropped(0)}"
         # The rule also drops ARP and the odd packet queued behind an unresolved neighbour.
         assert abs(lab.dropped(0) - (2000 - got)) <= 10
         for i in range(3):
