@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import os
 import re
 import select
@@ -239,6 +240,20 @@ class Lab:
         """Undo :meth:`partition`."""
         for host in self.hosts:
             _delete_table(host.ns, "split")
+
+    def resolve(self, src: int, dst: int) -> None:
+        """Pin host ``dst``'s address in host ``src``'s neighbour table.
+
+        The loss rule drops ARP too. While a dropped request waits a second to be sent
+        again, the kernel queues only the last ~250 packets for that neighbour and drops the
+        rest, outside the rule and uncounted: a slow sender (a loaded machine) then loses
+        more than the rule's share. A packet count that must match the rule pins first.
+        """
+        target = self.hosts[dst]
+        link = json.loads(_cmd(["ip", "-n", target.ns, "-j", "link", "show", target.dev]))
+        host, mac = self.hosts[src], link[0]["address"]
+        entry = [target.addr, "lladdr", mac, "dev", host.dev, "nud", "permanent"]
+        _cmd(["ip", "-n", host.ns, "neigh", "replace", *entry])
 
     def dropped(self, index: int) -> int:
         """Packets the loss rule of host ``index`` dropped on egress so far."""
