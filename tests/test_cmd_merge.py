@@ -439,3 +439,20 @@ def test_a_prior_near_b_is_confirmed_without_a_search_and_a_wrong_one_searched()
     assert "not confirmed at the prior" in proc.stderr and "searching" in proc.stderr
     searched = json.loads(proc.stdout)
     assert searched["matrix"] == plain["matrix"] and "prior" in searched["timings_ms"]
+
+
+def test_a_map_whose_unknown_space_is_drawn_black_gets_a_note(tmp_path: Path) -> None:
+    """An image storing unknown as black (0) reads as mostly walls: the user is told so."""
+    ex = ROOT / "examples"
+    b = read_map(ex / "intel_b.yaml")
+    p = b.probability()
+    p[(p >= 0.3) & (p <= 0.65)] = 1.0
+    write_map(tmp_path / "black.yaml", Grid.from_probability(p, b.resolution))
+    proc = pgvd_merge(ex / "intel_a.yaml", tmp_path / "black.yaml", "--json")
+    assert proc.returncode in (0, 3), proc.stderr
+    notes = [ln for ln in proc.stderr.splitlines() if "known cells are walls" in ln]
+    assert len(notes) == 1 and "of map B's known cells" in notes[0], proc.stderr
+    share = int(notes[0].split("note: ")[1].split("%")[0])
+    assert share > 50
+    plain = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", "--json")
+    assert plain.returncode == 0 and "known cells are walls" not in plain.stderr

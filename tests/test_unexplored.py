@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from pgvd.unexplored import restore_unexplored, unknown_share, wall_hull
+from pgvd.unexplored import restore_unexplored, unknown_share, wall_hull, wall_share
 
 FREE, OCCUPIED = 0.3, 0.65
 
@@ -97,3 +97,11 @@ def test_a_painted_map_image_merges_right_and_read_as_drawn_does_not(shared):
 
 def _outcome(result) -> tuple[bool, np.ndarray]:
     return result.accepted, result.matrix
+
+
+def test_wall_share_counts_walls_among_known_cells_only() -> None:
+    p = np.full((10, 10), 0.5)  # unknown
+    p[0, :4] = 0.9  # 4 walls
+    p[1:3, :] = 0.1  # 20 free
+    assert wall_share(p, 0.3, 0.65) == 4 / 24
+    assert wall_share(np.full((3, 3), 0.5), 0.3, 0.65) == 0.0

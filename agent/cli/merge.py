@@ -125,6 +125,25 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
     return lambda line: print(f"pgvd merge: {line}", file=sys.stderr, flush=True)
 
 
+def _say_mostly_walls(a: Grid, b: Grid) -> None:
+    """A note (stderr) for a map that is mostly walls, which is how an image that stores
+    unknown space black reads: the merge is tried all the same, and likely rejected."""
+    from pgvd.merge import MergeParams
+    from pgvd.unexplored import MOSTLY_WALLS, wall_share
+
+    params = MergeParams()
+    for name, grid in (("A", a), ("B", b)):
+        share = wall_share(grid.probability(), params.free, params.occupied)
+        if share > MOSTLY_WALLS:
+            print(
+                f"pgvd merge: note: {100 * share:.0f} % of map {name}'s known cells are walls (a "
+                "laser's map is mostly free space, its walls a few per cent): does its image "
+                "draw unknown space black? "
+                "map_server images draw it grey (205), between free_thresh and occupied_thresh",
+                file=sys.stderr,
+            )
+
+
 def _read(path: Path, args: argparse.Namespace) -> Grid:
     """One map file, with ``--max-cells`` and, for files that carry none, ``--resolution``."""
     resolution = args.resolution
@@ -354,6 +373,7 @@ def run(args: argparse.Namespace) -> int:
     from pgvd.render import merge_figure
     from pgvd.transform import resample, scale_matrix
 
+    _say_mostly_walls(a, b)
     b_scale = None
     if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
         _check_resampled(args.b, b, a.resolution, args.max_cells)
