@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import NEGATIVE, OVERLAP_SETS, pose_right, records_main
+from bench.report import NEGATIVE, OVERLAP_SETS, frac, pose_right, records_main
 
 CLASSES = ("right", "wrong", "negative")
 #: Thresholds of the table, beside the merge's own.
@@ -66,10 +66,6 @@ def margins(records: list[dict]) -> dict[str, list[tuple[dict, float]]]:
     return out
 
 
-def _frac(hits: int, n: int) -> str:
-    return "-" if n == 0 else f"{hits}/{n} ({100 * hits / n:.0f} %)"
-
-
 def threshold_rows(
     classes: dict[str, list[tuple[dict, float]]], thresholds: list[float]
 ) -> list[str]:
@@ -79,12 +75,12 @@ def threshold_rows(
         cells = []
         for name in OVERLAP_SETS:
             mine = [m for r, m in classes["right"] if r["set"] == name]
-            cells.append(_frac(sum(m >= t for m in mine), len(mine)))
+            cells.append(frac(sum(m >= t for m in mine), len(mine)))
         wrong = [m for _, m in classes["wrong"]]
         neg = [m for _, m in classes["negative"]]
         cells += [
-            _frac(sum(m >= t for m in wrong), len(wrong)),
-            _frac(sum(m >= t for m in neg), len(neg)),
+            frac(sum(m >= t for m in wrong), len(wrong)),
+            frac(sum(m >= t for m in neg), len(neg)),
         ]
         rows.append(f"| {t:.2f} | " + " | ".join(cells) + " |")
     return rows
@@ -117,8 +113,8 @@ def held_out_rows(classes: dict[str, list[tuple[dict, float]]], step: float = 0.
         right = [m for _, m, c in inside if c == "right"]
         n_bad = sum(c != "right" for _, _, c in inside)
         rows.append(
-            f"| {name} | {t:.2f} | {_frac(sum(m >= t for m in right), len(right))} "
-            f"| {_frac(len(bad), n_bad)} | {', '.join(bad) or '-'} |"
+            f"| {name} | {t:.2f} | {frac(sum(m >= t for m in right), len(right))} "
+            f"| {frac(len(bad), n_bad)} | {', '.join(bad) or '-'} |"
         )
     return rows
 

@@ -43,7 +43,8 @@ def mark(success: bool, accepted: bool) -> str:
     return "ok" if success else ("ACC" if accepted else "rej")
 
 
-def _frac(hits: int, n: int) -> str:
+def frac(hits: int, n: int) -> str:
+    """``hits/n (P %)``, or ``-`` for no pairs."""
     return "-" if n == 0 else f"{hits}/{n} ({100 * hits / n:.0f} %)"
 
 
@@ -105,7 +106,7 @@ def method_table(summary: dict, scaling: list[dict]) -> list[str]:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m, doc in summary.items():
         a = doc["all"]
-        row = [m, *(_frac(*a[s]) for s in OVERLAP_SETS), _frac(*a["wrong"]), _frac(*a["false"])]
+        row = [m, *(frac(*a[s]) for s in OVERLAP_SETS), frac(*a["wrong"]), frac(*a["false"])]
         row += [_fmt(a["heading_deg"]), _fmt(a["cell_err"]), _fmt(a["median_s"]), _fmt(a["p95_s"])]
         for c in cells:
             t = [r["seconds"] for r in scaling if r["method"] == m and r["cells"] == c]
@@ -146,8 +147,8 @@ def source_table(stats: dict) -> list[str]:
     head += ["false accepts (negatives of this source)", "median s", "p95 s"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, s in [*stats["by_source"].items(), ("**all**", stats["all"])]:
-        row = [name, *(_frac(*s[k]) for k in OVERLAP_SETS), _frac(*s["wrong"])]
-        row += [_frac(*s["false"]), _fmt(s["median_s"]), _fmt(s["p95_s"])]
+        row = [name, *(frac(*s[k]) for k in OVERLAP_SETS), frac(*s["wrong"])]
+        row += [frac(*s["false"]), _fmt(s["median_s"]), _fmt(s["p95_s"])]
         lines.append("| " + " | ".join(row) + " |")
     return lines
 
@@ -158,7 +159,7 @@ def negative_table(summary: dict) -> list[str]:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m, doc in summary.items():
         a = doc["all"]
-        row = [m, *(_frac(*a[f"false_{k}"]) for k in NEGATIVE_KINDS), _frac(*a["false"])]
+        row = [m, *(frac(*a[f"false_{k}"]) for k in NEGATIVE_KINDS), frac(*a["false"])]
         lines.append("| " + " | ".join(row) + " |")
     return lines
 

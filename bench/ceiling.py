@@ -1,0 +1,112 @@
+"""What any decision could reach on a bench run: the pairs whose true pose was found at all.
+
+A pair's true pose is *found* when some method of the runs given returned it,
+accepted or not (:func:`bench.report.pose_right`), or when one of pgvd's
+finalists reached it after refinement (``finalist_success``).  A decision
+can accept at most the pairs whose pose is found, so the share found per set
+bounds the success of every decision on those hypotheses.  With the
+``exhaustive`` reference's run among the inputs (every heading at 1 degree,
+the best whole-pose score), a pair found by no method is one whose best-scoring
+pose is not the truth: a wider search does not find it either.
+
+The shares are set against issue 10's targets (:data:`TARGETS`; a standard
+building at :data:`BUILDING_TARGET`).
+
+    python3 -m bench.ceiling bench/results/merge.json RUN/merge.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from bench.report import frac, pose_right
+
+#: Issue 10's success targets per set (share of the overlapping pairs).
+TARGETS = {"standard": 0.97, "low": 0.60, "drifted": 0.90}
+#: Issue 10's target for the standard pairs of every building.
+BUILDING_TARGET = 0.90
+
+
+def found(record: dict) -> bool:
+    """Whether a record's method reached the true pose: returned it, accepted or not, or
+    held it among its refined finalists."""
+    return pose_right(record) or any(record.get("finalist_success") or ())
+
+
+def by_pair(records: list[dict]) -> dict[str, list[dict]]:
+    """The overlapping pairs' records, every method's, keyed by pair."""
+    out: dict[str, list[dict]] = {}
+    for r in records:
+        if r["overlap"] > 0:
+            out.setdefault(r["pair"], []).append(r)
+    return out
+
+
+def rows(pairs: dict[str, list[dict]], ours: str = "pgvd") -> list[str]:
+    """Markdown rows per set, and per building for the standard set: success of ``ours``,
+    pose found by ``ours``, by any method, the target and whether the bound reaches it."""
+    lines = [
+        f"| group | pairs | {ours} success | found by {ours} | found by any method "
+        "| target | bound reaches target |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    first = {p: recs[0] for p, recs in pairs.items()}
+    groups = [(s, TARGETS[s], lambda r, s=s: r["set"] == s) for s in TARGETS]
+    groups += [
+        (
+            f"standard, {src}",
+            BUILDING_TARGET,
+            lambda r, src=src: (r["set"], r["source"]) == ("standard", src),
+        )
+        for src in sorted({r["source"] for r in first.values() if r["set"] == "standard"})
+    ]
+    for name, target, member in groups:
+        mine = [p for p, r in first.items() if member(r)]
+        if not mine:
+            continue
+        own = [r for p in mine for r in pairs[p] if r["method"] == ours]
+        success = sum(r["success"] for r in own)
+        by_ours = sum(found(r) for r in own)
+        by_any = sum(any(found(r) for r in pairs[p]) for p in mine)
+        reach = "yes" if by_any >= target * len(mine) else "no"
+        lines.append(
+            f"| {name} | {len(mine)} | {frac(success, len(own))} "
+            f"| {frac(by_ours, len(own))} | {frac(by_any, len(mine))} "
+            f"| {100 * target:.0f} % | {reach} |"
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="merge.json files of bench runs")
+    parser.add_argument("--method", default="pgvd", help="the method whose success is shown")
+    args = parser.parse_args(argv)
+    records: list[dict] = []
+    for path in args.runs:
+        try:
+            records += json.loads(path.read_text())["records"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            parser.error(f"{path}: not a bench run's merge.json ({exc})")
+    pairs = by_pair(records)
+    if not pairs:
+        parser.error("no overlapping pair in the runs given")
+    methods = sorted({r["method"] for recs in pairs.values() for r in recs})
+    print("# What any decision could reach: pairs whose true pose was found\n")
+    print(f"`python3 -m bench.ceiling {' '.join(map(str, args.runs))}`\n")
+    print(f"Methods: {', '.join(methods)}.\n")
+    print(
+        f"A pair's true pose is found when a method returned it, accepted or not, or when one "
+        f"of {args.method}'s refined finalists reached it. No decision on these hypotheses "
+        "accepts more pairs than are found. With the exhaustive search among the runs, a pair "
+        "no method found is one whose best pose by a whole-map score over every heading is "
+        "not the truth either. Targets: issue 10.\n"
+    )
+    print("\n".join(rows(pairs, args.method)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
