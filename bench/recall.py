@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.merge import RESULTS
-from bench.report import MAX_HEADING_DEG, pose_right
+from bench.report import MAX_HEADING_DEG, frac, pose_right
 
 
 def angle_gap(a_deg: float, b_deg: float) -> float:
@@ -101,10 +101,6 @@ def pose_recall(records: list[dict]) -> tuple[int, int, int]:
     return len(found), len(known), sum(not r["success"] for r in found)
 
 
-def _share(hits: int, total: int) -> str:
-    return f"{hits}/{total} ({100 * hits / total:.1f} %)" if total else "-"
-
-
 def table(records: list[dict], tolerance: float) -> list[str]:
     """Markdown rows: heading and pose recall per set and per source."""
     lines = [
@@ -120,12 +116,12 @@ def table(records: list[dict], tolerance: float) -> list[str]:
             continue
         got = recall(mine, tolerance)
         found, known, lost = pose_recall(mine)
-        success = _share(sum(r["success"] for r in mine), len(mine))
-        right = _share(sum(map(pose_right, mine)), len(mine))
+        success = frac(sum(r["success"] for r in mine), len(mine), 1)
+        right = frac(sum(map(pose_right, mine)), len(mine), 1)
         miss = ", ".join(f"{p}: {g}" for p, g in got["misses"]) or "-"
         lines.append(
-            f"| {value or '**all**'} | {success} | {right} | {_share(found, known)} "
-            f"| {lost if known else '-'} | {_share(got['hits'], got['pairs'])} | {miss} |"
+            f"| {value or '**all**'} | {success} | {right} | {frac(found, known, 1)} "
+            f"| {lost if known else '-'} | {frac(got['hits'], got['pairs'], 1)} | {miss} |"
         )
     return lines
 

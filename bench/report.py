@@ -43,9 +43,9 @@ def mark(success: bool, accepted: bool) -> str:
     return "ok" if success else ("ACC" if accepted else "rej")
 
 
-def frac(hits: int, n: int) -> str:
-    """``hits/n (P %)``, or ``-`` for no pairs."""
-    return "-" if n == 0 else f"{hits}/{n} ({100 * hits / n:.0f} %)"
+def frac(hits: int, n: int, digits: int = 0) -> str:
+    """``hits/n (P %)`` with ``digits`` decimals, or ``-`` for no pairs."""
+    return "-" if n == 0 else f"{hits}/{n} ({100 * hits / n:.{digits}f} %)"
 
 
 def _count(records: list[dict], key: str) -> tuple[int, int]:

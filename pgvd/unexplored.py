@@ -33,8 +33,8 @@ def unknown_share(prob: np.ndarray, free: float, occupied: float) -> float:
     return unknown / max(1, prob.size)
 
 
-#: Walls above this share of a map's known cells (:func:`wall_share`) are no laser's map:
-#: a laser draws thin walls around the free space it saw, 0.5-7 % of the known cells of
+#: Walls above this share (50 %) of a map's known cells (:func:`wall_share`) are no laser's
+#: map: a laser draws thin walls around the free space it saw, 0.5-7 % of the known cells of
 #: every development map image.  An image that stores unknown space black reads so: its
 #: unexplored space becomes walls (80 % of intel's example map B drawn that way).
 MOSTLY_WALLS = 0.5

@@ -456,3 +456,7 @@ def test_a_map_whose_unknown_space_is_drawn_black_gets_a_note(tmp_path: Path) ->
     assert share > 50
     plain = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", "--json")
     assert plain.returncode == 0 and "known cells are walls" not in plain.stderr
+    # more than two maps: the note names the file
+    many = pgvd_merge(ex / "intel_a.yaml", ex / "intel_b.yaml", tmp_path / "black.yaml", "--json")
+    notes = [ln for ln in many.stderr.splitlines() if "known cells are walls" in ln]
+    assert len(notes) == 1 and f"of {tmp_path / 'black.yaml'}'s known cells" in notes[0]

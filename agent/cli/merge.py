@@ -125,18 +125,18 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
     return lambda line: print(f"pgvd merge: {line}", file=sys.stderr, flush=True)
 
 
-def _say_mostly_walls(a: Grid, b: Grid) -> None:
-    """A note (stderr) for a map that is mostly walls, which is how an image that stores
+def _say_mostly_walls(named: list[tuple[str, Grid]]) -> None:
+    """A note (stderr) for each map that is mostly walls, which is how an image that stores
     unknown space black reads: the merge is tried all the same, and likely rejected."""
     from pgvd.merge import MergeParams
     from pgvd.unexplored import MOSTLY_WALLS, wall_share
 
     params = MergeParams()
-    for name, grid in (("A", a), ("B", b)):
+    for name, grid in named:
         share = wall_share(grid.probability(), params.free, params.occupied)
         if share > MOSTLY_WALLS:
             print(
-                f"pgvd merge: note: {100 * share:.0f} % of map {name}'s known cells are walls (a "
+                f"pgvd merge: note: {100 * share:.0f} % of {name}'s known cells are walls (a "
                 "laser's map is mostly free space, its walls a few per cent): does its image "
                 "draw unknown space black? "
                 "map_server images draw it grey (205), between free_thresh and occupied_thresh",
@@ -373,7 +373,7 @@ def run(args: argparse.Namespace) -> int:
     from pgvd.render import merge_figure
     from pgvd.transform import resample, scale_matrix
 
-    _say_mostly_walls(a, b)
+    _say_mostly_walls([("map A", a), ("map B", b)])
     b_scale = None
     if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
         _check_resampled(args.b, b, a.resolution, args.max_cells)
@@ -425,6 +425,7 @@ def _run_many(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     grids = [_read(f, args) for f in files]
     for f, g in zip(files, grids, strict=True):
         _check_resampled(f, g, grids[0].resolution, args.max_cells)
+    _say_mostly_walls([(str(f), g) for f, g in zip(files, grids, strict=True)])
     from agent.multimerge import merge_many
     from pgvd.render import grid_image
 
