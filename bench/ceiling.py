@@ -14,14 +14,17 @@ pose is not the truth: a wider search does not find it either.
 The shares are set against issue 10's targets (:data:`TARGETS`; a standard
 building at :data:`BUILDING_TARGET`).
 
-    python3 -m bench.ceiling bench/results/merge.json RUN/merge.json
+    python3 -m bench.ceiling bench/results/merge.json RUN/merge.json [--png OUT.png]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from bench.report import frac, pose_right
 
@@ -81,14 +84,28 @@ def by_pair(records: list[dict]) -> dict[str, list[dict]]:
     return out
 
 
-def rows(pairs: dict[str, list[dict]], ours: str = "pgvd") -> list[str]:
-    """Markdown rows per set, and per building for the standard set: success of ``ours``,
-    pose found by ``ours``, by any method, the target and whether the bound reaches it."""
-    lines = [
-        f"| group | pairs | {ours} success | found by {ours} | found by any method "
-        "| target | bound reaches target |",
-        "|---|---|---|---|---|---|---|",
-    ]
+@dataclass(frozen=True)
+class Bound:
+    """One group's counts: its pairs, and how many ``ours`` accepted right, ``ours`` found
+    and any method found (:func:`found`), against the target share."""
+
+    group: str
+    pairs: int
+    ours: int
+    success: int
+    by_ours: int
+    by_any: int
+    target: float
+
+    @property
+    def reaches(self) -> bool:
+        """Whether what any method found reaches the target."""
+        return self.by_any >= self.target * self.pairs
+
+
+def bounds(pairs: dict[str, list[dict]], ours: str = "pgvd") -> list[Bound]:
+    """The counts per set (:data:`TARGETS`), then per building of the standard set
+    (:data:`BUILDING_TARGET`); groups without pairs are left out."""
     first = {p: recs[0] for p, recs in pairs.items()}
     groups = [(s, TARGETS[s], lambda r, s=s: r["set"] == s) for s in TARGETS]
     groups += [
@@ -99,27 +116,96 @@ def rows(pairs: dict[str, list[dict]], ours: str = "pgvd") -> list[str]:
         )
         for src in sorted({r["source"] for r in first.values() if r["set"] == "standard"})
     ]
+    out = []
     for name, target, member in groups:
         mine = [p for p, r in first.items() if member(r)]
         if not mine:
             continue
         own = [r for p in mine for r in pairs[p] if r["method"] == ours]
-        success = sum(r["success"] for r in own)
-        by_ours = sum(found(r) for r in own)
-        by_any = sum(any(found(r) for r in pairs[p]) for p in mine)
-        reach = "yes" if by_any >= target * len(mine) else "no"
+        out.append(
+            Bound(
+                group=name,
+                pairs=len(mine),
+                ours=len(own),
+                success=sum(r["success"] for r in own),
+                by_ours=sum(found(r) for r in own),
+                by_any=sum(any(found(r) for r in pairs[p]) for p in mine),
+                target=target,
+            )
+        )
+    return out
+
+
+def rows(pairs: dict[str, list[dict]], ours: str = "pgvd") -> list[str]:
+    """Markdown rows of :func:`bounds`: success of ``ours``, pose found by ``ours``, by any
+    method, the target and whether the bound reaches it."""
+    lines = [
+        f"| group | pairs | {ours} success | found by {ours} | found by any method "
+        "| target | bound reaches target |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for b in bounds(pairs, ours):
         lines.append(
-            f"| {name} | {len(mine)} | {frac(success, len(own))} "
-            f"| {frac(by_ours, len(own))} | {frac(by_any, len(mine))} "
-            f"| {100 * target:.0f} % | {reach} |"
+            f"| {b.group} | {b.pairs} | {frac(b.success, b.ours)} | {frac(b.by_ours, b.ours)} "
+            f"| {frac(b.by_any, b.pairs)} | {100 * b.target:.0f} % "
+            f"| {'yes' if b.reaches else 'no'} |"
         )
     return lines
+
+
+def chart(found_bounds: list[Bound], ours: str, path: Path) -> None:
+    """Bars per group: ``ours``'s success, what it found, what any method found; a tick at
+    the target."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    x = np.arange(len(found_bounds))
+    bars = (
+        (f"{ours} accepted right", "tab:green", lambda b: b.success / max(1, b.ours)),
+        (f"found by {ours}", "tab:olive", lambda b: b.by_ours / max(1, b.ours)),
+        ("found by any method", "tab:gray", lambda b: b.by_any / b.pairs),
+    )
+    for i, (label, colour, share) in enumerate(bars):
+        ax.bar(
+            x + (i - 1) * 0.27,
+            [100 * share(b) for b in found_bounds],
+            0.27,
+            color=colour,
+            label=label,
+        )
+    ax.scatter(
+        x,
+        [100 * b.target for b in found_bounds],
+        marker="_",
+        s=900,
+        color="k",
+        zorder=3,
+        label="target (issue 10)",
+    )
+    ax.set_xticks(
+        x,
+        [b.group.replace("standard, ", "std: ") for b in found_bounds],
+        rotation=30,
+        ha="right",
+        fontsize=8,
+    )
+    ax.set_ylabel("% of the overlapping pairs")
+    ax.set_ylim(0, 120)
+    ax.set_title("what pgvd accepts, what the searches find, and the targets (development data)")
+    ax.legend(fontsize=8, loc="upper center", ncol=4)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path, help="merge.json files of bench runs")
     parser.add_argument("--method", default="pgvd", help="the method whose success is shown")
+    parser.add_argument("--png", type=Path, metavar="OUT.png", help="also draw the bounds")
     args = parser.parse_args(argv)
     try:
         pairs = by_pair(load(args.runs))
@@ -131,7 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.method not in methods:
         parser.error(f"--method {args.method}: not in the runs ({', '.join(methods)})")
     print("# What any decision could reach: pairs whose true pose was found\n")
-    print(f"`python3 -m bench.ceiling {' '.join(map(str, args.runs))}`\n")
+    png = "" if args.png is None else f" --png {args.png}"
+    print(f"`python3 -m bench.ceiling {' '.join(map(str, args.runs))}{png}`\n")
     print(f"Methods: {', '.join(methods)}.\n")
     print(
         "A pair's true pose is found when a method returned it, accepted or not, or when one "
@@ -142,6 +229,9 @@ def main(argv: list[str] | None = None) -> int:
         "not the truth either. Targets: issue 10.\n"
     )
     print("\n".join(rows(pairs, args.method)))
+    if args.png is not None:
+        chart(bounds(pairs, args.method), args.method, args.png)
+        print(f"\nPicture: `{args.png}`.")
     return 0
 
 

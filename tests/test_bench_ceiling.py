@@ -66,12 +66,14 @@ def test_standard_pairs_get_a_row_per_building_against_its_own_target():
     assert "| standard, x | 10 | 0/10 (0 %) | 9/10 (90 %) | 9/10 (90 %) | 90 % | yes |" in table
 
 
-def test_the_command_prints_the_table_of_the_runs_given(tmp_path: Path, capsys):
+def test_the_command_prints_the_table_of_the_runs_given_and_draws_it(tmp_path: Path, capsys):
     one = _run(tmp_path / "one.json", [_rec("a", "pgvd", False, [False])])
     two = _run(tmp_path / "two.json", [_rec("a", "exhaustive", True)])
-    assert main([str(one), str(two)]) == 0
+    png = tmp_path / "ceiling.png"
+    assert main([str(one), str(two), "--png", str(png)]) == 0
     out = capsys.readouterr().out
     assert "| low | 1 | 0/1 (0 %) | 0/1 (0 %) | 1/1 (100 %) | 60 % | yes |" in out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and f"`{png}`" in out
 
 
 @pytest.mark.parametrize(
