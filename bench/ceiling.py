@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -103,21 +104,30 @@ class Bound:
         return self.by_any >= self.target * self.pairs
 
 
-def bounds(pairs: dict[str, list[dict]], ours: str = "pgvd") -> list[Bound]:
-    """The counts per set (:data:`TARGETS`), then per building of the standard set
-    (:data:`BUILDING_TARGET`); groups without pairs are left out."""
-    first = {p: recs[0] for p, recs in pairs.items()}
-    groups = [(s, TARGETS[s], lambda r, s=s: r["set"] == s) for s in TARGETS]
-    groups += [
+def groups(records: Iterable[dict]) -> list[tuple[str, float, Callable[[dict], bool]]]:
+    """The report's groups of records (each with ``set`` and ``source``): every set of
+    :data:`TARGETS`, then the standard set of each source in ``records``; each as its name,
+    its target share and whether a record belongs to it."""
+    records = list(records)
+    out: list[tuple[str, float, Callable[[dict], bool]]] = [
+        (s, TARGETS[s], lambda r, s=s: r["set"] == s) for s in TARGETS
+    ]
+    out += [
         (
             f"standard, {src}",
             BUILDING_TARGET,
             lambda r, src=src: (r["set"], r["source"]) == ("standard", src),
         )
-        for src in sorted({r["source"] for r in first.values() if r["set"] == "standard"})
+        for src in sorted({r["source"] for r in records if r["set"] == "standard"})
     ]
+    return out
+
+
+def bounds(pairs: dict[str, list[dict]], ours: str = "pgvd") -> list[Bound]:
+    """The counts per group of :func:`groups`; groups without pairs are left out."""
+    first = {p: recs[0] for p, recs in pairs.items()}
     out = []
-    for name, target, member in groups:
+    for name, target, member in groups(first.values()):
         mine = [p for p, r in first.items() if member(r)]
         if not mine:
             continue
