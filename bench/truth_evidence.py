@@ -199,7 +199,11 @@ def chart(
     axes[0].annotate(
         f"threshold {threshold:.2f}", (threshold, axes[0].get_ylim()[1] * 0.8), fontsize=8
     )
-    axes[-1].set_xlabel("margin with no rival (values beyond the axis are drawn at its ends)")
+    axes[-1].set_xlabel(
+        "margin: a true pose's against no rival, a winner's against its best rival "
+        "(beyond the axis: at its ends)",
+        fontsize=9,
+    )
     fig.suptitle(f"the true pose, scored as the merge scores its winner ({data})")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
