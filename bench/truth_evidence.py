@@ -231,6 +231,27 @@ def report(
     return "\n".join(lines) + "\n"
 
 
+def read_run(path: Path, method: str) -> tuple[list[tuple[str, float]], dict[str, bool]]:
+    """A run's bad winners of ``method`` (:func:`bad_margins`) and whether it accepted each
+    pair right.
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: not a bench run's ``merge.json``, or no wrong or negative
+        winner of ``method`` in it.
+    """
+    try:
+        records = json.loads(path.read_text())["records"]
+        bad = bad_margins(records, method)
+        success = {r["pair"]: bool(r["success"]) for r in records if r["method"] == method}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"{path}: not a bench run's merge.json ({exc})") from None
+    if not bad:
+        raise ValueError(f"{path}: no wrong or negative winner of {method} to set beside")
+    return bad, success
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path, help="merge.json of a bench run (its bad winners)")
@@ -244,18 +265,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=Path, default=CACHE)
     args = parser.parse_args(argv)
     try:
-        records = json.loads(args.run.read_text())["records"]
-        bad = bad_margins(records, args.method)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        parser.error(f"{args.run}: not a bench run's merge.json ({exc})")
-    if not bad:
-        parser.error(f"{args.run}: no wrong or negative winner of {args.method} to set beside")
-    params = MergeParams(diagnostics=False)
+        bad, success = read_run(args.run, args.method)
+    except ValueError as exc:
+        parser.error(str(exc))
     sources = held_out_logs() if args.held_out else SOURCES
     entries = build(FULL, args.seed, args.cache, sources, gmapping=not args.held_out)
+    missing = [e.pair.name for e in entries if e.pair.overlap > 0 and e.pair.name not in success]
+    if missing:
+        parser.error(
+            f"{args.run}: {len(missing)} of these pairs are not in the run ({missing[0]}, ...): "
+            "give the run of the same pairs (with --held-out, a --held-out run)"
+        )
+    params = MergeParams(diagnostics=False)
     rows = measure(entries, params)
     out = args.out or (HELD_OUT if args.held_out else RESULTS) / "truth-evidence.md"
-    success = {r["pair"]: bool(r["success"]) for r in records if r["method"] == args.method}
     worst = max(m for _, m in bad)
     png = "" if args.png is None else f" --png {args.png}"
     held = " --held-out" if args.held_out else ""

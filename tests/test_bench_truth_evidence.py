@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.sets import Entry
 from bench.truth_evidence import bad_margins, main, reach, table, truth_margin
 from pgvd.merge import MergeParams, merge
 
@@ -20,6 +21,7 @@ def _rec(pair: str, set_: str, heading, margin, method: str = "pgvd") -> dict:
         "heading_deg": heading,
         "cell_err": None if heading is None else 1.0,
         "cell_tolerance": 3.0,
+        "success": False,
         "result": {"margin": margin},
     }
 
@@ -72,6 +74,7 @@ def test_reach_counts_true_poses_at_the_threshold_and_above_the_worst_bad_margin
         json.dumps({"runs": []}),
         json.dumps({"records": [1]}),
         json.dumps({"records": [{"method": "pgvd", "result": {"margin": 0.5}}]}),
+        json.dumps({"records": [_rec("wrong", "standard", 40.0, 0.4), {"method": "pgvd"}]}),
     ],
 )
 def test_a_file_that_is_not_a_run_is_one_line_and_exit_2(tmp_path: Path, capsys, doc: str):
@@ -87,8 +90,32 @@ def test_a_file_that_is_not_a_run_is_one_line_and_exit_2(tmp_path: Path, capsys,
 
 def test_a_run_without_a_bad_winner_says_so(tmp_path: Path, capsys):
     run = tmp_path / "merge.json"
-    run.write_text(json.dumps({"records": [_rec("right", "standard", 0.1, 0.9)]}))
+    right = {**_rec("right", "standard", 0.1, 0.9), "success": True}
+    run.write_text(json.dumps({"records": [right]}))
     with pytest.raises(SystemExit) as exc:
         main([str(run)])
     assert exc.value.code == 2
     assert "no wrong or negative winner of pgvd" in capsys.readouterr().err
+
+
+def test_main_measures_the_pairs_of_the_run_and_refuses_a_run_of_other_pairs(
+    tmp_path: Path, capsys, monkeypatch, intel_split
+):
+    entry = Entry(intel_split, "intel-x", "intel", "standard", "overlap")
+    monkeypatch.setattr("bench.truth_evidence.build", lambda *a, **k: [entry])
+    out, png = tmp_path / "te.md", tmp_path / "te.png"
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"records": [_rec("wrong", "standard", 40.0, 0.4)]}))
+    with pytest.raises(SystemExit) as exc:
+        main([str(other), "--out", str(out)])
+    assert exc.value.code == 2
+    assert "1 of these pairs are not in the run (intel-split" in capsys.readouterr().err
+    run = tmp_path / "merge.json"
+    mine = {**_rec("intel-split", "standard", 0.1, 0.9), "success": True}
+    run.write_text(json.dumps({"records": [mine, _rec("wrong", "standard", 40.0, 0.4)]}))
+    assert main([str(run), "--out", str(out), "--png", str(png)]) == 0
+    text = out.read_text()
+    assert "largest margin of a wrong or negative winner of pgvd in the run is 0.40 (wrong)" in text
+    row = "| standard, intel-x | 1 | 1/1 (100 %) | 1/1 (100 %) | 1/1 (100 %) | 90 % | yes |"
+    assert row in text
+    assert png.stat().st_size > 10_000
