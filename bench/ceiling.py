@@ -108,7 +108,6 @@ def groups(records: Iterable[dict]) -> list[tuple[str, float, Callable[[dict], b
     """The report's groups of records (each with ``set`` and ``source``): every set of
     :data:`TARGETS`, then the standard set of each source in ``records``; each as its name,
     its target share and whether a record belongs to it."""
-    records = list(records)
     out: list[tuple[str, float, Callable[[dict], bool]]] = [
         (s, TARGETS[s], lambda r, s=s: r["set"] == s) for s in TARGETS
     ]

@@ -6,10 +6,20 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bench.sets import Entry
-from bench.truth_evidence import bad_margins, main, reach, table, truth_margin
+from bench.truth_evidence import (
+    HEADING_STEPS,
+    SHIFT_STEPS,
+    around,
+    bad_margins,
+    main,
+    reach,
+    table,
+    truth_margin,
+)
 from pgvd.merge import MergeParams, merge
 
 
@@ -38,6 +48,19 @@ def test_the_true_pose_scores_at_least_the_merges_winner_and_a_shift_scores_less
     moved[:2, 2] += 3.0 / intel_split.a.resolution  # 3 m off along x
     off = dataclasses.replace(intel_split, truth=moved)
     assert truth_margin(off, params) < params.min_margin
+
+
+def test_around_turns_about_bs_centre_and_shifts_it_by_the_steps():
+    matrix = np.array([[0.0, -1.0, 100.0], [1.0, 0.0, 20.0], [0.0, 0.0, 1.0]])
+    centre = np.array([30.0, 40.0])
+    poses = around(matrix, centre)
+    assert len(poses) == len(HEADING_STEPS) * len(SHIFT_STEPS) ** 2
+    landed = (matrix @ [*centre, 1.0])[:2]
+    moves = {tuple(np.round((m @ [*centre, 1.0])[:2] - landed, 9)) for m in poses}
+    assert moves == {(dx, dy) for dx in SHIFT_STEPS for dy in SHIFT_STEPS}
+    turns = {round(float(np.degrees(np.arctan2(m[1, 0], m[0, 0])) - 90.0), 6) for m in poses}
+    assert turns == set(HEADING_STEPS)
+    assert any(np.allclose(m, matrix) for m in poses)
 
 
 def test_bad_margins_are_wrong_or_negative_winners_with_a_margin():
