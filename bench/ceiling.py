@@ -45,28 +45,40 @@ def found(record: dict) -> bool:
     return pose_right(record) or any(record.get("finalist_success") or ())
 
 
-def load(paths: list[Path]) -> list[dict]:
-    """The records of the runs at ``paths``.
+def read_run(path: Path, fields: tuple[str, ...] = FIELDS) -> dict:
+    """The JSON document of the bench run at ``path``, its records checked.
 
     Raises
     ------
     ValueError
-        One line naming the file: not a run's JSON, a record without a field of
-        :data:`FIELDS`, or a method that two runs both hold for one pair.
+        One line naming the file: not a run's JSON, or a record without one of ``fields``.
+    """
+    try:
+        doc = json.loads(path.read_text())
+        mine = doc["records"]
+        if not isinstance(mine, list) or not all(isinstance(r, dict) for r in mine):
+            raise TypeError("records is not a list of objects")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a bench run's merge.json ({exc})") from None
+    for r in mine:
+        missing = [f for f in fields if f not in r]
+        if missing:
+            raise ValueError(f"{path}: a record without {', '.join(missing)}")
+    return doc
+
+
+def load(paths: list[Path]) -> list[dict]:
+    """The records of the runs at ``paths`` (:func:`read_run`).
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: as :func:`read_run`, or a method that two runs both hold
+        for one pair.
     """
     records: list[dict] = []
     for path in paths:
-        try:
-            mine = json.loads(path.read_text())["records"]
-            if not isinstance(mine, list) or not all(isinstance(r, dict) for r in mine):
-                raise TypeError("records is not a list of objects")
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"{path}: not a bench run's merge.json ({exc})") from None
-        for r in mine:
-            missing = [f for f in FIELDS if f not in r]
-            if missing:
-                raise ValueError(f"{path}: a record without {', '.join(missing)}")
-        records += mine
+        records += read_run(path)["records"]
     seen: set[tuple[str, str]] = set()
     for r in records:
         key = (r["pair"], r["method"])
