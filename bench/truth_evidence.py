@@ -69,17 +69,8 @@ CLIMB_FINEST = (0.0625, 0.25)
 #: The runs a pair's maps must have been read as given in: painted or speckled maps are
 #: other maps (``bench.merge --unknown free``, ``--speckle``).
 ALTERED = ("--unknown", "--speckle")
-#: The fields of a run's record this reads.
-RECORD_FIELDS = (
-    "pair",
-    "method",
-    "set",
-    "heading_deg",
-    "cell_err",
-    "cell_tolerance",
-    "result",
-    "success",
-)
+#: The fields of a run's pgvd record this reads beyond :data:`bench.ceiling.FIELDS`.
+PGVD_FIELDS = ("result", "success")
 
 
 def moved(matrix: np.ndarray, centre: np.ndarray, deg: float, dx: float, dy: float) -> np.ndarray:
@@ -369,8 +360,42 @@ def report(
     return "\n".join(lines) + "\n"
 
 
-def check_run(doc: dict, path: Path, entries: list[Entry]) -> dict[str, dict]:
+def pgvd_records(doc: dict, path: Path) -> list[dict]:
+    """The pgvd records of a run read by :func:`bench.ceiling.read_run`.
+
+    Raises
+    ------
+    ValueError
+        One line: a pgvd record without a field of :data:`PGVD_FIELDS`.
+    """
+    mine = [r for r in doc["records"] if r["method"] == "pgvd"]
+    for r in mine:
+        missing = [f for f in PGVD_FIELDS if f not in r]
+        if missing:
+            raise ValueError(f"{path}: a pgvd record without {', '.join(missing)}")
+    return mine
+
+
+def check_run(
+    command: str, records: list[dict], path: Path, entries: list[Entry]
+) -> dict[str, dict]:
     """The run's pgvd record of each pair, once the run is checked to be of ``entries``.
+
+    Parameters
+    ----------
+    command : str
+        The run's command line (``merge.json``'s ``command``).
+    records : list of dict
+        Its pgvd records (:func:`pgvd_records`).
+    path : Path
+        The run's file, named in errors.
+    entries : list of Entry
+        The bench's pairs.
+
+    Returns
+    -------
+    dict
+        Record by pair name.
 
     Raises
     ------
@@ -378,11 +403,10 @@ def check_run(doc: dict, path: Path, entries: list[Entry]) -> dict[str, dict]:
         One line: a run of maps read otherwise (painted, speckled), without a pgvd record
         of an overlapping pair, or whose truth of a pair is not the pair's (another seed).
     """
-    command = str(doc.get("command", ""))
     altered = [flag for flag in ALTERED if flag in command.split()]
     if altered:
         raise ValueError(f"{path}: a run of altered maps ({altered[0]}): give a plain run")
-    run = {r["pair"]: r for r in doc["records"] if r["method"] == "pgvd"}
+    run = {r["pair"]: r for r in records}
     for e in entries:
         if e.pair.truth is None or e.pair.overlap <= 0:
             continue
@@ -423,13 +447,14 @@ def main(argv: list[str] | None = None) -> int:
         _writable(out)
         if args.png is not None:
             _writable(args.png, ".png")
-        doc = read_run(args.run, RECORD_FIELDS)
-        bad = bad_margins(doc["records"])
+        doc = read_run(args.run)
+        records = pgvd_records(doc, args.run)
+        bad = bad_margins(records)
         if not bad:
             raise ValueError(f"{args.run}: no wrong or negative winner of pgvd to set beside")
         sources = held_out_logs() if args.held_out else SOURCES
         entries = build(FULL, args.seed, args.cache, sources, gmapping=not args.held_out)
-        run = check_run(doc, args.run, entries)
+        run = check_run(str(doc.get("command", "")), records, args.run, entries)
     except (ValueError, TypeError, AttributeError) as exc:
         parser.error(str(exc))
     rows = measure(entries, params, run)

@@ -30,6 +30,8 @@ def _rec(pair: str, set_: str, heading, margin, **kw) -> dict:
         "pair": pair,
         "method": kw.get("method", "pgvd"),
         "set": set_,
+        "source": "x",
+        "overlap": 0.0 if set_ == "negative" else 0.5,
         "heading_deg": heading,
         "cell_err": None if heading is None else 1.0,
         "cell_tolerance": 3.0,
@@ -115,6 +117,16 @@ def test_reach_counts_best_right_poses_and_the_threshold_each_target_needs():
         (json.dumps({"runs": []}), "not a bench run"),
         (json.dumps({"records": [1]}), "not a bench run"),
         (json.dumps({"records": [{"method": "pgvd", "result": {"margin": 0.5}}]}), "without"),
+        (
+            json.dumps(
+                {
+                    "records": [
+                        {k: v for k, v in _rec("w", "low", 9.0, 0.4).items() if k != "success"}
+                    ]
+                }
+            ),
+            "a pgvd record without success",
+        ),
         (json.dumps({"records": [_rec("right", "standard", 0.1, 0.9)]}), "no wrong or negative"),
         (json.dumps({"records": [_rec("odd", "standard", None, 0.9)]}), "NoneType"),
     ],
@@ -156,15 +168,15 @@ def test_a_run_of_other_pairs_or_altered_maps_is_refused(intel_split):
     entry = Entry(intel_split, "intel-x", "intel", "standard", "overlap")
     truth = intel_split.truth.tolist()
     mine = _rec("intel-split", "standard", 0.1, 0.9, truth=truth)
-    assert check_run({"records": [mine]}, Path("r"), [entry]) == {"intel-split": mine}
+    plain = "python3 -m bench.merge"
+    assert check_run(plain, [mine], Path("r"), [entry]) == {"intel-split": mine}
     with pytest.raises(ValueError, match="no pgvd record of intel-split"):
-        check_run({"records": [_rec("other", "standard", 0.1, 0.9)]}, Path("r"), [entry])
+        check_run(plain, [_rec("other", "standard", 0.1, 0.9)], Path("r"), [entry])
     other_seed = _rec("intel-split", "standard", 0.1, 0.9, truth=np.eye(3).tolist())
     with pytest.raises(ValueError, match="not this pair's"):
-        check_run({"records": [other_seed]}, Path("r"), [entry])
-    painted = {"command": "python3 -m bench.merge --unknown free", "records": [mine]}
+        check_run(plain, [other_seed], Path("r"), [entry])
     with pytest.raises(ValueError, match="altered maps"):
-        check_run(painted, Path("r"), [entry])
+        check_run(plain + " --unknown free", [mine], Path("r"), [entry])
 
 
 def test_main_measures_the_pairs_of_the_run_and_writes_report_table_and_picture(
