@@ -332,11 +332,17 @@ def chart(
 
 
 def report(
-    reaches: list[Reach], worst: tuple[str, float], threshold: float, cmd: str, below: int
+    reaches: list[Reach],
+    worst: tuple[str, float],
+    threshold: float,
+    cmd: str,
+    below: int,
+    overridden: bool = False,
 ) -> str:
     """The markdown report; ``worst`` is the run's largest bad margin and its pair, ``below``
     counts pairs the run accepted right at a margin above their bound (0 unless the bound
-    is broken)."""
+    is broken), ``overridden`` says the pairs were scored with other parameters than the
+    run's."""
     worst_pair, worst_margin = worst
     n_poses = len(HEADING_STEPS) * len(SHIFT_STEPS) ** 2
     lines = [
@@ -355,6 +361,16 @@ def report(
         "the rivals its search found: a threshold with no bad accept in this run is above it. "
         "'threshold the target needs': the margin of the group's ceil(target x pairs)-th best "
         f"pair. Pairs the run accepted right above their bound: {below}. Targets: issue 10.\n",
+        *(
+            [
+                "Scored with `--param`: the run's bad winners keep the margins it gave them with "
+                "its own parameters, so the column above their largest compares two statistics; "
+                "replay them with the same `--param` (`bench.redecide -v`) to compare like with "
+                "like.\n"
+            ]
+            if overridden
+            else []
+        ),
         *table(reaches, threshold, worst_margin),
     ]
     return "\n".join(lines) + "\n"
@@ -471,7 +487,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.param:
         cmd += f" --param {' '.join(args.param)}"
     reaches = reach(rows, params.min_margin, worst[1])
-    text = report(reaches, worst, params.min_margin, cmd, len(below))
+    text = report(reaches, worst, params.min_margin, cmd, len(below), bool(args.param))
     out.write_text(text)
     print(f"wrote {out} and {out.with_suffix('.json')}")
     if args.png is not None:

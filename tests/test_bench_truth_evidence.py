@@ -200,6 +200,10 @@ def test_main_measures_the_pairs_of_the_run_and_writes_report_table_and_picture(
     assert "wrong or negative winner of pgvd in the run is 0.40 (wrong)" in text
     assert "Pairs the run accepted right above their bound: 0." in text
     assert "| standard, intel-x | 1 | 1/1 (100 %) | 1/1 (100 %) | 1/1 (100 %) |" in text
+    assert "Scored with `--param`" not in text
+    assert main([str(run), "--out", str(out), "--param", "min_margin=0.7"]) == 0
+    assert "best right pose >= 0.70" in out.read_text()
+    assert "Scored with `--param`" in out.read_text()
     rows = json.loads(out.with_suffix(".json").read_text())
     assert [r["pair"] for r in rows] == ["intel-split"] and rows[0]["margin"] >= 0.57
     assert png.stat().st_size > 10_000
