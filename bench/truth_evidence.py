@@ -63,9 +63,10 @@ from pgvd.pooling import decision_pool, from_pooled, to_pooled
 #: Heading offsets (degrees) and shifts (cells of the decision's maps) of :func:`around`.
 HEADING_STEPS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 SHIFT_STEPS = (-2.0, -1.0, 0.0, 1.0, 2.0)
-#: First steps of :func:`climb` (degrees, cells), halved down to :data:`CLIMB_FINEST`.
+#: First steps of :func:`climb` (degrees, cells), and how many step sizes it tries: each
+#: half the one before (the last 0.0625 degree and 0.25 cell).
 CLIMB_START = (0.5, 2.0)
-CLIMB_FINEST = (0.0625, 0.25)
+CLIMB_LEVELS = 4
 #: The runs a pair's maps must have been read as given in: painted or speckled maps are
 #: other maps (``bench.merge --unknown free``, ``--speckle``).
 ALTERED = ("--unknown", "--speckle")
@@ -119,16 +120,18 @@ class _Scorer:
         )
 
 
-def climb(scorer: _Scorer, start: np.ndarray, centre: np.ndarray) -> float:
-    """The margin of the best right pose a pattern search reaches from ``start`` (right).
+def climb(scorer: _Scorer, start: np.ndarray, score: float, centre: np.ndarray) -> float:
+    """The margin of the best right pose a pattern search reaches from ``start`` (right,
+    of margin ``score``).
 
     Each step tries the current pose turned by +-``deg`` and shifted by +-``cells`` along
     each axis (:func:`moved`), moves to the best right one that scores more, and halves
-    both steps when none does, from :data:`CLIMB_START` down to :data:`CLIMB_FINEST`.
+    both steps when none does: :data:`CLIMB_LEVELS` sizes from :data:`CLIMB_START`.
     """
-    best, score = start, scorer.margin(start)
+    best = start
     deg, cells = CLIMB_START
-    while deg >= CLIMB_FINEST[0]:
+    levels = CLIMB_LEVELS
+    while levels:
         tries = [
             moved(best, centre, *step)
             for step in (
@@ -145,7 +148,7 @@ def climb(scorer: _Scorer, start: np.ndarray, centre: np.ndarray) -> float:
         if top is not None and top[0] > score:
             score, best = top
         else:
-            deg, cells = deg / 2, cells / 2
+            deg, cells, levels = deg / 2, cells / 2, levels - 1
     return score
 
 
@@ -178,8 +181,10 @@ def truth_margin(pair: MapPair, params: MergeParams, tried: tuple[np.ndarray, ..
     poses.append(final_refinement(truth, fine_a, fine_b, params))
     poses += [to_pooled(np.asarray(m, dtype=float), pool) for m in tried]
     # the truth itself is right: never an empty choice
-    start = max((m for m in poses if scorer.right(m)), key=scorer.margin)
-    return climb(scorer, start, centre)
+    score, start = max(
+        ((scorer.margin(m), m) for m in poses if scorer.right(m)), key=lambda s: s[0]
+    )
+    return climb(scorer, start, score, centre)
 
 
 def run_poses(record: dict | None) -> tuple[np.ndarray, ...]:
