@@ -20,6 +20,8 @@ from agent.cli.dispatch import build_parser
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = sorted([ROOT / "README.md", *(ROOT / "docs").glob("*.md")])
 README_MAX_LINES = 170
+#: A front-page table cell longer than this is a paragraph; it belongs in docs/.
+README_MAX_CELL = 200
 
 #: ``[text](target)`` and ``![alt](target)``, target up to a space (a title may follow).
 _LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
@@ -86,6 +88,17 @@ def test_table_rows_have_the_header_columns(page: Path):
 def test_readme_fits_on_a_front_page():
     lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
     assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines"
+
+
+def test_readme_table_cells_are_short():
+    long = [
+        f"README.md:{number}: {len(cell.strip())} characters"
+        for number, line in _prose(ROOT / "README.md")
+        if line.lstrip().startswith("|")
+        for cell in re.split(r"(?<!\\)\|", line.strip().strip("|"))
+        if len(cell.strip()) > README_MAX_CELL
+    ]
+    assert not long, "; ".join(long)
 
 
 def _subcommands() -> dict[str, argparse.ArgumentParser]:
