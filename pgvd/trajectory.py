@@ -17,7 +17,7 @@ import numpy as np
 from scipy import ndimage
 from skimage.graph import MCP_Geometric
 
-from bench.lidar import RayCaster
+from pgvd.lidar import RayCaster
 
 #: Robot radius plus margin, metres: the path keeps at least this far from walls and unknown.
 CLEARANCE = 0.3
