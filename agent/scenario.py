@@ -61,9 +61,10 @@ def check_run(kind: str, path: Path, robots: int) -> int:
         raise ValueError(f"{path}: no FLASER lines, not a CARMEN laser log")
     fewest = min(len(select_segment(scans, seg)) for seg in segments(robots))
     if fewest < MIN_SEGMENT_SCANS:
+        longer = "longer log" if kind == "carmen" else "bigger map"
         raise ValueError(
             f"{path}: its {len(scans)} scans give {robots} robots {fewest} each, "
-            f"at least {MIN_SEGMENT_SCANS} needed: use fewer robots or a longer {what}"
+            f"at least {MIN_SEGMENT_SCANS} needed: use fewer robots or a {longer}"
         )
     return len(scans)
 

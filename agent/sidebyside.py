@@ -65,7 +65,7 @@ def write_side_by_side(
     title : lines above the panels, the verdict first.
     """
     font = ImageFont.load_default(size=15)
-    top = [_panel(v.local, f"{v.robot}: local map, {v.local_label}", font) for v in views]
+    top = [_panel(v.local, f"{v.robot}: local map, {v.local_label}", font)[0] for v in views]
     bottom = [_global_panel(v, locals_, font) for v in views]
     rows = [_hstack(top), _hstack(bottom)]
     lines = [*title, LEGEND]
@@ -82,19 +82,38 @@ def write_side_by_side(
     canvas.save(path)
 
 
-def _panel(grid: Grid | None, label: str, font: ImageFont.FreeTypeFont) -> Image.Image:
-    """A map scaled to :data:`PANEL` pixels high, its label above; gray if there is none."""
+def _panel(
+    grid: Grid | None, label: str, font: ImageFont.FreeTypeFont
+) -> tuple[Image.Image, np.ndarray]:
+    """A map cropped to its known cells, scaled to :data:`PANEL` pixels high, its label above;
+    gray if there is none.  Also the 3x3 matrix from the map's pixels to the panel's."""
+    to_panel = np.eye(3)
     if grid is None:
         img = Image.new("RGB", (PANEL, PANEL), (205, 205, 205))
     else:
-        gray = np.asarray(grid_image(grid.probability()))
+        (r0, r1), (c0, c1) = _known_box(grid)
+        gray = np.asarray(grid_image(grid.probability()))[r0:r1, c0:c1]
         img = Image.fromarray(gray).convert("RGB")
-        img = img.resize((max(1, round(img.width * PANEL / img.height)), PANEL), Image.NEAREST)
+        scale = PANEL / img.height
+        img = img.resize((max(1, round(img.width * scale)), PANEL), Image.NEAREST)
+        to_panel = np.array([[scale, 0, -c0 * scale], [0, scale, LABEL - r0 * scale], [0, 0, 1]])
     width = max(img.width, round(font.getlength(label)) + 4)
     out = Image.new("RGB", (width, PANEL + LABEL), "white")
     out.paste(img, (0, LABEL))
     ImageDraw.Draw(out).text((2, 2), label, fill="black", font=font)
-    return out
+    return out, to_panel
+
+
+def _known_box(grid: Grid, margin: int = 10) -> tuple[tuple[int, int], tuple[int, int]]:
+    """Rows and columns ``(start, stop)`` around the known cells (the whole map if none)."""
+    known = grid.logodds != 0
+    if not known.any():
+        return (0, grid.shape[0]), (0, grid.shape[1])
+    rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
+    return (
+        (max(0, rows[0] - margin), min(grid.shape[0], rows[-1] + 1 + margin)),
+        (max(0, cols[0] - margin), min(grid.shape[1], cols[-1] + 1 + margin)),
+    )
 
 
 def _global_panel(
@@ -108,12 +127,13 @@ def _global_panel(
         if view.global_map is not None
         else f"{view.robot}'s global map: none yet"
     )
-    panel = _panel(view.global_map, label, font)
+    panel, to_panel = _panel(view.global_map, label, font)
     if view.global_map is None or view.status is None:
         return panel
-    centres = _centres(view.global_map, view.status, locals_)
-    scale = PANEL / view.global_map.shape[0]
-    at = {r: (x * scale, LABEL + y * scale) for r, (x, y) in centres.items()}
+    at = {
+        r: tuple((to_panel @ [x, y, 1.0])[:2])
+        for r, (x, y) in _centres(view.global_map, view.status, locals_).items()
+    }
     draw = ImageDraw.Draw(panel)
     for a, b, style in _link_styles(view.status):
         if a in at and b in at:
