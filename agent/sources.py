@@ -106,7 +106,10 @@ def _parse_segmented(kind: str, rest: str) -> SourceSpec:
     if not sep or Path(rest).is_file():
         return SourceSpec(kind, Path(rest))
     if not path:
-        raise ValueError(f"{kind} source needs a file before @{segment}: {kind}:FILE[@FROM-TO]")
+        what = "log" if kind == "carmen" else "map"
+        raise ValueError(
+            f"{kind} source needs a {what} before @{segment}: {kind}:{what.upper()}[@FROM-TO]"
+        )
     lo_text, _, hi_text = segment.partition("-")  # no "-": hi_text is "", no number
     try:
         lo, hi = float(lo_text), float(hi_text)
@@ -548,7 +551,6 @@ class RosbagGridSource:
         self.last_error: str | None = None
         self._map: RosMap | None = None
         self._clock = ReplayClock(speed)
-        self._stamps = compress_gaps(np.array([t for t, _ in self.recorded]), speed)
 
     @property
     def done(self) -> bool:
@@ -560,9 +562,9 @@ class RosbagGridSource:
 
         if self.done:
             return False
-        horizon = self._clock.horizon(now, self._stamps[0], self._stamps[self.cursor])
+        horizon = self._clock.horizon(now, self.recorded[0][0], self.recorded[self.cursor][0])
         due = self.cursor
-        while due < len(self.recorded) and self._stamps[due] <= horizon:
+        while due < len(self.recorded) and self.recorded[due][0] <= horizon:
             due += 1
         if due == self.cursor:
             return False
