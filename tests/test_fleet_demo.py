@@ -7,6 +7,7 @@ refused in one line before any agent starts.
 
 from __future__ import annotations
 
+import argparse
 import gzip
 import json
 import subprocess
@@ -191,3 +192,60 @@ def test_progress_counts_the_current_links_only() -> None:
         "links": [link, {**link, "current": False}, {**link, "accepted": False}],
     }
     assert " links 1 " in _progress({"r1": status, "r2": None})
+
+
+def _shift(dx: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, dx], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _fleet_view(r3_error_px: float) -> tuple[dict, dict]:
+    """Three robots along a corridor, each 5 cells on from the last; r1-r2 and r2-r3 linked
+    rightly, r1-r3 not linked; the global map puts r3 ``r3_error_px`` cells off."""
+    from agent.evaluate import true_matrix
+
+    w2p = {"r1": _shift(0.0), "r2": _shift(-5.0), "r3": _shift(-10.0)}
+    grids = {r: Grid(np.ones((20, 20), np.float32), 0.1) for r in w2p}
+    truth = {r: true_matrix(w2p["r1"], w2p[r]) for r in w2p}
+    links = [
+        {
+            "a": a, "b": b, "accepted": True, "current": True, "version_a": 1, "version_b": 1,
+            "matrix": true_matrix(w2p[a], w2p[b]).tolist(), "score": 0.9, "decided_by": "r1",
+        }
+        for a, b in (("r1", "r2"), ("r2", "r3"))
+    ]  # fmt: skip
+    transforms = {r: (truth[r] @ _shift(r3_error_px if r == "r3" else 0.0)).tolist() for r in w2p}
+    comp = {"anchor": "r1", "members": ["r1", "r2", "r3"], "transforms": transforms}
+    status = {
+        "source": {},
+        "links": links,
+        "components": [comp],
+        "global": {"anchor": "r1", "digest": "d", "members": comp["members"]},
+    }
+    statuses = {
+        r: {**status, "source": {"world_to_pixel": w2p[r].tolist()}} for r in ("r1", "r2", "r3")
+    }
+    return statuses, grids
+
+
+def _verdict(r3_error_px: float) -> dict:
+    from agent.cli.demo import evaluate
+
+    statuses, grids = _fleet_view(r3_error_px)
+    args = argparse.Namespace(max_deg=2.0, max_cells=3.0, min_overlap=0.3)
+    return evaluate(statuses, grids, agreed_at=10.0, t_start=0.0, dead=[], args=args)
+
+
+def test_a_pair_placed_right_through_a_third_robot_is_reported_not_failed() -> None:
+    report = _verdict(0.0)
+    assert report["ok"] and report["verdict"] == "PASSED" and report["why"] == []
+    assert report["overlaps_to_link"] == ["r1-r2", "r1-r3", "r2-r3"]
+    assert report["missing_links"] == ["r1-r3"]
+    assert report["placements"]["r3"]["right"] and report["placements"]["r3"]["error_cells"] == 0
+
+
+def test_a_misplaced_robot_fails_the_demo_with_its_error() -> None:
+    report = _verdict(6.0)
+    assert not report["ok"] and report["verdict"] == "FAILED"
+    assert report["why"] == ["r3 misplaced by 0.0 deg, 6.0 cells"]
+    assert report["placements"]["r3"]["error_cells"] == pytest.approx(6.0)
+    assert report["placements"]["r2"]["right"]
