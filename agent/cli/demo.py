@@ -3,32 +3,34 @@
 Each agent replays an overlapping segment of one run in a random frame of its own
 (:mod:`agent.scenario`), peer to peer over Zenoh on localhost.  The run is
 
-- by default the bundled Intel Research Lab log (``agent/data``, CC-BY 1.0, recorded by
-  Dirk Haehnel; Radish, Howard and Roy 2003);
-- ``--log LOG``: your own CARMEN laser log (``FLASER`` lines, gzip or plain), e.g. one of
-  the Radish "corrected" logs;
-- ``--map IMAGE.yaml``: a ROS map_server map of your building, which simulated robots drive
-  through with a simulated laser scanner (``sim:`` sources, :mod:`pgvd.trajectory`).
+- by default the bundled Intel Research Lab log (``agent/data``, CC-BY 1.0,
+  recorded by Dirk Haehnel; Radish, Howard and Roy 2003);
+- ``--log LOG``: your own CARMEN laser log (``FLASER`` lines, gzip or plain),
+  e.g. one of the Radish "corrected" logs;
+- ``--map IMAGE.yaml``: a ROS map_server map of your building, which simulated
+  robots drive through with a simulated laser scanner (``sim:`` sources).
 
-A run that cannot give every robot a map (missing, unreadable, no scans, no room to drive,
-too short for ``--robots``) is refused in one line before any agent starts.  The demo
-prints live progress, then writes ``--out``:
+A run that cannot give every robot a map (missing, unreadable, no scans, no room
+to drive, too short for ``--robots``) is refused in one line before any agent
+starts.  The demo prints live progress, then writes ``--out``:
 
-- ``<robot>/global.png`` (and ``.yaml``/``.pgm``): each agent's global map, ``<robot>/agent.log``;
-- ``side_by_side.png``: local maps (top row) and each agent's global map (bottom row) with
-  the robots it placed and its links drawn, the verdict in the title;
-- ``report.json``: the verdict and why, per robot its placement error against the truth,
-  per agent the robots known, the accepted links with their error against the true frames,
-  the global map's hash, the bytes sent, the time to converge.
+- ``<robot>/global.png`` (and ``.yaml``/``.pgm``): each agent's global map;
+  ``<robot>/agent.log``: what the agent did;
+- ``side_by_side.png``: local maps (top row) and each agent's global map (bottom
+  row) with the robots it placed and its links drawn, the verdict in the title;
+- ``report.json``: the verdict and why, per robot its placement error against the
+  truth, per agent the robots known, the accepted links with their error against
+  the true frames, the global map's hash, the bytes sent, the time to converge.
 
-``--out`` must be new, empty, or a directory of an earlier demo holding only the files that
-demo wrote; those are replaced, any other file makes the demo refuse to start.
+``--out`` must be new, empty, or a directory of an earlier demo holding only the
+files that demo wrote; those are replaced, any other file makes the demo refuse
+to start.
 
-The verdict is about placement.  PASSED (exit 0) when all agents hold the same global map and
-in it every robot that truly overlaps another (true overlap >= ``--min-overlap``) is placed,
-all with the others, within ``--max-deg`` / ``--max-cells`` of the truth; a pair placed right
-through other robots needs no direct link of its own (such pairs are listed, not failed).
-FAILED (exit 1) otherwise.
+The verdict is about placement.  PASSED (exit 0) when all agents hold the same
+global map and in it every robot that truly overlaps another (true overlap >=
+``--min-overlap``) is placed, all together, within ``--max-deg`` / ``--max-cells``
+of the truth.  A pair placed right through other robots needs no direct link of
+its own: such pairs are listed, not failed.  FAILED (exit 1) otherwise.
 """
 
 from __future__ import annotations
@@ -54,7 +56,6 @@ from pgvd.grid import Grid
 def configure(p: argparse.ArgumentParser) -> None:
     """Add the arguments of ``pgvd demo`` to its parser."""
     p.description = __doc__
-    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--robots", type=int, default=3, help="number of agents (2-12)")
     p.add_argument(
         "--out",
