@@ -68,13 +68,19 @@ def write_side_by_side(
     top = [_panel(v.local, f"{v.robot}: local map, {v.local_label}", font)[0] for v in views]
     bottom = [_global_panel(v, locals_, font) for v in views]
     rows = [_hstack(top), _hstack(bottom)]
-    lines = [*title, LEGEND]
-    width = max([r.width for r in rows] + [round(font.getlength(t)) + 2 * GAP for t in lines])
-    head = LABEL * len(lines) + GAP
+    # the verdict in a larger type than what explains it
+    lines = [(title[0], ImageFont.load_default(size=24), 2 * LABEL)]
+    lines += [(t, font, LABEL) for t in [*title[1:], LEGEND]]
+    width = max(
+        [r.width for r in rows] + [round(f.getlength(t)) + 2 * GAP for t, f, _ in lines]
+    )
+    head = sum(h for _, _, h in lines) + GAP
     canvas = Image.new("RGB", (width, head + sum(r.height for r in rows) + GAP), "white")
     draw = ImageDraw.Draw(canvas)
-    for i, line in enumerate(lines):
-        draw.text((GAP, GAP // 2 + i * LABEL), line, fill="black", font=font)
+    y = GAP // 2
+    for line, f, h in lines:
+        draw.text((GAP, y), line, fill="black", font=f)
+        y += h
     y = head
     for row in rows:
         canvas.paste(row, (0, y))

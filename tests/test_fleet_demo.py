@@ -247,5 +247,8 @@ def test_a_misplaced_robot_fails_the_demo_with_its_error() -> None:
     report = _verdict(6.0)
     assert not report["ok"] and report["verdict"] == "FAILED"
     assert report["why"] == ["r3 misplaced by 0.0 deg, 6.0 cells"]
+    from agent.cli.demo import _title
+
+    assert _title(report)[0] == "FAILED: r3 misplaced by 0.0 deg, 6.0 cells"
     assert report["placements"]["r3"]["error_cells"] == pytest.approx(6.0)
     assert report["placements"]["r2"]["right"]
