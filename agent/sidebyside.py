@@ -65,7 +65,11 @@ def write_side_by_side(
     title : lines above the panels, the verdict first.
     """
     font = ImageFont.load_default(size=15)
-    top = [_panel(v.local, f"{v.robot}: local map, {v.local_label}", font)[0] for v in views]
+    top = [
+        _panel(v.local, f"{v.robot}: local map, {v.local_label}"
+               + ("" if v.local is not None else ": none yet"), font)[0]
+        for v in views
+    ]  # fmt: skip
     bottom = [_global_panel(v, locals_, font) for v in views]
     rows = [_hstack(top), _hstack(bottom)]
     # the verdict in a larger type than what explains it
