@@ -1,11 +1,13 @@
-"""Ground truth for fleets that replay logs: true relative transforms, link errors, overlaps.
+"""Ground truth for fleets that replay runs: true transforms, link and placement errors, overlaps.
 
-A ``carmen:`` source reports ``world_to_pixel``, the 3x3 map from the log's world metres
+A ``carmen:`` or ``sim:`` source reports ``world_to_pixel``, the 3x3 map from the log's world metres
 to its map's pixels.  The true B-pixel -> A-pixel matrix is then
 ``W_a @ inv(W_b)``, the same convention as a link's matrix and ``pgvd merge --json``.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -46,3 +48,33 @@ def true_overlap(a: Grid, b: Grid, truth: np.ndarray) -> float:
     inside = (ra >= 0) & (ra < a.shape[0]) & (ca >= 0) & (ca < a.shape[1])
     shared = np.count_nonzero(known_a[ra[inside], ca[inside]])
     return float(shared / min(known_a.sum(), known_b.sum()))
+
+
+def placement_errors(
+    anchor: str,
+    transforms: Mapping[str, np.ndarray],
+    world_to_pixel: Mapping[str, np.ndarray],
+    shapes: Mapping[str, tuple[int, int]],
+) -> dict[str, tuple[float, float]]:
+    """How far a global map placed each of its robots from the truth, as :func:`link_error`.
+
+    Parameters
+    ----------
+    anchor : the robot whose pixels the global map's placements map to.
+    transforms : per member, its pixels -> the anchor's pixels (a component's placements).
+    world_to_pixel : per robot, the log world -> its map's pixels (the truth).
+    shapes : per robot, its map's shape (the corners the translation error is taken at).
+
+    Returns
+    -------
+    dict
+        ``{robot: (rotation error deg, translation error cells)}`` for every member whose
+        truth and shape are known; the anchor's error is 0 by construction.
+    """
+    if anchor not in world_to_pixel:
+        return {}
+    return {
+        r: link_error(m, true_matrix(world_to_pixel[anchor], world_to_pixel[r]), shapes[r])
+        for r, m in transforms.items()
+        if r in world_to_pixel and r in shapes
+    }

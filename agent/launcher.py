@@ -71,6 +71,8 @@ class AgentProcess:
     def start(self, fleet: str, log_path: Path) -> None:
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+        # what the agent prints reaches agent.log at once, not lost in a buffer if it is killed
+        env["PYTHONUNBUFFERED"] = "1"
         log = log_path.open("ab")
         self.proc = subprocess.Popen(
             self.argv(fleet),

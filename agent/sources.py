@@ -5,7 +5,13 @@
     was recorded, integrating each scan by ray casting (:mod:`pgvd.integrate`) into a map
     in a frame of the robot's own: a rigid transform of the log's world frame, drawn
     deterministically from the robot id unless given.  The frame is reported so that a
-    demo or a test can compute the true relative transforms.
+    demo or a test can compute the true relative transforms.  A gap in the log's
+    timestamps costs at most :data:`MAX_GAP_WALL_S` of wall time (:func:`compress_gaps`).
+``sim:IMAGE.yaml[@FROM-TO]``
+    The same replay of a simulated drive through a map_server image: one tour of its
+    reachable free space (:func:`pgvd.trajectory.drive`, the same for every robot, so
+    segments of it overlap as log segments do), scanned by a simulated laser
+    (:mod:`pgvd.lidar`) whose world is the image's walls, in the image's own metric frame.
 ``rosbag:BAG[:TOPIC]``
     The same replay of a rosbag2's ``sensor_msgs/msg/LaserScan`` topic, each scan placed by
     the bag's TF or odometry (:func:`pgvd.rosbag.read_rosbag_scans`); or, when ``TOPIC`` is
@@ -47,14 +53,24 @@ log = logging.getLogger("pgvd.agent")
 
 
 #: What ``--source`` accepts, for one-line errors.
-FORMS = "carmen:LOG[@FROM-TO], rosbag:BAG[:TOPIC], map:FILE.yaml or ros2:/TOPIC"
+FORMS = (
+    "carmen:LOG[@FROM-TO], sim:IMAGE.yaml[@FROM-TO], rosbag:BAG[:TOPIC], map:FILE.yaml "
+    "or ros2:/TOPIC"
+)
+#: Wall seconds a gap in a recording's timestamps costs at most in a replay: a log that was
+#: paused for hours replays its two halves one after the other, not hours apart.
+MAX_GAP_WALL_S = 1.0
+#: Seed of the tour a ``sim:`` source drives and of its range noise: the same drive on every
+#: robot, so that their segments of it overlap.
+SIM_SEED = 0
 
 
 @dataclass(frozen=True)
 class SourceSpec:
-    """A parsed ``--source``: ``kind`` is "carmen", "rosbag", "map" or "ros2".
+    """A parsed ``--source``: ``kind`` is "carmen", "sim", "rosbag", "map" or "ros2".
 
-    ``path`` is the log, bag or map file (None for ``ros2``); ``topic`` the bag's LaserScan
+    ``path`` is the log, bag or map file (None for ``ros2``); ``segment`` the fraction of a
+    ``carmen`` log or ``sim`` drive; ``topic`` the bag's LaserScan
     or OccupancyGrid topic (None: its only LaserScan topic) or the ROS 2 map topic.
     """
 
@@ -77,30 +93,34 @@ def parse_source(spec: str) -> SourceSpec:
         return SourceSpec("ros2", None, topic=check_topic(spec[5:]))
     if spec.startswith("rosbag:"):
         return _parse_rosbag(spec[7:])
-    if spec.startswith("carmen:") and spec[7:]:
-        return _parse_carmen(spec[7:])
+    for kind in ("carmen", "sim"):
+        if spec.startswith(kind + ":") and spec[len(kind) + 1 :]:
+            return _parse_segmented(kind, spec[len(kind) + 1 :])
     raise ValueError(f"source must be {FORMS}, got {spec!r}")
 
 
-def _parse_carmen(rest: str) -> SourceSpec:
-    """``LOG[@FROM-TO]``: what follows the last ``@`` is the segment, unless the whole of
-    ``rest`` names an existing file (a log whose name holds an ``@``)."""
+def _parse_segmented(kind: str, rest: str) -> SourceSpec:
+    """``FILE[@FROM-TO]`` of a ``carmen`` or ``sim`` source: what follows the last ``@`` is
+    the segment, unless the whole of ``rest`` names an existing file (a name holding ``@``)."""
     path, sep, segment = rest.rpartition("@")
     if not sep or Path(rest).is_file():
-        return SourceSpec("carmen", Path(rest))
+        return SourceSpec(kind, Path(rest))
     if not path:
-        raise ValueError(f"carmen source needs a log before @{segment}: carmen:LOG[@FROM-TO]")
+        what = "log" if kind == "carmen" else "map"
+        raise ValueError(
+            f"{kind} source needs a {what} before @{segment}: {kind}:{what.upper()}[@FROM-TO]"
+        )
     lo_text, _, hi_text = segment.partition("-")  # no "-": hi_text is "", no number
     try:
         lo, hi = float(lo_text), float(hi_text)
     except ValueError:
         raise ValueError(
-            f"carmen segment must be @FROM-TO, fractions of the log such as @0.2-0.6, "
+            f"{kind} segment must be @FROM-TO, fractions of the run such as @0.2-0.6, "
             f"got @{segment}"
         ) from None
     if not 0.0 <= lo < hi <= 1.0:
         raise ValueError(f"segment must satisfy 0 <= FROM < TO <= 1, got {lo}-{hi}")
-    return SourceSpec("carmen", Path(path), (lo, hi))
+    return SourceSpec(kind, Path(path), (lo, hi))
 
 
 def _parse_rosbag(rest: str) -> SourceSpec:
@@ -199,24 +219,52 @@ def _classes(logodds: np.ndarray) -> np.ndarray:
 
 
 def load_scans(spec: SourceSpec) -> list[LaserScan]:
-    """The scans of a ``carmen:`` log or a ``rosbag:`` bag, in the CARMEN form.
+    """The scans of a ``carmen:`` log, a ``sim:`` drive or a ``rosbag:`` bag, in the CARMEN form.
 
     Raises
     ------
     ValueError
-        A log or bag that cannot be read (:class:`pgvd.rosbag.BagFormatError` for bags).
+        A log, map or bag that cannot be read (:class:`pgvd.rosbag.BagFormatError` for
+        bags, :class:`pgvd.io.MapFormatError` for map images), or a map with no room to drive.
     """
     assert spec.path is not None
     if spec.kind == "rosbag":
         from pgvd.rosbag import read_rosbag_scans
 
         return read_rosbag_scans(spec.path, spec.topic)
+    if spec.kind == "sim":
+        from pgvd.trajectory import drive
+
+        return drive(read_map(spec.path), SIM_SEED)
     from pgvd.carmen import read_carmen
 
     try:
         return read_carmen(spec.path)
     except OSError as exc:  # e.g. a directory: one line, not a traceback
         raise ValueError(f"cannot read {spec.path}: {exc.strerror or exc}") from None
+
+
+def compress_gaps(stamps: np.ndarray, speed: float, max_wall: float = MAX_GAP_WALL_S) -> np.ndarray:
+    """A recording's timestamps with every gap cut to what ``max_wall`` s replay at ``speed``.
+
+    Parameters
+    ----------
+    stamps : recording times, seconds, in replay order.
+    speed : replay speed, times real time (``inf``: no gap is cut, none is waited for).
+    max_wall : wall seconds a gap may cost at most.
+
+    Returns
+    -------
+    numpy.ndarray
+        Stamps that start at the first one and keep every step up to ``max_wall * speed``
+        seconds (steps backwards too), so a replay paced by them waits at most ``max_wall``
+        between two records.
+    """
+    stamps = np.asarray(stamps, dtype=np.float64)
+    if stamps.size == 0:
+        return stamps
+    steps = np.minimum(np.diff(stamps), max_wall * speed)
+    return stamps[0] + np.concatenate([[0.0], np.cumsum(steps)])
 
 
 class ReplayClock:
@@ -242,12 +290,13 @@ class ReplayClock:
 class CarmenSource:
     """Replays laser scans into a growing local map, in the robot's own frame.
 
-    The scans come from a CARMEN log segment or a rosbag2 (:func:`load_scans`); either way
-    they are cast the same, at the pace they were recorded.
+    The scans come from a CARMEN log segment, a simulated drive or a rosbag2
+    (:func:`load_scans`); either way they are cast the same, at the pace they were recorded
+    but for gaps (:func:`compress_gaps`).
 
     Parameters
     ----------
-    spec : a ``carmen:`` or ``rosbag:`` :class:`SourceSpec`.
+    spec : a ``carmen:``, ``sim:`` or ``rosbag:`` :class:`SourceSpec`.
     frame : ``(x, y, theta)`` rigid transform from the log's world frame to the robot's.
     resolution : metres per cell.
     speed : replay speed, times real time (log timestamps); ``inf`` integrates at once.
@@ -277,6 +326,7 @@ class CarmenSource:
             self.logodds = resume[0].astype(np.float32, copy=True)
             self.cursor = min(int(resume[1]), len(self.scans))
         self._clock = ReplayClock(speed)
+        self._stamps = compress_gaps(np.array([s.timestamp for s in self.scans]), speed)
 
     @property
     def done(self) -> bool:
@@ -288,18 +338,13 @@ class CarmenSource:
 
         if self.done:
             return False
-        stamps = self._stamps()
+        stamps = self._stamps
         horizon = self._clock.horizon(now, stamps[0], stamps[self.cursor])
         start = self.cursor
         while self.cursor < len(self.scans) and stamps[self.cursor] <= horizon:
             integrate_scan(self.logodds, self.scans[self.cursor], self.map_frame)
             self.cursor += 1
         return self.cursor > start
-
-    def _stamps(self) -> np.ndarray:
-        if not hasattr(self, "_stamp_cache"):
-            self._stamp_cache = np.array([s.timestamp for s in self.scans], dtype=np.float64)
-        return self._stamp_cache
 
     def grid(self) -> Grid:
         return self.map_frame.grid(self.logodds.copy())

@@ -2,8 +2,8 @@
 
 A *run* is a time-ordered list of scans with their true poses.  Log runs are
 the corrected intel and freiburg-079 logs; simulated runs are a
-:mod:`bench.trajectory` tour through a development map image, scanned by
-:mod:`bench.lidar`'s LMS200 model.  Both feed the same pair generator
+:mod:`pgvd.trajectory` tour through a development map image, scanned by
+:mod:`pgvd.lidar`'s LMS200 model.  Both feed the same pair generator
 (:mod:`bench.pairs`), so a simulated pair is made exactly as a log pair is.
 The bench uses only development data (the project's shared data notes);
 :func:`held_out_logs` and :func:`held_out_maps` find the logs and map images kept for
@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from bench.environment import cache_suffix
-from bench.lidar import LMS200, RayCaster, scan_at
-from bench.trajectory import tour
 from pgvd.carmen import LaserScan, read_carmen
 from pgvd.grid import Grid
 from pgvd.io import read_map
+from pgvd.lidar import LMS200, RayCaster, scan_at
+from pgvd.trajectory import tour
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"

@@ -20,8 +20,10 @@ from agent.sources import (
     RosbagGridSource,
     RosTopicSource,
     SourceSpec,
+    compress_gaps,
     epoch_due,
     frame_for_robot,
+    load_scans,
     make_source,
     parse_frame,
     parse_source,
@@ -211,16 +213,23 @@ def test_change_gate() -> None:
     assert not gate.due(Grid(lo.copy()), now=30.0, final=True)  # nothing changed
 
 
-def _replay(frame: tuple[float, float, float], **kw: object) -> CarmenSource:
-    src = CarmenSource(parse_source(f"carmen:{INTEL}@0.0-0.1"), frame, 0.1, 1e9, **kw)
+def _replay(
+    frame: tuple[float, float, float], spec: str = f"carmen:{INTEL}@0.0-0.1", **kw: object
+) -> CarmenSource:
+    src = CarmenSource(parse_source(spec), frame, 0.1, 1e9, **kw)
     src.step(0.0)
     src.step(1.0)
     return src
 
 
-def test_carmen_replay_in_own_frame_reports_the_truth() -> None:
-    a = _replay((0.0, 0.0, 0.0))
-    b = _replay((4.0, -3.0, 1.0))
+@pytest.mark.parametrize(
+    "run", [f"carmen:{INTEL}@0.0-0.1", "sim:{shared}/maps/intel/intel.yaml@0.0-0.5"]
+)
+def test_replay_in_own_frame_reports_the_truth(request, run: str) -> None:
+    if "{shared}" in run:
+        run = run.format(shared=request.getfixturevalue("shared"))
+    a = _replay((0.0, 0.0, 0.0), run)
+    b = _replay((4.0, -3.0, 1.0), run)
     assert a.done and b.done and a.grid().logodds.any()
     truth = true_matrix(a.describe()["world_to_pixel"], b.describe()["world_to_pixel"])
     # Warp B's walls into A with the reported truth: they land on A's walls.
@@ -230,6 +239,28 @@ def test_carmen_replay_in_own_frame_reports_the_truth() -> None:
     walls = maximum_filter(ga.logodds > 0, size=3)  # one cell of rasterisation slack
     assert walls[np.rint(pts[1]).astype(int), np.rint(pts[0]).astype(int)].mean() > 0.97
     assert link_error(truth, truth, gb.shape) == (0.0, 0.0)
+
+
+def test_a_sim_run_is_one_drive_that_every_robot_splits_alike(shared: Path) -> None:
+    spec = parse_source(f"sim:{shared}/maps/intel/intel.yaml@0.2-0.6")
+    assert (spec.kind, spec.segment) == ("sim", (0.2, 0.6))
+    whole = load_scans(SourceSpec("sim", spec.path))
+    # the same tour and noise on every robot: segments of it overlap as a log's do
+    again = load_scans(SourceSpec("sim", spec.path))
+    np.testing.assert_array_equal(whole[-1].ranges, again[-1].ranges)
+    src = make_source(spec, "r1", None, 0.1, 1e9)
+    assert len(src.scans) == int(0.6 * len(whole)) - int(0.2 * len(whole))
+    with pytest.raises(ValueError, match=re.escape("needs a map before @0.1-0.2")):
+        parse_source("sim:@0.1-0.2")
+
+
+def test_gaps_in_the_timestamps_cost_at_most_a_second_of_replay() -> None:
+    stamps = np.array([5.0, 6.0, 10_006.0, 10_007.0, 10_006.5])
+    np.testing.assert_allclose(
+        compress_gaps(stamps, speed=50.0), [5.0, 6.0, 56.0, 57.0, 56.5]
+    )  # 10,000 s cut to the 50 s one wall second replays; steps back kept
+    np.testing.assert_array_equal(compress_gaps(stamps, np.inf), stamps)
+    assert compress_gaps(np.array([]), 10.0).size == 0
 
 
 def test_carmen_replay_follows_the_clock_and_resumes() -> None:

@@ -49,7 +49,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--source",
         required=True,
-        help="carmen:LOG[@FROM-TO] (fractions), rosbag:BAG[:TOPIC] (a rosbag2's LaserScan "
+        help="carmen:LOG[@FROM-TO] (fractions), sim:IMAGE.yaml[@FROM-TO] (a simulated "
+        "robot's drive through a map image), rosbag:BAG[:TOPIC] (a rosbag2's LaserScan "
         "and TF, or its recorded OccupancyGrid TOPIC), map:FILE.yaml, or ros2:/TOPIC (a ROS 2 "
         "OccupancyGrid, e.g. ros2:/robot1/map)",
     )
@@ -186,7 +187,7 @@ def options_from_args(args: argparse.Namespace):
     _require_extras(source.kind, outputs)
     if source.path is not None and not source.path.exists():
         raise CliError(f"source file not found: {source.path}")
-    if source.kind in ("carmen", "map") and source.path is not None and source.path.is_dir():
+    if source.kind in ("carmen", "sim", "map") and source.path is not None and source.path.is_dir():
         raise CliError(f"source {source.kind}:{source.path} is a directory, not a file")
     check_resolution_option(args.resolution)
     for name in (

@@ -22,7 +22,7 @@ from agent.cli.common import EXIT_BAD_INPUT, EXIT_FAILED, CliError
 COMMANDS: dict[str, tuple[str, str]] = {
     "agent": ("agent.cli.agent", "run one robot's map-fusion daemon (peer to peer over Zenoh)"),
     "status": ("agent.cli.status", "robots, versions, links and traffic of a running fleet"),
-    "demo": ("agent.cli.demo", "run N agents on localhost mapping the Intel lab together"),
+    "demo": ("agent.cli.demo", "N agents on localhost map a building together (--log, --map)"),
     "router": (
         "agent.cli.router",
         "run a Zenoh router (links sites; agents connect to it as clients or peers)",

@@ -1,4 +1,4 @@
-"""bench.lidar and bench.trajectory: a simulated LMS200 driven through a real map image."""
+"""pgvd.lidar and pgvd.trajectory: a simulated LMS200 driven through a real map image."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from bench.lidar import LMS200, RayCaster, Scanner, close_diagonals, scan_at
-from bench.trajectory import CLEARANCE, tour
 from pgvd.grid import Grid
 from pgvd.io import read_map
+from pgvd.lidar import LMS200, RayCaster, Scanner, close_diagonals, scan_at
+from pgvd.trajectory import CLEARANCE, tour
 
 
 @pytest.fixture(scope="module")

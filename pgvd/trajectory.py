@@ -17,7 +17,9 @@ import numpy as np
 from scipy import ndimage
 from skimage.graph import MCP_Geometric
 
-from bench.lidar import RayCaster
+from pgvd.carmen import LaserScan
+from pgvd.grid import Grid
+from pgvd.lidar import LMS200, RayCaster, scan_at
 
 #: Robot radius plus margin, metres: the path keeps at least this far from walls and unknown.
 CLEARANCE = 0.3
@@ -112,3 +114,40 @@ def tour(caster: RayCaster, rng: np.random.Generator) -> np.ndarray:
     # Coarse cell (row, col) -> map pixel (x, y) -> world metres.
     px = np.column_stack([rc[:, 1] * k + (k - 1) / 2.0, rc[:, 0] * k + (k - 1) / 2.0])
     return poses_along(caster.pixel_to_world(px))
+
+
+#: Fewest scan poses a drive must have: a shorter one leaves no map worth registering.
+MIN_DRIVE_POSES = 20
+
+
+def drive(grid: Grid, seed: int, unknown_blocks: bool = False) -> list[LaserScan]:
+    """A simulated robot's run through a map image: a :func:`tour`, scanned by the LMS200.
+
+    Parameters
+    ----------
+    grid : the map image; its walls are the world the scanner sees (:class:`RayCaster`),
+        placed in the image's own metric frame (origin at its lower-left corner, yaw 0).
+    seed : seed of the tour's goals and of the range noise: the same seed, the same run.
+    unknown_blocks : unknown cells are walls too (see :class:`RayCaster`).
+
+    Returns
+    -------
+    list of LaserScan
+        One scan per pose, :data:`SCAN_SPACING` metres of travel apart, stamped one second
+        apart, each with its true pose.
+
+    Raises
+    ------
+    ValueError
+        A map with no free space wide enough for the robot, or too little to drive
+        :data:`MIN_DRIVE_POSES` scans through.
+    """
+    caster = RayCaster(Grid(grid.logodds, grid.resolution), unknown_blocks=unknown_blocks)
+    rng = np.random.default_rng(seed)
+    poses = tour(caster, rng)
+    if len(poses) < MIN_DRIVE_POSES:
+        raise ValueError(
+            f"the map's free space is too small to drive: {len(poses) * SCAN_SPACING:.1f} m "
+            f"of route, at least {MIN_DRIVE_POSES * SCAN_SPACING:.1f} m needed"
+        )
+    return scan_at(caster, poses, rng, LMS200)
