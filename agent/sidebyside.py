@@ -75,9 +75,7 @@ def write_side_by_side(
     # the verdict in a larger type than what explains it
     lines = [(title[0], ImageFont.load_default(size=24), 2 * LABEL)]
     lines += [(t, font, LABEL) for t in [*title[1:], LEGEND]]
-    width = max(
-        [r.width for r in rows] + [round(f.getlength(t)) + 2 * GAP for t, f, _ in lines]
-    )
+    width = max([r.width for r in rows] + [round(f.getlength(t)) + 2 * GAP for t, f, _ in lines])
     head = sum(h for _, _, h in lines) + GAP
     canvas = Image.new("RGB", (width, head + sum(r.height for r in rows) + GAP), "white")
     draw = ImageDraw.Draw(canvas)
