@@ -1,10 +1,10 @@
 """Calibration of the merge covariance (issue 10, item 5) on real development pairs.
 
-    python3 -m bench.covariance collect [--pairs 120] [--seed 10]   # merges, slow
-    python3 -m bench.covariance fit [--splits 20]                   # fit + report
+    python3 -m bench covariance collect [--pairs 120] [--seed 10]   # merges, slow
+    python3 -m bench covariance fit [--splits 20]                   # fit + report
 
 ``collect`` cuts overlapping pairs from the intel and freiburg-079 logs
-(:func:`bench.pairs.make_pairs`, each map in its own random frame, distinct
+(:func:`bench.data.pairs.make_pairs`, each map in its own random frame, distinct
 segments and frames per pair), merges them, and stores per accepted pair the
 pose error ``(tx, ty, psi)`` of the result against the truth and the terms of
 :func:`pgvd.matching.alignment_fit` at the result: ``bench/results/covariance_pairs.json``.
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from bench.report import MAX_CELL_ERROR, MAX_HEADING_DEG
+from bench.tables import MAX_CELL_ERROR, MAX_HEADING_DEG
 from pgvd.grid import matrix_to_pose
 from pgvd.matching import CALIBRATED, AlignmentFit, CovarianceModel, calibrated_covariance
 
@@ -64,7 +64,7 @@ def _wall_error(b_walls: np.ndarray, truth: np.ndarray, estimate: np.ndarray) ->
 
 def collect(n_pairs: int, seed: int, out: Path) -> int:
     """Merge ``n_pairs`` overlapping pairs per log; store errors and alignment terms."""
-    from bench.pairs import make_pairs
+    from bench.data.pairs import make_pairs
     from pgvd.carmen import read_carmen
     from pgvd.matching import WallMap, alignment_fit
     from pgvd.merge import MergeParams, merge
@@ -312,7 +312,7 @@ def markdown(summary: dict) -> str:
     lines = [
         "# Calibration of the merge covariance (issue 10, item 5)",
         "",
-        "`python3 -m bench.covariance collect && python3 -m bench.covariance fit"
+        "`python3 -m bench covariance collect && python3 -m bench covariance fit"
         + (
             f" --splits {next(iter(summary['random_splits'].values()))['splits']}`"
             if summary["random_splits"]

@@ -20,7 +20,7 @@ the full update; encode and decode of 1000x1000 < 50 ms each.
 
 Usage::
 
-    python3 bench/protocol.py [--stride 5] [--repeat 7] [--out bench/results/protocol.md]
+    python3 -m bench protocol [--stride 5] [--repeat 7] [--out bench/results/protocol.md]
 """
 
 from __future__ import annotations
@@ -263,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
 
     report = "\n\n".join(
         [
-            "# Wire protocol bench (`python3 bench/protocol.py`)",
+            "# Wire protocol bench (`python3 -m bench protocol`)",
             verdicts(maps, series, speeds),
             "Full update = every tile message + the manifest, no fleet key (the keyed column adds "
             "an HMAC-SHA256 per message). OccupancyGrid = 1 byte per cell. zlib(OG) = the "

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python3 -m bench.stages [--repeat 7] [--shared ../shared] [--json OUT.json] [--plot OUT.png]
+    python3 -m bench stages [--repeat 7] [--shared ../shared] [--json OUT.json] [--plot OUT.png]
 
 Pairs:
 

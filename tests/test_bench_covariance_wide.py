@@ -1,11 +1,11 @@
-"""bench.covariance_wide: the reported covariance of accepted poses against their errors."""
+"""bench.studies.covariance_wide: the reported covariance of accepted poses against their errors."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bench.covariance_wide import accepted_right, errors_and_covariances, groups, markdown
+from bench.studies.covariance_wide import accepted_right, errors_and_covariances, groups, markdown
 from pgvd.grid import rigid_matrix
 
 

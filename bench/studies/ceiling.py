@@ -1,11 +1,11 @@
 """What any decision could reach on a bench run: the pairs whose true pose was found at all.
 
 A pair's true pose is *found* when some method of the runs given returned it,
-accepted or not (:func:`bench.report.pose_right`), or when one of that method's
+accepted or not (:func:`bench.tables.pose_right`), or when one of that method's
 finalists reached it after refinement (``finalist_success``: pgvd and its
 variants record them).  A decision can accept at most the pairs whose pose is
 found, so the share found per set bounds the success of every decision on those
-hypotheses.  (:func:`bench.recall.pose_recall` counts pgvd's own finalists and
+hypotheses.  (:func:`bench.studies.recall.pose_recall` counts pgvd's own finalists and
 successes instead: it splits pgvd's losses between its search and its decision.)  With the
 ``exhaustive`` reference's run among the inputs (every heading at 1 degree,
 the best whole-pose score), a pair found by no method is one whose best-scoring
@@ -14,7 +14,7 @@ pose is not the truth: a wider search does not find it either.
 The shares are set against issue 10's targets (:data:`TARGETS`; a standard
 building at :data:`BUILDING_TARGET`).
 
-    python3 -m bench.ceiling bench/results/merge.json RUN/merge.json [--png OUT.png]
+    python3 -m bench ceiling bench/results/merge.json RUN/merge.json [--png OUT.png]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import frac, pose_right
+from bench.tables import frac, pose_right
 
 #: Issue 10's success targets per set (share of the overlapping pairs).
 TARGETS = {"standard": 0.97, "low": 0.60, "drifted": 0.90}
@@ -239,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--method {args.method}: not in the runs ({', '.join(methods)})")
     print("# What any decision could reach: pairs whose true pose was found\n")
     png = "" if args.png is None else f" --png {args.png}"
-    print(f"`python3 -m bench.ceiling {' '.join(map(str, args.runs))}{png}`\n")
+    print(f"`python3 -m bench ceiling {' '.join(map(str, args.runs))}{png}`\n")
     print(f"Methods: {', '.join(methods)}.\n")
     print(
         "A pair's true pose is found when a method returned it, accepted or not, or when one "

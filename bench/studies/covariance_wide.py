@@ -16,10 +16,10 @@ away); above, one too narrow.  Accepted wrong poses are no Gaussian error: they 
 counted apart.  The fr079 gmapping pairs are left out: their truth is itself a fit
 (``bench/results/gmapping_truth.md``).
 
-Run from the project root after ``python3 -m bench.merge`` (which writes both files at the
+Run from the project root after ``python3 -m bench merge`` (which writes both files at the
 end of a run)::
 
-    python3 -m bench.covariance_wide     # reads bench/results/merge.json
+    python3 -m bench covariance_wide     # reads bench/results/merge.json
 
 Writes ``covariance-wide.md`` and ``covariance-wide.png`` (NEES of every pose against the
 chi2(3) quantiles).
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.covariance import consistency, nees, pose_error
-from bench.report import OVERLAP_SETS, pose_right, records_main
+from bench.tables import OVERLAP_SETS, pose_right, records_main
 
 #: Sources whose pairs :mod:`bench.covariance` draws its calibration pairs from (their logs).
 CALIBRATION_BUILDINGS = ("intel", "fr079")
@@ -86,7 +86,7 @@ def markdown(records: list[dict], source: str) -> str:
     lines = [
         "# The reported covariance on the wide merge bench",
         "",
-        f"From the pgvd records of `{source}` (`python3 -m bench.covariance_wide`): every "
+        f"From the pgvd records of `{source}` (`python3 -m bench covariance_wide`): every "
         f"overlapping pair accepted at a right pose ({len(right)}; {wrong} accepted at a wrong "
         "pose are left out, and so are the fr079 gmapping pairs, whose truth is itself a "
         "fit). The covariance was calibrated on other pairs of the intel "

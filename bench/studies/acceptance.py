@@ -23,10 +23,10 @@ way on the other buildings' winners, and the wrong and false accepts it makes
 on the building left out (a cross-building negative belongs to both of its
 buildings).
 
-Run from the project root after ``python3 -m bench.merge``::
+Run from the project root after ``python3 -m bench merge``::
 
-    python3 -m bench.acceptance                       # reads bench/results/merge.json
-    python3 -m bench.acceptance --merge /tmp/d10/merge.json --out /tmp/d10
+    python3 -m bench acceptance                       # reads bench/results/merge.json
+    python3 -m bench acceptance --merge /tmp/d10/merge.json --out /tmp/d10
 
 ``bench.merge`` writes both files itself at the end of a run.
 """
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import NEGATIVE, OVERLAP_SETS, frac, pose_right, records_main
+from bench.tables import NEGATIVE, OVERLAP_SETS, frac, pose_right, records_main
 
 CLASSES = ("right", "wrong", "negative")
 #: Thresholds of the table, beside the merge's own.

@@ -26,7 +26,7 @@ whole-pose score is not the truth is lost to the evidence, not to the search.
 Printed per set and per source, with the heading misses listed (methods that
 record no searched headings or finalists get the first two columns only).
 
-    python3 -m bench.recall [bench/results/merge.json] [--method pgvd] [--tolerance 2]
+    python3 -m bench recall [bench/results/merge.json] [--method pgvd] [--tolerance 2]
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.merge import RESULTS
-from bench.report import MAX_HEADING_DEG, frac, pose_right
+from bench.tables import MAX_HEADING_DEG, frac, pose_right
 
 
 def angle_gap(a_deg: float, b_deg: float) -> float:
