@@ -1,4 +1,4 @@
-"""Calibration of the merge covariance (issue 10, item 5) on real development pairs.
+"""Calibration of the merge covariance on real development pairs.
 
     python3 -m bench covariance collect [--pairs 120] [--seed 10]   # merges, slow
     python3 -m bench covariance fit [--splits 20]                   # fit + report
@@ -221,7 +221,7 @@ def split(records: list[dict]) -> tuple[list[dict], list[dict]]:
 
 
 def _targets_met(row: dict) -> dict[str, bool]:
-    """Issue 10's targets on one held-out half: NEES in band, 90-98 % inside (3-D, heading)."""
+    """The targets on one held-out half: NEES in band, 90-98 % inside (3-D, heading)."""
     return {
         "full_in_band": row["band"][0] <= row["mean_nees"] <= row["band"][1],
         "full_inside": 0.90 <= row["inside_95"] <= 0.98,
@@ -310,7 +310,7 @@ def report(pairs_file: Path, out: Path, splits: int = 0) -> int:
 def markdown(summary: dict) -> str:
     """The report table."""
     lines = [
-        "# Calibration of the merge covariance (issue 10, item 5)",
+        "# Calibration of the merge covariance",
         "",
         "`python3 -m bench covariance collect && python3 -m bench covariance fit"
         + (

@@ -2,7 +2,7 @@
 
     python3 -m bench startup [--runs 9]
 
-Issue 10 asks for ``pgvd merge`` start-up (import to first work) under 0.4 s. Timed as whole
+The target: ``pgvd merge`` starts (import to first work) in under 0.4 s. Timed as whole
 processes, in turn and run after run so that a drift of the machine's speed falls on all:
 
 - ``python -c pass``: the interpreter alone, the floor;

@@ -25,7 +25,7 @@ NEGATIVE = "negative"
 NEGATIVE_KINDS = ("disjoint", "lookalike", "mirror", "cross")
 #: The paper's reported time per merge, seconds (10 to 13 s).
 PAPER_SECONDS = (10.0, 13.0)
-#: Success thresholds of issue 3: heading error (degrees) and mean cell error of B's walls
+#: Success thresholds: heading error (degrees) and mean cell error of B's walls
 #: (a drifted pair adds its own distortion: ``cell_tolerance`` of each record).
 MAX_HEADING_DEG = 2.0
 MAX_CELL_ERROR = 3.0

@@ -1,5 +1,6 @@
-"""How :func:`pgvd.verify.verify` does where the agent uses it: at predictions near the truth,
-and at wrong ones.
+"""How the agent's check of a predicted pose (:func:`pgvd.verify.verify`) does, near and far.
+
+At predictions near the truth, and at wrong ones.
 
     python3 -m bench verify [--metres 0.5] [--degrees 3] [--seed 7] [--out FILE]
                             [--json bench/results/merge.json] [--cache bench/cache]

@@ -1,6 +1,6 @@
 """The bench's pair sets, per source, cached on disk.
 
-Sets (issue 10):
+Sets:
 
 ``standard``  overlap >= 30 % (half of the pairs drawn within 30-75 %);
 ``low``       overlap 15-35 %;

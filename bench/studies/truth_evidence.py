@@ -365,7 +365,7 @@ def report(
         "against "
         "the rivals its search found: a threshold with no bad accept in this run is above it. "
         "'threshold the target needs': the margin of the group's ceil(target x pairs)-th best "
-        f"pair. Pairs the run accepted right above their bound: {below}. Targets: issue 10.\n",
+        f"pair. Pairs the run accepted right above their bound: {below}.\n",
         *(
             [
                 "Scored with `--param`: the run's bad winners keep the margins it gave them with "
