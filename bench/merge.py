@@ -475,8 +475,8 @@ def main(argv: list[str] | None = None) -> int:
     (out / "merge.json").write_text(json.dumps(to_json(doc), indent=1) + "\n")
     tables.chart(summary, records, scaling, out / "merge.png")
     if "pgvd" in table:
-        acceptance.write(records, out, "merge.json")
-        covariance_wide.write(records, out, "merge.json")
+        acceptance.write(records, out, str(out / "merge.json"))
+        covariance_wide.write(records, out, str(out / "merge.json"))
     _log(text)
     _log(f"wrote {out / 'merge.md'}, merge.json, merge.png")
     return 0

@@ -65,6 +65,10 @@ def main() -> int:
     total = f"| all {len(stops)} | | {ros_total:,} | {pgvd_total:,} | {ratio:.2%} |"
     text = "\n".join(
         [
+            "# ROS 2 OccupancyGrid against pgvd map updates",
+            "",
+            f"`python3 -m bench ros2_wire --first {args.first} --every {args.every}`",
+            "",
             f"Intel log at 0.05 m: {w}x{h} cells; first map after {args.first} scans, "
             f"then an update every {args.every} scans ({len(stops)} updates).",
             "",

@@ -29,6 +29,8 @@ PAPER_SECONDS = (10.0, 13.0)
 #: (a drifted pair adds its own distortion: ``cell_tolerance`` of each record).
 MAX_HEADING_DEG = 2.0
 MAX_CELL_ERROR = 3.0
+#: The project root: the commands a report states name paths from it.
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def pose_right(record: dict) -> bool:
@@ -223,14 +225,22 @@ def chart(summary: dict, records: list[dict], scaling: list[dict], path: Path) -
     plt.close(fig)
 
 
+def rerun(module: str, merge: Path) -> str:
+    """The command that writes the report of ``module`` again from the run at ``merge``."""
+    paths = []
+    for path in (merge.resolve(), merge.resolve().parent):
+        paths.append(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
+    return f"python3 -m bench {module} --merge {paths[0]} --out {paths[1]}"
+
+
 def records_main(
     argv: list[str] | None, description: str, write: Callable[[list[dict], Path, str], str]
 ) -> int:
     """The command line of a report built from a run's records alone (``--merge``, ``--out``).
 
     Reads the records of ``--merge`` (default ``bench/results/merge.json``), hands them to
-    ``write(records, out, source)`` and prints what it returns; a file without records is
-    one line on stderr and exit 2.
+    ``write(records, out, source)``, ``source`` the path of ``--merge``, and prints what it
+    returns; a file without records is one line on stderr and exit 2.
     """
     results = Path(__file__).resolve().parent / "results"
     parser = argparse.ArgumentParser(description=description)
@@ -242,5 +252,5 @@ def records_main(
     except (OSError, ValueError, KeyError) as e:
         print(f"cannot read the merge records of {args.merge}: {e}", file=sys.stderr)
         return 2
-    print(write(records, args.out, args.merge.name))
+    print(write(records, args.out, str(args.merge)))
     return 0

@@ -136,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# fr079_albertB gmapping runs: the true relative transform",
         "",
+        "`python3 -m bench gmapping`",
+        "",
         "Best rigid fit of B's walls onto A's near the identity (chamfer, rotation about "
         "the centroid of B's walls), whole map and right half (x >= centroid) only.",
         "",

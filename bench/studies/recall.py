@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -137,7 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     if not records:
         print(f"{args.json}: no overlapping pair recorded for {args.method}")
         return 1
+    command = "python3 -m bench recall " + " ".join(argv if argv is not None else sys.argv[1:])
     print(f"# Heading (within {args.tolerance} deg) and pose recall ({args.method})\n")
+    print(f"`{command.strip()}`\n")
     print("\n".join(table(records, args.tolerance)))
     gaps = [g for g in map(nearest_gap, records) if g is not None]
     if gaps:
