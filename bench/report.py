@@ -123,7 +123,10 @@ def parse(path: Path) -> Result:
 
     Bullets under a ``## Notes`` heading are prose, kept as written.
     """
-    lines = path.read_text().splitlines()
+    try:
+        lines = path.read_text().splitlines()
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from e
     title = next((x[2:].strip() for x in lines if x.startswith("# ")), path.stem)
     found = _COMMAND.search("\n".join(lines))
     result = Result(path, title, found[1] if found else None)
@@ -245,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         text = page(args.results.resolve(), args.out.resolve())
-    except (OSError, UnicodeDecodeError, ValueError) as e:
+    except (OSError, ValueError) as e:
         print(f"bench report: {e}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
