@@ -5,7 +5,7 @@
 Every Markdown file a bench run writes becomes one section of the page: its title, the
 command that reproduces it, every table in it (each row with its header's columns, a cell
 cut to :data:`MAX_CELL` characters), its ``- quantity: value`` lines as a table of their own
-(a dict of numbers spread over rows, a number to a cell) and its charts.  Then the
+(a dict of numbers with a column per key, a number to a cell) and its charts.  Then the
 hand-written notes on that result, ``notes/NAME.md`` beside the results, verbatim: a run
 rewrites its result file whole, so notes never live inside one.  Results on the held-out
 buildings (``held-out/``) get a part of their own, after the development results.
@@ -240,8 +240,12 @@ def page(results: Path, out: Path) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--results", type=Path, default=ROOT / "bench" / "results")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results.md")
+    parser.add_argument(
+        "--results", type=Path, default=ROOT / "bench" / "results", help="the result files"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=ROOT / "docs" / "results.md", help="the page to write"
+    )
     args = parser.parse_args(argv)
     if not args.results.is_dir():
         print(f"bench report: {args.results}: no such folder of results", file=sys.stderr)
