@@ -15,7 +15,7 @@ names, so both halves hold both logs), fits the constants of
 first half only, and reports on the second half only: the mean NEES
 against the 95 % band of the mean of n chi2(3) (mean 3, variance 6/n), the
 share of errors inside the 95 % ellipsoid, and the same for the heading
-alone (chi2(1)).  The Laplace covariance the merge used to report is
+alone (chi2(1)).  The plain Laplace covariance of the fit, uncalibrated, is
 evaluated on the same half for comparison.  ``--splits n`` refits the
 models chosen before and with the heading scale on ``n`` random halvings
 and says how often each target is met on the held-out half (minutes).
@@ -116,8 +116,8 @@ def alignment(rec: dict) -> AlignmentFit:
     )
 
 
-def main_laplace(rec: dict, coarse: int = 4, max_points: int = 4000) -> np.ndarray:
-    """The Laplace covariance main reported before this calibration, from a record.
+def plain_laplace(rec: dict, coarse: int = 4, max_points: int = 4000) -> np.ndarray:
+    """The plain Laplace covariance of the fit, before any calibration, from a record.
 
     ``coarse sigma^2 (J^T J)^-1`` with ``J^T J`` summed over an even subsample of
     at most ``max_points`` of B's walls (the stored ``info`` is over all of them).
@@ -274,8 +274,8 @@ def report(pairs_file: Path, out: Path, splits: int = 0) -> int:
     fit_half, test_half = split(records)
     errors = np.array([r["error"] for r in test_half])
     rows = {
-        "laplace as main reported it": consistency(
-            errors, np.array([main_laplace(r) for r in test_half])
+        "laplace, uncalibrated": consistency(
+            errors, np.array([plain_laplace(r) for r in test_half])
         )
     }
     fitted = {}
