@@ -70,6 +70,7 @@ def module_of(name: str) -> str | None:
 
 
 def main(argv: list[str]) -> int:
+    """List the bench modules, or run the one ``argv`` names with the rest of ``argv``."""
     if not argv or argv[0] in ("-h", "--help"):
         print(listing())
         return 0

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import itertools
 import os
 import re
 import sys
@@ -88,12 +89,10 @@ def quantity(label: str, value: str) -> list[tuple[str, dict[str, str]]]:
     words join the label.  Any other value is one column, ``value``.
     """
     found = re.match(r"(\{[^{}]*\})(.*)$", value)
-    parsed = None
-    if found:
-        try:
-            parsed = ast.literal_eval(found[1])
-        except (ValueError, SyntaxError):
-            parsed = None
+    try:
+        parsed = ast.literal_eval(found[1]) if found else None
+    except (ValueError, SyntaxError):
+        parsed = None
     if not isinstance(parsed, dict) or not parsed:
         return [(label, {"value": value})]
     rest = found[2].strip()
@@ -105,16 +104,11 @@ def quantity(label: str, value: str) -> list[tuple[str, dict[str, str]]]:
 
 
 def quantity_tables(items: list[tuple[str, dict[str, str]]]) -> list[list[str]]:
-    """Tables of consecutive quantities with the same columns, in their order."""
-    blocks: list[list[str]] = []
-    keys: list[str] = []
-    rows: list[list[str]] = []
-    for label, columns in [*items, ("", {})]:
-        if list(columns) != keys and rows:
-            blocks.append(table(["quantity", *keys], rows))
-            rows = []
-        keys = list(columns)
-        rows.append([label, *(v.replace("|", "\\|") for v in columns.values())])
+    """A table for each run of consecutive quantities with the same columns, in their order."""
+    blocks = []
+    for keys, group in itertools.groupby(items, key=lambda item: list(item[1])):
+        rows = [[label, *(v.replace("|", "\\|") for v in cols.values())] for label, cols in group]
+        blocks.append(table(["quantity", *keys], rows))
     return blocks
 
 
