@@ -115,7 +115,8 @@ def quantity_tables(items: list[tuple[str, dict[str, str]]]) -> list[list[str]]:
 def parse(path: Path) -> Result:
     """The title, command, tables, ``- quantity: value`` lines and charts of a result file.
 
-    Bullets under a ``## Notes`` heading are prose, kept as written.
+    Bullets under a ``## Notes`` heading are prose, kept as written.  The charts are the
+    images the file shows and the one a run writes beside it (``NAME.png``).
     """
     try:
         lines = path.read_text().splitlines()
@@ -156,6 +157,9 @@ def parse(path: Path) -> Result:
         i += 1
     if pending:
         result.blocks += quantity_tables(pending)
+    chart = path.with_suffix(".png")
+    if chart.is_file() and chart not in [image for _, image in result.images]:
+        result.images.append((path.stem, chart))
     return result
 
 
