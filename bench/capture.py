@@ -15,7 +15,7 @@ nothing is recorded (None) rather than something guessed, and a
 finalists that reach the decision: the ``scored`` hypotheses handed to
 ``pgvd.merge.decide`` (:func:`pgvd.decision.decide`).  With them the bench
 separates "the search did not find the pose" from "the decision did not pick
-or accept it" (pose recall, :mod:`bench.recall`).
+or accept it" (pose recall, :mod:`bench.studies.recall`).
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
-"""Calibration of the merge covariance (issue 10, item 5) on real development pairs.
+"""Calibration of the merge covariance on real development pairs.
 
-    python3 -m bench.covariance collect [--pairs 120] [--seed 10]   # merges, slow
-    python3 -m bench.covariance fit [--splits 20]                   # fit + report
+    python3 -m bench covariance collect [--pairs 120] [--seed 10]   # merges, slow
+    python3 -m bench covariance fit [--splits 20]                   # fit + report
 
 ``collect`` cuts overlapping pairs from the intel and freiburg-079 logs
-(:func:`bench.pairs.make_pairs`, each map in its own random frame, distinct
+(:func:`bench.data.pairs.make_pairs`, each map in its own random frame, distinct
 segments and frames per pair), merges them, and stores per accepted pair the
 pose error ``(tx, ty, psi)`` of the result against the truth and the terms of
 :func:`pgvd.matching.alignment_fit` at the result: ``bench/results/covariance_pairs.json``.
@@ -15,7 +15,7 @@ names, so both halves hold both logs), fits the constants of
 first half only, and reports on the second half only: the mean NEES
 against the 95 % band of the mean of n chi2(3) (mean 3, variance 6/n), the
 share of errors inside the 95 % ellipsoid, and the same for the heading
-alone (chi2(1)).  The Laplace covariance the merge used to report is
+alone (chi2(1)).  The plain Laplace covariance of the fit, uncalibrated, is
 evaluated on the same half for comparison.  ``--splits n`` refits the
 models chosen before and with the heading scale on ``n`` random halvings
 and says how often each target is met on the held-out half (minutes).
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from bench.report import MAX_CELL_ERROR, MAX_HEADING_DEG
+from bench.tables import MAX_CELL_ERROR, MAX_HEADING_DEG
 from pgvd.grid import matrix_to_pose
 from pgvd.matching import CALIBRATED, AlignmentFit, CovarianceModel, calibrated_covariance
 
@@ -64,7 +64,7 @@ def _wall_error(b_walls: np.ndarray, truth: np.ndarray, estimate: np.ndarray) ->
 
 def collect(n_pairs: int, seed: int, out: Path) -> int:
     """Merge ``n_pairs`` overlapping pairs per log; store errors and alignment terms."""
-    from bench.pairs import make_pairs
+    from bench.data.pairs import make_pairs
     from pgvd.carmen import read_carmen
     from pgvd.matching import WallMap, alignment_fit
     from pgvd.merge import MergeParams, merge
@@ -116,8 +116,8 @@ def alignment(rec: dict) -> AlignmentFit:
     )
 
 
-def main_laplace(rec: dict, coarse: int = 4, max_points: int = 4000) -> np.ndarray:
-    """The Laplace covariance main reported before this calibration, from a record.
+def plain_laplace(rec: dict, coarse: int = 4, max_points: int = 4000) -> np.ndarray:
+    """The plain Laplace covariance of the fit, before any calibration, from a record.
 
     ``coarse sigma^2 (J^T J)^-1`` with ``J^T J`` summed over an even subsample of
     at most ``max_points`` of B's walls (the stored ``info`` is over all of them).
@@ -221,7 +221,7 @@ def split(records: list[dict]) -> tuple[list[dict], list[dict]]:
 
 
 def _targets_met(row: dict) -> dict[str, bool]:
-    """Issue 10's targets on one held-out half: NEES in band, 90-98 % inside (3-D, heading)."""
+    """The targets on one held-out half: NEES in band, 90-98 % inside (3-D, heading)."""
     return {
         "full_in_band": row["band"][0] <= row["mean_nees"] <= row["band"][1],
         "full_inside": 0.90 <= row["inside_95"] <= 0.98,
@@ -274,8 +274,8 @@ def report(pairs_file: Path, out: Path, splits: int = 0) -> int:
     fit_half, test_half = split(records)
     errors = np.array([r["error"] for r in test_half])
     rows = {
-        "laplace as main reported it": consistency(
-            errors, np.array([main_laplace(r) for r in test_half])
+        "laplace, uncalibrated": consistency(
+            errors, np.array([plain_laplace(r) for r in test_half])
         )
     }
     fitted = {}
@@ -310,9 +310,9 @@ def report(pairs_file: Path, out: Path, splits: int = 0) -> int:
 def markdown(summary: dict) -> str:
     """The report table."""
     lines = [
-        "# Calibration of the merge covariance (issue 10, item 5)",
+        "# Calibration of the merge covariance",
         "",
-        "`python3 -m bench.covariance collect && python3 -m bench.covariance fit"
+        "`python3 -m bench covariance collect && python3 -m bench covariance fit"
         + (
             f" --splits {next(iter(summary['random_splits'].values()))['splits']}`"
             if summary["random_splits"]

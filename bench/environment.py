@@ -3,14 +3,13 @@
 Two runs of the merge bench on the same commit can differ when the machine
 under it differs: the pairs drawn from map images are rendered by a simulated
 lidar and cut with numpy, scipy, scikit-image, OpenCV and Pillow, and their
-cells move with those libraries.  Measured on one commit (c597ba2): on this
-session's machine, with the libraries of a fresh install on 2026-12-02 (numpy
-2.4.6, scipy 1.17.1, scikit-image 0.26.0, OpenCV 4.14.0, Pillow 13.0.0), 42 of
-the 292 pgvd margins differed from the committed run's, made on the last
-session's machine, two stata standard pairs changed outcome (one each way) and
-every total stayed the same; two runs on one machine and install, each from an
-empty pair cache, agree to the last bit.  The library versions and the CPU
-changed together there, so either may move the pairs.
+cells move with those libraries.  Measured on one commit: on one machine, with
+the libraries of a fresh install (numpy 2.4.6, scipy 1.17.1, scikit-image
+0.26.0, OpenCV 4.14.0, Pillow 13.0.0), 42 of the 292 pgvd margins differed from
+a run made on another machine, two stata standard pairs changed outcome (one
+each way) and every total stayed the same; two runs on one machine and install,
+each from an empty pair cache, agree to the last bit.  The library versions and
+the CPU changed together there, so either may move the pairs.
 
 So a result is recorded with what it was measured on, and runs are compared
 only where the Python and library versions match.  The bench's pair cache is

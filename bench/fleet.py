@@ -17,7 +17,7 @@ in random frames, and we measure:
   registration epochs the robots went through (each robot's map starts a new epoch when it
   changed enough, and every pair of it must be decided again).
 
-Run: ``python3 -m bench.fleet [--robots 2 4 8] [--speed 100] [--shm off|on]``; writes
+Run: ``python3 -m bench fleet [--robots 2 4 8] [--speed 100] [--shm off|on]``; writes
 ``bench/results/fleet.md`` (and ``fleet.json``).
 """
 
@@ -175,7 +175,7 @@ def main() -> None:
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     md = (
         "# Fleet benchmark\n\n"
-        f"`python3 -m bench.fleet --robots {' '.join(map(str, args.robots))} "
+        f"`python3 -m bench fleet --robots {' '.join(map(str, args.robots))} "
         f"--speed {args.speed:g} --shm {args.shm}` on {os.cpu_count()} cores, {stamp}.\n"
         "Agents replay overlapping segments of the Intel log (as `pgvd demo`), peer to peer on "
         f"localhost, no router, Zenoh shared memory {args.shm} (`--shm`).\n\n"

@@ -1,6 +1,6 @@
 """Regenerate ``examples/``: two robots' partial maps of the Intel lab and their true matrix.
 
-Run from the project root: ``python3 -m bench.make_examples``.  The maps are a
+Run from the project root: ``python3 -m bench make_examples``.  The maps are a
 pure function of the bundled log (``agent/data/intel-corrected.log.gz``) and
 the seed below, so the files in git can be checked against a fresh run.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.pairs import make_pair, write_pair
+from bench.data.pairs import make_pair, write_pair
 from pgvd.carmen import read_carmen
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -4,29 +4,29 @@ The merge bench drives a simulated laser through the development map images,
 so its maps have the thin walls a laser draws.  A user with two saved maps
 (map_server PGM + YAML, a cleaned map, an inflated one) merges the images as
 they are, and many draw walls several cells thick.  For each development map
-image (the ``*-sim`` sources of :mod:`bench.sources`), two parts of 62 % of
+image (the ``*-sim`` sources of :mod:`bench.data.sources`), two parts of 62 % of
 its width (24 % of it shared) are cut, B is put in ``--frames`` random frames,
 the walls of both are grown by each of ``--grow`` cells on each side (0, 1,
 2: walls as drawn, 2 and 4 cells thicker), and each pair is merged and judged as the
 merge bench judges (:func:`bench.merge.evaluate`: accepted, heading within 2
 degrees, B's walls within 3 cells on average).
 
-    python3 -m bench.mapimages [--frames 3] [--grow 0 1 2] [--unknown free] [--speckle D]
+    python3 -m bench mapimages [--frames 3] [--grow 0 1 2] [--unknown free] [--speckle D]
         [--clutter C] [--ablation NAME] [--held-out] [--out bench/results]
 
 ``--unknown free`` paints every unknown cell of both parts free, the padding of
-B's frame included (:func:`bench.pairs.painted_free`): images whose unexplored
+B's frame included (:func:`bench.data.pairs.painted_free`): images whose unexplored
 area was painted white, as some editors and exports save them.  ``--speckle D``
 turns a share ``D`` of each part's free cells, drawn independently, into lone
-walls (:func:`bench.pairs.speckled`): raw maps saved without cleaning.  ``--clutter C``
+walls (:func:`bench.data.pairs.speckled`): raw maps saved without cleaning.  ``--clutter C``
 draws furniture into each image before its parts are cut, ``C`` filled discs of
-0.1-0.35 m radius per square metre of free space (:func:`bench.pairs.cluttered`; 0.3 is
+0.1-0.35 m radius per square metre of free space (:func:`bench.data.pairs.cluttered`; 0.3 is
 an office with a desk, chair or bin every 3 square metres).  ``--ablation
 pgvd-as-drawn`` (any name of :data:`bench.merge.ABLATIONS`) merges with that stage
 off, ``--ablation pgvd-despeckle`` (or another of :data:`bench.merge.OPTIONS`) with that
 option on; the report's name gains its name.  ``--held-out`` cuts the same parts
 from the map images the shared data keeps to evaluate the merge on buildings it was
-never tuned on (:func:`bench.sources.held_out_maps`) and writes to
+never tuned on (:func:`bench.data.sources.held_out_maps`) and writes to
 ``bench/results/held-out/``.
 
 Writes ``mapimages.md`` (``mapimages-painted.md`` with ``--unknown free``,
@@ -44,10 +44,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.data.pairs import MapPair, cluttered, painted_pair, speckled_pair
+from bench.data.sources import SHARED, SOURCES, held_out_maps
 from bench.merge import VARIANTS, add_output_arguments, evaluate, output_dir
-from bench.pairs import MapPair, cluttered, painted_pair, speckled_pair
-from bench.report import mark
-from bench.sources import SHARED, SOURCES, held_out_maps
+from bench.tables import mark
 from pgvd.grid import Grid, rigid_matrix
 from pgvd.io import read_map
 from pgvd.merge import MergeParams, merge
@@ -103,7 +103,7 @@ def development_images() -> list[tuple[str, Path]]:
 
 def held_out_images() -> list[tuple[str, Path]]:
     """(row label, YAML path) of every map image the shared data keeps for evaluation
-    (:func:`bench.sources.held_out_maps`), labelled ``directory/name``."""
+    (:func:`bench.data.sources.held_out_maps`), labelled ``directory/name``."""
     return [(f"{p.parent.name}/{p.stem}", p) for p in held_out_maps()]
 
 
@@ -119,9 +119,10 @@ def run(
 ) -> list[dict]:
     """Every map image's pairs at every growth, merged; one record each (``images``: row
     label and YAML path of each image; ``painted``: with
-    :func:`bench.pairs.painted_pair`'s maps; ``speckle``: with that share of free cells
-    lone walls, :func:`bench.pairs.speckled_pair`; ``clutter``: with that many discs of
-    furniture per square metre of free space, :func:`bench.pairs.cluttered`; ``ablation``: a key of
+    :func:`bench.data.pairs.painted_pair`'s maps; ``speckle``: with that share of free cells
+    lone walls, :func:`bench.data.pairs.speckled_pair`; ``clutter``: with that many discs of
+    furniture per square metre of free space, :func:`bench.data.pairs.cluttered`;
+    ``ablation``: a key of
     :data:`bench.merge.ABLATIONS` or :data:`bench.merge.OPTIONS`, the merge with that
     stage off or that option on)."""
     params = MergeParams(diagnostics=False, **VARIANTS.get(ablation, {}))
@@ -233,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     out_dir = output_dir(args)
     out_dir.mkdir(parents=True, exist_ok=True)
-    command = "python3 -m bench.mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python3 -m bench mapimages " + " ".join(argv if argv is not None else sys.argv[1:])
     name = (
         "mapimages"
         + ("-painted" if painted else "")

@@ -1,10 +1,10 @@
 """Merge benchmark: pgvd against the methods people use, on pairs from every development building.
 
-Pairs (:mod:`bench.sets`): the intel and freiburg-079 logs, simulated LMS200
+Pairs (:mod:`bench.data.sets`): the intel and freiburg-079 logs, simulated LMS200
 runs over the development map images (intel, fr079_albertB, willow,
-ritsumeikan_cc4f, mit_stata_basement, uos_avz; :mod:`bench.lidar`,
-:mod:`bench.trajectory`) and the three gmapping runs of fr079_albertB against
-each other (:mod:`bench.gmapping`).  Sets: standard (overlap >= 30 %), low
+ritsumeikan_cc4f, mit_stata_basement, uos_avz; :mod:`pgvd.lidar`,
+:mod:`pgvd.trajectory`) and the three gmapping runs of fr079_albertB against
+each other (:mod:`bench.data.gmapping`).  Sets: standard (overlap >= 30 %), low
 overlap (15-35 %), drifted (odometry noise on the scan poses) and negatives
 (disjoint parts of a building, look-alike corridors, mirror images, different
 buildings).  Each map is in its own random frame, with the true B -> A matrix.
@@ -27,7 +27,7 @@ Methods, all in this one process:
                 pairs of the maps as they are, where it accepts none);
 ``pgvd-heading`` an option that is off by default: the Radon candidates refined on
                 the whole-map overlay, ``MergeParams(heading_span=6)``
-                (``python -m bench.recall --method pgvd-heading`` shows what it finds);
+                (``python -m bench recall --method pgvd-heading`` shows what it finds);
 ``pgvd-search`` an option that is off by default: 4 finalists more, the best by the
                 search evidence (free space seen by both counts, conflicts weigh more),
                 ``MergeParams(search_finalists=4)``;
@@ -50,23 +50,23 @@ MergeResult field, the headings searched and the finalists that reached the
 decision, each marked a success or not) is in ``merge.json``.
 
 ``--unknown free`` paints every unknown cell of both maps of each pair free
-(:func:`bench.pairs.painted_free`): the maps as images with no unknown cell.
+(:func:`bench.data.pairs.painted_free`): the maps as images with no unknown cell.
 ``--speckle D`` turns a share ``D`` of each map's free cells into lone walls, drawn
-independently for the two maps of a pair (:func:`bench.pairs.speckled_pair`): raw maps
+independently for the two maps of a pair (:func:`bench.data.pairs.speckled_pair`): raw maps
 saved without cleaning.
 ``--held-out`` cuts the same sets from the laser logs the shared data keeps to evaluate
-the merge on buildings it was never tuned on (:func:`bench.sources.held_out_logs`), and
+the merge on buildings it was never tuned on (:func:`bench.data.sources.held_out_logs`), and
 writes to ``bench/results/held-out/``.
 
 Run from the project root::
 
-    python3 -m bench.merge --quick                # a few pairs per source and set, pgvd only
-    python3 -m bench.merge                        # full: ~300 pairs, pgvd, m-explore, hough
+    python3 -m bench merge --quick                # a few pairs per source and set, pgvd only
+    python3 -m bench merge                        # full: ~300 pairs, pgvd, m-explore, hough
 
 Writes ``merge.md``, ``merge.png`` and ``merge.json`` to ``--out`` (``bench/results/``), and
-with pgvd among the methods the margin report of :mod:`bench.acceptance`
+with pgvd among the methods the margin report of :mod:`bench.studies.acceptance`
 (``acceptance.md``, ``acceptance.png``) and the covariance report of
-:mod:`bench.covariance_wide` (``covariance-wide.md``, ``covariance-wide.png``).
+:mod:`bench.studies.covariance_wide` (``covariance-wide.md``, ``covariance-wide.png``).
 """
 
 from __future__ import annotations
@@ -81,12 +81,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import acceptance, covariance_wide, report
+from bench import tables
 from bench.capture import Finalists, SearchedHeadings, result_json, to_json
-from bench.environment import describe, environment
-from bench.pairs import MapPair, make_pair, painted_pair, speckled_pair
-from bench.report import MAX_CELL_ERROR, mark, pose_right
-from bench.sets import (
+from bench.data.pairs import MapPair, make_pair, painted_pair, speckled_pair
+from bench.data.sets import (
     DRIFT,
     FULL,
     LOW_BAND,
@@ -96,7 +94,10 @@ from bench.sets import (
     Entry,
     build,
 )
-from bench.sources import SOURCES, held_out_logs
+from bench.data.sources import SOURCES, held_out_logs
+from bench.environment import describe, environment
+from bench.studies import acceptance, covariance_wide
+from bench.tables import MAX_CELL_ERROR, mark, pose_right
 from pgvd.carmen import read_carmen
 from pgvd.grid import Grid, heading
 from pgvd.speckle import DESPECKLE_RADIUS
@@ -274,7 +275,7 @@ def run_pairs(entries: list[Entry], table: dict[str, Method]) -> list[dict]:
             rec = pair_record(entry)
             rec.update(evaluate(pair, accepted, matrix))
             if extra.get("finalists") is not None:
-                # pose recall (bench.recall): would each finalist have been a success?
+                # pose recall (bench.studies.recall): would each finalist have been a success?
                 rec["finalist_success"] = [
                     evaluate(pair, True, m)["success"] for m in extra["finalists"]
                 ]
@@ -394,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.held_out and args.sources:
         parser.error("--held-out and --sources: the held-out logs are not development sources")
     out = output_dir(args)
-    command = "python3 -m bench.merge " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python3 -m bench merge " + " ".join(argv if argv is not None else sys.argv[1:])
     names = tuple(args.methods or (("pgvd",) if args.quick else ("pgvd", "m-explore", "hough")))
     counts = QUICK if args.quick else FULL
     table = methods(args.exhaustive_step, args.exhaustive_coarse, names)
@@ -416,17 +417,17 @@ def main(argv: list[str] | None = None) -> int:
     _log(f"[pairs] {len(entries)} pairs ready in {time.perf_counter() - t0:.0f} s")
     records = run_pairs(entries, table)
     scaling = [] if args.no_scaling else run_scaling(table, args.seed, args.repeats)
-    summary = report.summarise(records, list(table))
+    summary = tables.summarise(records, list(table))
     env = environment()
     notes = [
         describe(env),
         f"Pairs per source: {dataclasses.asdict(counts)} (seed {args.seed}); overlap of the "
         f"standard and drifted sets in {list(STANDARD_BAND)} (half of the standard pairs drawn "
         f"in {list(MIDDLE_BAND)}), of the low set in {list(LOW_BAND)}.",
-        f"Drifted: random-walk odometry drift {DRIFT.json()} (bench.drift: sigmas per "
+        f"Drifted: random-walk odometry drift {DRIFT.json()} (bench.data.drift: sigmas per "
         "sqrt(metre) travelled and per sqrt(radian) turned) "
         "on both robots; truth = the least-squares rigid alignment of the walls both robots "
-        "saw (bench.drift.overlap_fit); a drifted pair's cell tolerance is 3 cells plus its "
+        "saw (bench.data.drift.overlap_fit); a drifted pair's cell tolerance is 3 cells plus its "
         "residual distortion there (info.drift_rms_m, in cells; record field cell_tolerance).",
         "Success: accepted, heading within 2 deg and mean error of B's occupied cells within "
         "3 cells. Errors are medians over successes. Times: wall clock, one process.",
@@ -436,19 +437,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.held_out:
         notes.append(
             "Held out: the laser logs of the buildings the shared data keeps for evaluation "
-            "(bench.sources.held_out_logs: every log no development source reads), cut as "
+            "(bench.data.sources.held_out_logs: every log no development source reads), cut as "
             "the development logs are. No parameter was set on them."
         )
     if args.unknown == "free":
         notes.append(
             "Unknown painted free: every cell of both maps of each pair that a saved map draws "
-            "unknown reads free (bench.pairs.painted_free), as in a map image whose unexplored "
-            "area was painted white; the scaling pair is not painted."
+            "unknown reads free (bench.data.pairs.painted_free), as in a map image whose "
+            "unexplored area was painted white; the scaling pair is not painted."
         )
     if args.speckle > 0:
         notes.append(
             f"Speckle: {args.speckle:g} of each map's free cells turned into lone walls, "
-            "drawn independently for the two maps of a pair (bench.pairs.speckled_pair, "
+            "drawn independently for the two maps of a pair (bench.data.pairs.speckled_pair, "
             f"seed {args.seed}): raw maps saved without cleaning; the scaling pair is not "
             "speckled."
         )
@@ -462,7 +463,7 @@ def main(argv: list[str] | None = None) -> int:
             "machine)."
         )
     out.mkdir(parents=True, exist_ok=True)
-    text = report.markdown(summary, scaling, command.strip(), notes)
+    text = tables.markdown(summary, scaling, command.strip(), notes)
     (out / "merge.md").write_text(text)
     doc = {
         "command": command.strip(),
@@ -472,10 +473,10 @@ def main(argv: list[str] | None = None) -> int:
         "scaling": to_json(scaling),
     }
     (out / "merge.json").write_text(json.dumps(to_json(doc), indent=1) + "\n")
-    report.chart(summary, records, scaling, out / "merge.png")
+    tables.chart(summary, records, scaling, out / "merge.png")
     if "pgvd" in table:
-        acceptance.write(records, out, "merge.json")
-        covariance_wide.write(records, out, "merge.json")
+        acceptance.write(records, out, str(out / "merge.json"))
+        covariance_wide.write(records, out, str(out / "merge.json"))
     _log(text)
     _log(f"wrote {out / 'merge.md'}, merge.json, merge.png")
     return 0

@@ -15,12 +15,12 @@ the intel and freiburg-079 laser logs (``../shared/logs``):
   which the report states), with zlib of the whole ``OccupancyGrid`` timed in
   the same run.
 
-Targets (issue 4): full update <= 3% of OccupancyGrid; one-scan delta <= 2% of
+Targets: full update <= 3% of OccupancyGrid; one-scan delta <= 2% of
 the full update; encode and decode of 1000x1000 < 50 ms each.
 
 Usage::
 
-    python3 bench/protocol.py [--stride 5] [--repeat 7] [--out bench/results/protocol.md]
+    python3 -m bench protocol [--stride 5] [--repeat 7] [--out bench/results/protocol.md]
 """
 
 from __future__ import annotations
@@ -200,13 +200,13 @@ def speed(repeat: int) -> list[list[str]]:
 
 
 def verdicts(maps: list[list[str]], series: dict[str, dict], speeds: list[list[str]]) -> str:
-    """The three targets of issue 4, each with its measured value and MET or MISSED."""
+    """The three targets, each with its measured value and MET or MISSED."""
     over = [r[0] + " " + r[6] for r in maps if float(r[6].rstrip("%")) > 3.0]
     medians = {log: 100 * float(np.median(s["ratio"])) for log, s in series.items()}
     slowest = max(max(float(r[1]), float(r[2])) for r in speeds)
     slowest_cpu = max(max(float(r[3]), float(r[4])) for r in speeds)
     lines = [
-        "Targets (issue 4):",
+        "Targets:",
         f"- full update <= 3% of OccupancyGrid: {len(maps) - len(over)}/{len(maps)} maps"
         + (f"; MISSED by {', '.join(over)}" if over else "; MET"),
         "- one-scan delta <= 2% of the full update (median over the replay): "
@@ -263,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
 
     report = "\n\n".join(
         [
-            "# Wire protocol bench (`python3 bench/protocol.py`)",
+            "# Wire protocol bench (`python3 -m bench protocol`)",
             verdicts(maps, series, speeds),
             "Full update = every tile message + the manifest, no fleet key (the keyed column adds "
             "an HMAC-SHA256 per message). OccupancyGrid = 1 byte per cell. zlib(OG) = the "

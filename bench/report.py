@@ -1,246 +1,263 @@
-"""Tables and charts of a merge bench run, from its per-pair records alone.
+"""Write ``docs/results.md`` again from the result files of ``bench/results/``.
 
-Every number here is computed from the records that ``merge.json`` stores,
-so a table can be rebuilt, or a new one made, without rerunning a merge.
+    python3 -m bench report [--results bench/results] [--out docs/results.md]
 
-Success on an overlapping pair: accepted, heading within 2 degrees and mean
-error of B's occupied cells within 3 cells.  A *wrong accept*: accepted on an
-overlapping pair outside those bounds.  A *false accept*: any accept on a
-negative pair.
+Every Markdown file a bench run writes becomes one section of the page: its title, the
+command that reproduces it, every table in it (each row with its header's columns, a cell
+cut to :data:`MAX_CELL` characters), its ``- quantity: value`` lines as a table of their own
+(a dict of numbers with a column per key, a number to a cell) and its charts.  Then the
+hand-written notes on that result, ``notes/NAME.md`` beside the results, verbatim: a run
+rewrites its result file whole, so notes never live inside one.  Results on the held-out
+buildings (``held-out/``) get a part of their own, after the development results.
+Sections follow the listing of ``python3 -m bench --help``: benchmarks, then studies.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import ast
+import itertools
+import os
+import re
 import sys
-from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
+from bench.__main__ import SECTIONS, commands
 
-#: The overlapping sets, in report order, and the negative set.
-OVERLAP_SETS = ("standard", "low", "drifted")
-NEGATIVE = "negative"
-NEGATIVE_KINDS = ("disjoint", "lookalike", "mirror", "cross")
-#: The paper's reported time per merge, seconds (10 to 13 s).
-PAPER_SECONDS = (10.0, 13.0)
-#: Success thresholds of issue 3: heading error (degrees) and mean cell error of B's walls
-#: (a drifted pair adds its own distortion: ``cell_tolerance`` of each record).
-MAX_HEADING_DEG = 2.0
-MAX_CELL_ERROR = 3.0
+ROOT = Path(__file__).resolve().parents[1]
+#: The longest table cell the page shows; a longer one is cut, and says so.
+MAX_CELL = 200
+#: The folder of held-out results, and the one of the notes, under the results folder.
+HELD_OUT = "held-out"
+NOTES = "notes"
 
-
-def pose_right(record: dict) -> bool:
-    """Whether a record's returned pose, accepted or not, is within the success bounds."""
-    return (
-        record["heading_deg"] <= MAX_HEADING_DEG and record["cell_err"] <= record["cell_tolerance"]
-    )
+_COMMAND = re.compile(r"`(python3? -m bench [a-z_]+[^`]*)`")
+_SEPARATOR = re.compile(r"^\|(\s*:?-+:?\s*\|)+\s*$")
+_BULLET = re.compile(r"^- ([^:]+): (.+)$")
+_CUT = " ... (cut; see the result file)"
+_IMAGE = re.compile(r"!\[([^]]*)\]\(([^)]+)\)")
 
 
-def mark(success: bool, accepted: bool) -> str:
-    """A pair's outcome in a progress line: ``ok``, ``ACC`` (accepted, wrong) or ``rej``."""
-    return "ok" if success else ("ACC" if accepted else "rej")
+@dataclass
+class Result:
+    """One result file, as the page shows it."""
+
+    path: Path
+    title: str
+    command: str | None
+    blocks: list[list[str]] = field(default_factory=list)
+    images: list[tuple[str, Path]] = field(default_factory=list)
+
+    @property
+    def module(self) -> str | None:
+        """The bench module the command runs, or None when the file states no command."""
+        return self.command.split()[3] if self.command else None
 
 
-def frac(hits: int, n: int, digits: int = 0) -> str:
-    """``hits/n (P %)`` with ``digits`` decimals, or ``-`` for no pairs."""
-    return "-" if n == 0 else f"{hits}/{n} ({100 * hits / n:.{digits}f} %)"
+def cell(text: str) -> str:
+    """One table cell: stripped, at most :data:`MAX_CELL` characters, cut at a separator."""
+    text = text.strip()
+    if len(text) <= MAX_CELL:
+        return text
+    head = text[: MAX_CELL - len(_CUT)]
+    cut = max(head.rfind(", "), head.rfind("; "))
+    return (head[:cut] if cut > 0 else head) + _CUT
 
 
-def _count(records: list[dict], key: str) -> tuple[int, int]:
-    return sum(bool(r[key]) for r in records), len(records)
+def split_row(line: str) -> list[str]:
+    """The cells of one Markdown table row (``\\|`` is a pipe inside a cell)."""
+    inner = line.strip().removeprefix("|").removesuffix("|")
+    return [c.replace("\0", "\\|") for c in inner.replace("\\|", "\0").split("|")]
 
 
-def _seconds(records: list[dict]) -> tuple[float, float]:
-    if not records:
-        return float("nan"), float("nan")
-    s = np.array([r["seconds"] for r in records])
-    return float(np.median(s)), float(np.percentile(s, 95))
-
-
-def cell_stats(records: list[dict]) -> dict:
-    """Counts of one group of records (one method): per set, wrong and false accepts, times."""
-    out: dict = {}
-    for name in OVERLAP_SETS:
-        mine = [r for r in records if r["set"] == name]
-        out[name] = _count(mine, "success")
-        out[f"{name}_wrong"] = sum(r["accepted"] and not r["success"] for r in mine)
-    overlapping = [r for r in records if r["set"] in OVERLAP_SETS]
-    negatives = [r for r in records if r["set"] == NEGATIVE]
-    out["overall"] = _count(overlapping, "success")
-    out["wrong"] = (sum(r["accepted"] and not r["success"] for r in overlapping), len(overlapping))
-    out["false"] = _count(negatives, "accepted")
-    for kind in NEGATIVE_KINDS:
-        out[f"false_{kind}"] = _count([r for r in negatives if r["kind"] == kind], "accepted")
-    good = [r for r in overlapping if r["success"]]
-    out["heading_deg"] = float(np.median([r["heading_deg"] for r in good])) if good else None
-    out["cell_err"] = float(np.median([r["cell_err"] for r in good])) if good else None
-    out["median_s"], out["p95_s"] = _seconds(records)
-    return out
-
-
-def summarise(records: list[dict], methods: list[str]) -> dict:
-    """Per method: overall numbers, and per source (a row per building and source)."""
-    doc: dict = {}
-    for m in methods:
-        mine = [r for r in records if r["method"] == m]
-        sources = sorted({r["source"] for r in mine if r["source"] != "cross-building"})
-        doc[m] = {
-            "all": cell_stats(mine),
-            "by_source": {s: cell_stats([r for r in mine if r["source"] == s]) for s in sources},
-        }
-    return doc
-
-
-def _fmt(v: float | None, digits: int = 2) -> str:
-    return "-" if v is None or not np.isfinite(v) else f"{v:.{digits}f}"
-
-
-def method_table(summary: dict, scaling: list[dict]) -> list[str]:
-    """One row per method over every source."""
-    cells = sorted({r["cells"] for r in scaling})
-    head = ["method", "standard", "low overlap", "drifted", "wrong accepts", "false accepts"]
-    head += ["median heading err (deg)", "median cell err", "median s", "p95 s"]
-    head += [f"s @ {c}^2" for c in cells]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for m, doc in summary.items():
-        a = doc["all"]
-        row = [m, *(frac(*a[s]) for s in OVERLAP_SETS), frac(*a["wrong"]), frac(*a["false"])]
-        row += [_fmt(a["heading_deg"]), _fmt(a["cell_err"]), _fmt(a["median_s"]), _fmt(a["p95_s"])]
-        for c in cells:
-            t = [r["seconds"] for r in scaling if r["method"] == m and r["cells"] == c]
-            row.append(_fmt(t[0]) if t else "-")
-        lines.append("| " + " | ".join(row) + " |")
+def table(header: list[str], rows: list[list[str]]) -> list[str]:
+    """A Markdown table, every row cut or padded to the header's columns."""
+    width = len(header)
+    lines = ["| " + " | ".join(map(cell, header)) + " |", "|" + "---|" * width]
+    for row in rows:
+        row = [*row[: width - 1], " ".join(row[width - 1 :])] if len(row) > width else row
+        row = row + [""] * (width - len(row))
+        lines.append("| " + " | ".join(map(cell, row)) + " |")
     return lines
 
 
-def speed_table(scaling: list[dict], ours: str = "pgvd") -> list[str]:
-    """Seconds per merge at each map size, and ``ours`` over every other method, same run.
+def quantity(label: str, value: str) -> list[tuple[str, dict[str, str]]]:
+    """A ``- label: value`` line as ``(label, columns)``: a dict of numbers, a column per key.
 
-    A ratio below 1 is ``ours`` faster.  The methods were timed in turn on the
-    same pair at each size (:func:`bench.merge.run_scaling`), so a ratio holds
-    when the machine's speed drifts; absolute seconds do not.  Ratios are given
-    in wall-clock and in CPU time (``cpu_seconds``, when recorded): on a busy
-    machine the wall clock also counts the time other processes took.
+    A dict followed by ``; label: value`` is two quantities; followed by other words, those
+    words join the label.  Any other value is one column, ``value``.
     """
-    methods = list(dict.fromkeys(r["method"] for r in scaling))
-    peers = [m for m in methods if m != ours]
-    head = ["cells", *(f"{m} s" for m in methods), *(f"{ours} / {m}" for m in peers)]
-    head += [f"{ours} / {m} (cpu)" for m in peers]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for c in sorted({r["cells"] for r in scaling}):
-        at = {r["method"]: r for r in scaling if r["cells"] == c}
-        row = [f"{c}^2", *(_fmt(at[m]["seconds"]) if m in at else "-" for m in methods)]
-        for key in ("seconds", "cpu_seconds"):
-            mine = at.get(ours, {}).get(key)
-            for m in peers:
-                theirs = at.get(m, {}).get(key)
-                row.append(_fmt(mine / theirs) if mine and theirs else "-")
-        lines.append("| " + " | ".join(row) + " |")
-    return lines
-
-
-def source_table(stats: dict) -> list[str]:
-    """One row per source (building and where its maps come from) for one method."""
-    head = ["source", "standard", "low overlap", "drifted", "wrong accepts"]
-    head += ["false accepts (negatives of this source)", "median s", "p95 s"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for name, s in [*stats["by_source"].items(), ("**all**", stats["all"])]:
-        row = [name, *(frac(*s[k]) for k in OVERLAP_SETS), frac(*s["wrong"])]
-        row += [frac(*s["false"]), _fmt(s["median_s"]), _fmt(s["p95_s"])]
-        lines.append("| " + " | ".join(row) + " |")
-    return lines
-
-
-def negative_table(summary: dict) -> list[str]:
-    """False accepts per kind of negative, per method."""
-    head = ["method", *NEGATIVE_KINDS, "all"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for m, doc in summary.items():
-        a = doc["all"]
-        row = [m, *(frac(*a[f"false_{k}"]) for k in NEGATIVE_KINDS), frac(*a["false"])]
-        lines.append("| " + " | ".join(row) + " |")
-    return lines
-
-
-def markdown(summary: dict, scaling: list[dict], command: str, notes: list[str]) -> str:
-    """The whole report."""
-    lines = ["# Merge benchmark", "", f"`{command}`", "", "## Every method", ""]
-    lines += method_table(summary, scaling)
-    if scaling:
-        lines += ["", "## Speed against map size (one pair, upsampled)", "", *speed_table(scaling)]
-    lines += ["", "## False accepts per kind of negative", "", *negative_table(summary)]
-    for m, doc in summary.items():
-        lines += ["", f"## {m}: a row per building and source", "", *source_table(doc)]
-    lines += ["", "## Notes", "", *(f"- {n}" for n in notes), ""]
-    return "\n".join(lines)
-
-
-def chart(summary: dict, records: list[dict], scaling: list[dict], path: Path) -> None:
-    """Success per set, time per merge, and time against map size."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = list(summary)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
-    x = np.arange(len(names))
-    groups = [*OVERLAP_SETS, "wrong", "false"]
-    width = 0.8 / len(groups)
-    for i, g in enumerate(groups):
-        vals = []
-        for n in names:
-            hits, total = summary[n]["all"][g]
-            vals.append(hits / total if total else np.nan)
-        label = {"wrong": "wrong accepts", "false": "false accepts (negatives)"}.get(g, g)
-        axes[0].bar(x + (i - (len(groups) - 1) / 2) * width, vals, width, label=label)
-    axes[0].set_xticks(x, names, rotation=20)
-    axes[0].set_ylim(0, 1.3)
-    axes[0].legend(loc="upper right", fontsize=7, ncol=3)
-    axes[0].set_title("success per set (fraction of pairs)")
-    axes[1].boxplot(
-        [[r["seconds"] for r in records if r["method"] == n] for n in names], tick_labels=names
-    )
-    axes[1].set_yscale("log")
-    axes[1].axhspan(*PAPER_SECONDS, color="grey", alpha=0.3, label="paper: 10-13 s")
-    axes[1].set_ylabel("seconds per merge")
-    axes[1].legend(fontsize=8)
-    axes[1].tick_params(axis="x", rotation=20)
-    axes[1].set_title("time per merge")
-    for n in names:
-        pts = sorted((r["cells"], r["seconds"]) for r in scaling if r["method"] == n)
-        if pts:
-            axes[2].loglog(*zip(*pts, strict=True), "o-", label=n)
-    axes[2].set_xlabel("cells per side")
-    axes[2].set_ylabel("seconds per merge")
-    if scaling:
-        axes[2].legend(fontsize=8)
-    axes[2].set_title("time vs map size")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def records_main(
-    argv: list[str] | None, description: str, write: Callable[[list[dict], Path, str], str]
-) -> int:
-    """The command line of a report built from a run's records alone (``--merge``, ``--out``).
-
-    Reads the records of ``--merge`` (default ``bench/results/merge.json``), hands them to
-    ``write(records, out, source)`` and prints what it returns; a file without records is
-    one line on stderr and exit 2.
-    """
-    results = Path(__file__).resolve().parent / "results"
-    parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--merge", type=Path, default=results / "merge.json")
-    parser.add_argument("--out", type=Path, default=results)
-    args = parser.parse_args(argv)
+    found = re.match(r"(\{[^{}]*\})(.*)$", value)
     try:
-        records = json.loads(args.merge.read_text())["records"]
-    except (OSError, ValueError, KeyError) as e:
-        print(f"cannot read the merge records of {args.merge}: {e}", file=sys.stderr)
+        parsed = ast.literal_eval(found[1]) if found else None
+    except (ValueError, SyntaxError):
+        parsed = None
+    if not isinstance(parsed, dict) or not parsed:
+        return [(label, {"value": value})]
+    rest = found[2].strip()
+    more = _BULLET.match(f"- {rest[2:]}") if rest.startswith("; ") else None
+    if rest and not more:
+        label = f"{label} {rest}"
+    head = [(label, {str(k): str(v) for k, v in parsed.items()})]
+    return head + (quantity(more[1], more[2]) if more else [])
+
+
+def quantity_tables(items: list[tuple[str, dict[str, str]]]) -> list[list[str]]:
+    """A table for each run of consecutive quantities with the same columns, in their order."""
+    blocks = []
+    for keys, group in itertools.groupby(items, key=lambda item: list(item[1])):
+        rows = [[label, *(v.replace("|", "\\|") for v in cols.values())] for label, cols in group]
+        blocks.append(table(["quantity", *keys], rows))
+    return blocks
+
+
+def parse(path: Path) -> Result:
+    """The title, command, tables, ``- quantity: value`` lines and charts of a result file.
+
+    Bullets under a ``## Notes`` heading are prose, kept as written.  The charts are the
+    images the file shows and the one a run writes beside it (``NAME.png``).
+    """
+    try:
+        lines = path.read_text().splitlines()
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from e
+    title = next((x[2:].strip() for x in lines if x.startswith("# ")), path.stem)
+    found = _COMMAND.search("\n".join(lines))
+    result = Result(path, title, found[1] if found else None)
+    pending: list[tuple[str, dict[str, str]]] = []
+    notes = False
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        bullet = _BULLET.match(line)
+        if pending and not (bullet and not notes):
+            result.blocks += quantity_tables(pending)
+            pending = []
+        if line.startswith("|") and i + 1 < len(lines) and _SEPARATOR.match(lines[i + 1]):
+            end = i + 2
+            while end < len(lines) and lines[end].startswith("|"):
+                end += 1
+            rows = [split_row(x) for x in lines[i + 2 : end]]
+            result.blocks.append(table(split_row(line), rows))
+            i = end
+            continue
+        if line.startswith("## "):
+            notes = line[3:].strip() == "Notes"
+            result.blocks.append([f"#### {line[3:].strip()}"])
+        elif bullet and notes:
+            if i and _BULLET.match(lines[i - 1]):
+                result.blocks[-1].append(line)
+            else:
+                result.blocks.append([line])
+        elif bullet:
+            pending += quantity(bullet[1], bullet[2])
+        for alt, target in _IMAGE.findall(line):
+            result.images.append((alt, path.parent / target))
+        i += 1
+    if pending:
+        result.blocks += quantity_tables(pending)
+    chart = path.with_suffix(".png")
+    if chart.is_file() and chart not in [image for _, image in result.images]:
+        result.images.append((path.stem, chart))
+    return result
+
+
+def order(results: list[Result]) -> list[Result]:
+    """Results in the order of the listing (benchmarks, studies, data), then of their runs.
+
+    A module's results come plain first (``merge.md``), then its variants
+    (``merge-turned.md``), then the results of other folders (``exhaustive/merge.md``).
+    """
+    rank = {name: n for n, (_, package) in enumerate(SECTIONS) for name in commands(package)}
+    names = list(rank)
+    return sorted(
+        results,
+        key=lambda r: (
+            rank.get(r.module, len(SECTIONS)),
+            names.index(r.module) if r.module in rank else 0,
+            len(r.path.parts),
+            r.path.stem.count("-"),
+            r.path.stem,
+        ),
+    )
+
+
+def section(result: Result, results: Path, notes: Path, page: Path) -> list[str]:
+    """One result's part of the page."""
+    name = result.path.relative_to(results).with_suffix("")
+    link = os.path.relpath(result.path, page.parent)
+    command = f"`{result.command}`" if result.command else "not stated in the result file"
+    lines = [f"### {result.title} ({name})", "", f"[{name}.md]({link}); reproduce: {command}", ""]
+    for block in result.blocks:
+        lines += [*block, ""]
+    for alt, image in result.images:
+        lines += [f"![{alt}]({os.path.relpath(image, page.parent)})", ""]
+    note = notes / f"{name}.md"
+    if note.is_file():
+        lines += [f"Notes ([{NOTES}/{name}.md]({os.path.relpath(note, page.parent)})):", ""]
+        lines += [note.read_text().rstrip("\n"), ""]
+    return lines
+
+
+def page(results: Path, out: Path) -> str:
+    """The whole results page, from the result files under ``results``."""
+    notes = results / NOTES
+    files = sorted(p for p in results.rglob("*.md") if notes not in p.parents)
+    orphans = sorted(
+        n for n in notes.rglob("*.md") if not (results / n.relative_to(notes)).is_file()
+    )
+    if orphans:
+        raise ValueError(f"{orphans[0]}: a note on no result file")
+    held = [parse(p) for p in files if p.relative_to(results).parts[0] == HELD_OUT]
+    development = [parse(p) for p in files if p.relative_to(results).parts[0] != HELD_OUT]
+    source = os.path.relpath(results, out.parent)
+    lines = [
+        "# Bench results",
+        "",
+        f"Written by `python3 -m bench report` from the result files in [{source}]({source}).",
+        "Do not edit this page: run a result's command again, or write notes on it in "
+        f"`{NOTES}/NAME.md` beside the results.",
+        "",
+        "## Development buildings",
+        "",
+    ]
+    for result in order(development):
+        lines += section(result, results, notes, out)
+    if held:
+        lines += [
+            "## Held-out buildings",
+            "",
+            "Buildings the merge was never tuned on: these results are read, never tuned on.",
+            "",
+        ]
+        for result in order(held):
+            lines += section(result, results, notes, out)
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--results", type=Path, default=ROOT / "bench" / "results", help="the result files"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=ROOT / "docs" / "results.md", help="the page to write"
+    )
+    args = parser.parse_args(argv)
+    if not args.results.is_dir():
+        print(f"bench report: {args.results}: no such folder of results", file=sys.stderr)
         return 2
-    print(write(records, args.out, args.merge.name))
+    try:
+        text = page(args.results.resolve(), args.out.resolve())
+    except (OSError, ValueError) as e:
+        print(f"bench report: {e}", file=sys.stderr)
+        return 2
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    print(f"wrote {args.out}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,5 +1,7 @@
-"""Bytes on the wire: a pgvd map update against the plain ``nav_msgs/msg/OccupancyGrid`` a ROS 2
-node publishes for the same map (CDR plus rmw_zenoh's 33-byte attachment).
+"""Bytes on the wire: pgvd map updates against the ROS 2 ``OccupancyGrid`` of the same map.
+
+The plain ``nav_msgs/msg/OccupancyGrid`` a ROS 2 node publishes is CDR plus rmw_zenoh's
+33-byte attachment.
 
 The map is the Intel Research Lab log replayed at ROS's usual 0.05 m cells, as slam_toolbox would
 grow it: after ``--first`` scans it is sent whole (pgvd: every tile and the manifest), then every
@@ -9,16 +11,13 @@ OccupancyGrid bytes are rosbags' serializer (equal to rclpy's, tests/test_protoc
 
 Usage::
 
-    python3 bench/ros2_wire.py [--first 300] [--every 20] [--out bench/results/ros2_wire.md]
+    python3 -m bench ros2_wire [--first 300] [--every 20] [--out bench/results/ros2_wire.md]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.scenario import LOG
 from agent.wire import Outbound, on_the_wire
@@ -66,6 +65,10 @@ def main() -> int:
     total = f"| all {len(stops)} | | {ros_total:,} | {pgvd_total:,} | {ratio:.2%} |"
     text = "\n".join(
         [
+            "# ROS 2 OccupancyGrid against pgvd map updates",
+            "",
+            f"`python3 -m bench ros2_wire --first {args.first} --every {args.every}`",
+            "",
             f"Intel log at 0.05 m: {w}x{h} cells; first map after {args.first} scans, "
             f"then an update every {args.every} scans ({len(stops)} updates).",
             "",

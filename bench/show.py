@@ -1,6 +1,6 @@
 """Draw one bench pair as a method left it, and at the truth, from ``merge.json`` and the cache.
 
-    python3 -m bench.show PAIR [--json bench/results/merge.json] [--method pgvd] [--out PAIR.png]
+    python3 -m bench show PAIR [--json bench/results/merge.json] [--method pgvd] [--out PAIR.png]
 
 A's walls red, B's walls (through the matrix) blue, both black, A's free space grey.
 The pair is looked up by name in the generated pairs under ``bench/cache/`` (run the
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.data.pairs import MapPair
 from bench.environment import cache_suffix, libraries
 from bench.merge import CACHE, RESULTS
-from bench.pairs import MapPair
 from pgvd.transform import warp
 
 
@@ -39,7 +39,7 @@ def find_pair(name: str, cache: Path = CACHE) -> MapPair:
                 return pair
     raise LookupError(
         f"no pair {name!r} under {cache} made with these libraries ({suffix[1:]}); "
-        "run python3 -m bench.merge first"
+        "run python3 -m bench merge first"
     )
 
 

@@ -29,7 +29,7 @@ Reported:
   just before each change show whether a departed robot was forgotten (``--forget-after``
   short enough to happen within the run).
 
-Run: ``python3 -m bench.soak [--robots 8] [--minutes 10] [--sources cycle|replay] [--churn]``;
+Run: ``python3 -m bench soak [--robots 8] [--minutes 10] [--sources cycle|replay] [--churn]``;
 writes ``bench/results/soak-<sources>[-churn].md``, ``.json`` and ``.png``.
 """
 
@@ -492,7 +492,7 @@ def main() -> None:
     lines = [
         f"# Soak ({args.sources} sources)",
         "",
-        f"`python3 -m bench.soak --robots {args.robots} --minutes {args.minutes:g} --sources "
+        f"`python3 -m bench soak --robots {args.robots} --minutes {args.minutes:g} --sources "
         f"{args.sources} --settle {args.settle:g}"
         f"{' --churn' if args.churn else ''} --forget-after {args.forget_after:g}` "
         f"on {os.cpu_count()} cores, "

@@ -2,13 +2,13 @@
 
 Usage::
 
-    python3 -m bench.stages [--repeat 7] [--shared ../shared] [--json OUT.json] [--plot OUT.png]
+    python3 -m bench stages [--repeat 7] [--shared ../shared] [--json OUT.json] [--plot OUT.png]
 
 Pairs:
 
 * ``fr079_albertB`` map312 vs map371 (800 x 1184 cells, two gmapping runs);
 * ``intel_split_gt`` A vs B, B turned by 37 degrees and both embedded in a
-  1000 x 1000 canvas (the size the issue asks about).
+  1000 x 1000 canvas (the size of the 50 ms wire-format target).
 
 Baselines measured in the same run, so the ratios do not depend on the machine:
 

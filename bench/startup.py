@@ -1,8 +1,8 @@
 """How long ``pgvd merge`` takes to start: process start to its first work, and the import.
 
-    python3 -m bench.startup [--runs 9]
+    python3 -m bench startup [--runs 9]
 
-Issue 10 asks for ``pgvd merge`` start-up (import to first work) under 0.4 s. Timed as whole
+The target: ``pgvd merge`` starts (import to first work) in under 0.4 s. Timed as whole
 processes, in turn and run after run so that a drift of the machine's speed falls on all:
 
 - ``python -c pass``: the interpreter alone, the floor;
@@ -69,7 +69,7 @@ def markdown(medians: dict[str, float], runs: int) -> str:
     lines = [
         "# `pgvd merge` start-up",
         "",
-        f"`python3 -m bench.startup --runs {runs}`: whole processes, median wall seconds of "
+        f"`python3 -m bench startup --runs {runs}`: whole processes, median wall seconds of "
         f"{runs} rounds, in turn.",
         "",
         "| command | wall s | / import numpy |",

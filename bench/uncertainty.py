@@ -1,6 +1,6 @@
 """Bench of eq. (8) and fusion on a real 1000x1000 map: our blurs against direct baselines.
 
-    python3 -m bench.uncertainty [--size 1000] [--repeat 5]
+    python3 -m bench uncertainty [--size 1000] [--repeat 5]
 
 Rotation blur (tangential, sigma = r sigma_psi) against the direct way: a
 Gaussian-weighted sum of the map rotated about the centre by many angles

@@ -1,7 +1,8 @@
-"""How :func:`pgvd.verify.verify` does where the agent uses it: at predictions near the truth,
-and at wrong ones.
+"""How the agent's check of a predicted pose (:func:`pgvd.verify.verify`) does, near and far.
 
-    python3 -m bench.verify [--metres 0.5] [--degrees 3] [--seed 7] [--out FILE]
+At predictions near the truth, and at wrong ones.
+
+    python3 -m bench verify [--metres 0.5] [--degrees 3] [--seed 7] [--out FILE]
                             [--json bench/results/merge.json] [--cache bench/cache]
 
 The agent checks a pair at a prediction before it searches (``pgvd agent --known-pose``,
@@ -9,7 +10,7 @@ and the chain of links already accepted): a check confirms the prediction's refi
 or rejects it.  A rejected prior, or a chain's first rejection, sends the pair on to the
 full search; a chain's rejection of a pair rejected before, or over links that each lie on
 a triangle, stands (:func:`agent.worker.verify_check`).  Every pair of the merge
-bench (:data:`bench.sets.FULL`, from its cache) is checked at:
+bench (:data:`bench.data.sets.FULL`, from its cache) is checked at:
 
 - ``near`` (overlapping pairs): the truth turned about B's wall centroid by
   ``N(0, degrees)`` and shifted by ``N(0, metres)`` along each axis, as a known initial
@@ -34,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.data.pairs import MapPair, turn_about
+from bench.data.sets import FULL, build
 from bench.merge import CACHE, RESULTS, evaluate
-from bench.pairs import MapPair, turn_about
-from bench.sets import FULL, build
 from pgvd.merge import MergeParams
 from pgvd.verify import BASIN_DEG, BASIN_M, verify
 
@@ -211,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"cannot read bench records from {args.json}: {exc}")
     pgvd = {r["pair"]: r for r in records if r["method"] == "pgvd"}
     rows = run(args.metres, args.degrees, args.seed, args.cache, pgvd)
-    command = "python3 -m bench.verify " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python3 -m bench verify " + " ".join(argv if argv is not None else sys.argv[1:])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(markdown(rows, command.strip(), args.metres, args.degrees))
     args.out.with_suffix(".json").write_text(json.dumps(rows))

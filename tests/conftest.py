@@ -9,7 +9,7 @@ import pytest
 from hypothesis import settings
 
 if TYPE_CHECKING:
-    from bench.pairs import MapPair
+    from bench.data.pairs import MapPair
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -34,7 +34,7 @@ def intel_split(shared: Path) -> MapPair:
     """The Intel lab map split in two, each part in its own frame, with its true transform."""
     # imported here, not at the top: test modules that need neither bench nor the maps
     # collect without loading scipy and OpenCV
-    from bench.pairs import MapPair
+    from bench.data.pairs import MapPair
     from pgvd.grid import relative_matrix
     from pgvd.io import read_map
 

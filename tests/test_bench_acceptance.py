@@ -1,8 +1,9 @@
-"""bench.acceptance: the leave-one-building-out estimate of the threshold's false accepts."""
+"""bench.studies.acceptance: the leave-one-building-out estimate of the threshold's false
+accepts."""
 
 from __future__ import annotations
 
-from bench.acceptance import buildings, held_out_rows
+from bench.studies.acceptance import buildings, held_out_rows
 
 
 def _record(pair: str, building: str, margin: float, **info: str) -> dict:

@@ -1,4 +1,5 @@
-"""bench.ceiling: the share of pairs whose true pose any method found, against the targets."""
+"""bench.studies.ceiling: the share of pairs whose true pose any method found, against the
+targets."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.ceiling import by_pair, found, load, main, rows
+from bench.studies.ceiling import by_pair, found, load, main, rows
 
 
 def _rec(pair: str, method: str, right: bool, finalists=None, success=False, **kw) -> dict:

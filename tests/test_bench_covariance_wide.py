@@ -1,11 +1,11 @@
-"""bench.covariance_wide: the reported covariance of accepted poses against their errors."""
+"""bench.studies.covariance_wide: the reported covariance of accepted poses against their errors."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bench.covariance_wide import accepted_right, errors_and_covariances, groups, markdown
+from bench.studies.covariance_wide import accepted_right, errors_and_covariances, groups, markdown
 from pgvd.grid import rigid_matrix
 
 
@@ -48,6 +48,6 @@ def test_each_pose_is_weighed_by_its_own_covariance() -> None:
     rows = groups(right)
     assert [r["pair"] for r in rows["buildings the calibration never saw"]] == ["b"]
     assert [r["pair"] for r in rows["drifted"]] == ["b"] and "low" not in rows
-    text = markdown(recs, "run.json")
+    text = markdown(recs, "run.json", "python3 -m bench covariance_wide --merge run.json")
     assert "| all | 2 | 3.00 |" in text and "| drifted | 1 | 5.00 |" in text
     assert "(2; 1 accepted at a wrong pose are left out, and so are the fr079 gmapping" in text

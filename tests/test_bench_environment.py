@@ -66,7 +66,7 @@ def test_a_library_that_does_not_import_is_none_and_left_out_of_the_line(monkeyp
 
 
 def test_pairs_made_under_other_library_versions_are_made_again(monkeypatch, tmp_path):
-    from bench.sets import cached
+    from bench.data.sets import cached
 
     made = []
 

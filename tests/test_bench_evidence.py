@@ -1,8 +1,9 @@
-"""bench.evidence: a failed pair's truth handed to the decision, against its wrong finalists."""
+"""bench.studies.evidence: a failed pair's truth handed to the decision, against its wrong
+finalists."""
 
 from __future__ import annotations
 
-from bench.evidence import assess, classify, markdown, truth_stays
+from bench.studies.evidence import assess, classify, markdown, truth_stays
 from pgvd.matching import Agreement
 from pgvd.merge import MergeParams, fine_maps
 
@@ -48,7 +49,7 @@ def test_markdown_counts_each_class_per_set():
          "truth_margin": None, "rival": [100, 20]},
     ]  # fmt: skip
     stays = {"low": [True, True, False, True], "drifted": [True, True]}
-    text = markdown(rows, stays, "python3 -m bench.evidence")
+    text = markdown(rows, stays, "python3 -m bench evidence")
     assert "| low | 4 | 1 | 2 | 0 | 1 | 1 | 0 | 0 | 0 |" in text
     assert "| drifted | 2 | 0 | 1 | 0 | 0 | 0 | 0 | 1 | 0 |" in text
     assert "| l0 | faint | 200 / 0 | 0.30 | 400 / 60 |" in text

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.data.pairs import cluttered
 from bench.mapimages import RESOLUTION, part_pairs, report, thickened
 from bench.merge import evaluate
-from bench.pairs import cluttered
 from pgvd.io import read_map
 from pgvd.merge import merge
 
@@ -43,7 +43,7 @@ def test_report_has_a_row_per_image_and_the_errors_of_right_pairs():
         {**rec, "source": "b-sim", "grow": 0, "accepted": False, "success": False},
         {**rec, "source": "b-sim", "grow": 2, "cell_err": 1.5},
     ]
-    lines = report(records, "python3 -m bench.mapimages").splitlines()
+    lines = report(records, "python3 -m bench mapimages").splitlines()
     assert "| a-sim | 1/1 right, 1 accepted; 0.50 / 0.50 | 0/1 right, 1 accepted |" in lines
     both = "| **all** | 1/2 right, 1 accepted; 0.50 / 0.50 | 1/2 right, 2 accepted; 1.50 / 1.50 |"
     assert both in lines

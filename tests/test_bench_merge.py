@@ -13,8 +13,8 @@ import pytest
 pytest.importorskip("cv2")
 pytest.importorskip("matplotlib")
 
+from bench.data.pairs import make_pair
 from bench.merge import errors, main, methods, upsample
-from bench.pairs import make_pair
 from pgvd.carmen import read_carmen
 from pgvd.grid import rigid_matrix
 
@@ -50,7 +50,8 @@ def test_tiny_bench_run(shared, tmp_path):
             assert {"accepted", "matrix", "covariance", "score", "timings_ms"} <= set(r["result"])
             assert r["searched_deg"] and all(-180 <= d <= 180 for d in r["searched_deg"])
             assert len(r["searched_sigma_deg"]) == len(r["searched_deg"])
-            # each finalist that reached the decision, judged against the truth (bench.recall)
+            # each finalist that reached the decision, judged against the truth
+            # (bench.studies.recall)
             assert isinstance(r["finalist_success"], list)
             if r["overlap"] == 0:
                 assert not any(r["finalist_success"])
@@ -101,7 +102,7 @@ def test_pgvd_det_column_fails_loudly_without_its_switch(monkeypatch):
 
 
 def test_speed_table_gives_each_size_and_ratios_against_the_peers():
-    from bench.report import speed_table
+    from bench.tables import speed_table
 
     scaling = [
         {"method": "pgvd", "cells": 500, "seconds": 0.2, "cpu_seconds": 0.3},

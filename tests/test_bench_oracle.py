@@ -1,4 +1,5 @@
-"""bench.oracle: the truth handed to one stage of a real merge, and the report of what it buys."""
+"""bench.studies.oracle: the truth handed to one stage of a real merge, and the report of what
+it buys."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from unittest import mock
 import numpy as np
 
 from bench.merge import evaluate
-from bench.oracle import (
+from bench.studies.oracle import (
     _MERGE_MODULE,
     markdown,
     search_misses,
@@ -74,7 +75,7 @@ def test_markdown_counts_right_and_wrong_per_set():
         _row("d0", "drifted", False, True),
         _row("d1", "drifted", False, False),
     ]
-    text = markdown(rows, "heading", "python3 -m bench.oracle")
+    text = markdown(rows, "heading", "python3 -m bench oracle")
     assert "| drifted | 2 | 0 | 0 | 0 | 1 |" in text
     assert "| standard | 2 | 1 | 2 | 1 | 0 |" in text
     assert "accepted, wrong (0.80 deg, 11.0 cells, tolerance 7.0)" in text
@@ -84,7 +85,7 @@ def test_markdown_counts_right_and_wrong_per_set():
         _row("l1", "low", True, True, coarse_err=0.4, was_finalist=False),
         _row("l2", "low", False, False, coarse_err=40.0, was_finalist=True),
     ]
-    text = markdown(rows, "finalist", "python3 -m bench.oracle --stage finalist")
+    text = markdown(rows, "finalist", "python3 -m bench oracle --stage finalist")
     assert (
         "| low | 3 | 0 | 1 | 1 | 0 | 2 |" in text
         and "| l2 | 40.0 | yes | rejected | -0.20 |" in text

@@ -1,8 +1,8 @@
-"""bench.propagation's report: the gain of (8) by the composed pose's error."""
+"""bench.studies.propagation's report: the gain of (8) by the composed pose's error."""
 
 from __future__ import annotations
 
-from bench.propagation import by_error
+from bench.studies.propagation import by_error
 
 
 def _chain(error_px: float, with_ce: float, without_ce: float, accepted: bool = True) -> dict:

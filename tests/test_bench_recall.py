@@ -1,11 +1,12 @@
-"""bench.recall: heading recall, pose recall and the heading-sigma check of a bench record."""
+"""bench.studies.recall: heading recall, pose recall and the heading-sigma check of a bench
+record."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bench.recall import heading_z, pose_recall, recall, sigma_line, table
-from bench.report import MAX_HEADING_DEG, pose_right
+from bench.studies.recall import heading_z, pose_recall, recall, sigma_line, table
+from bench.tables import MAX_HEADING_DEG, pose_right
 
 
 def _record(success: bool, finalists: list[bool] | None, truth: float = 10.0) -> dict:

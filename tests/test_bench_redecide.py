@@ -1,4 +1,4 @@
-"""bench.redecide: the decision replayed from a merge's finalists is the merge's own."""
+"""bench.studies.redecide: the decision replayed from a merge's finalists is the merge's own."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.capture import Finalists
-from bench.redecide import frontier, params_from, replay, split_margins, summary
+from bench.studies.redecide import frontier, params_from, replay, split_margins, summary
 from pgvd.decision import Decision, Scored, margin_against
 from pgvd.io import read_map
 from pgvd.matching import Agreement

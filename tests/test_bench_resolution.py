@@ -1,4 +1,4 @@
-"""bench.resolution's report: counts per cell size, and bad arguments."""
+"""bench.studies.resolution's report: counts per cell size, and bad arguments."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from bench.resolution import main, row
+from bench.studies.resolution import main, row
 
 
 def _rec(overlap: float, accepted: bool, right: bool, margin: float) -> dict:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bench.sources import DEVELOPMENT_MAPS, SOURCES, held_out_logs, held_out_maps
+from bench.data.sources import DEVELOPMENT_MAPS, SOURCES, held_out_logs, held_out_maps
 
 
 def test_held_out_logs_are_the_logs_no_development_source_reads(tmp_path):

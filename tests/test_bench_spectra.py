@@ -1,4 +1,4 @@
-"""bench.spectra: the angle spectra and their correlation drawn for a pair, eq. (10)."""
+"""bench.studies.spectra: the angle spectra and their correlation drawn for a pair, eq. (10)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.pairs import MapPair
-from bench.spectra import draw, spectra
+from bench.data.pairs import MapPair
+from bench.studies.spectra import draw, spectra
 from pgvd.io import read_map
 from pgvd.merge import MergeParams
 

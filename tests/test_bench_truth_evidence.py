@@ -1,4 +1,4 @@
-"""bench.truth_evidence: the acceptance statistic at right poses, against the threshold."""
+"""bench.studies.truth_evidence: the acceptance statistic at right poses, against the threshold."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.data.sets import Entry
 from bench.merge import upsample
-from bench.sets import Entry
-from bench.truth_evidence import (
+from bench.studies.truth_evidence import (
     HEADING_STEPS,
     SHIFT_STEPS,
     around,
@@ -48,7 +48,7 @@ def no_build(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("the bench was built for a run that should have been refused")
 
-    monkeypatch.setattr("bench.truth_evidence.build", refuse)
+    monkeypatch.setattr("bench.studies.truth_evidence.build", refuse)
 
 
 def test_the_bound_is_at_least_the_merges_own_margin_and_a_wrong_truth_scores_less(intel_split):
@@ -168,7 +168,7 @@ def test_a_run_of_other_pairs_or_altered_maps_is_refused(intel_split):
     entry = Entry(intel_split, "intel-x", "intel", "standard", "overlap")
     truth = intel_split.truth.tolist()
     mine = _rec("intel-split", "standard", 0.1, 0.9, truth=truth)
-    plain = "python3 -m bench.merge"
+    plain = "python3 -m bench merge"
     assert check_run(plain, [mine], Path("r"), [entry]) == {"intel-split": mine}
     with pytest.raises(ValueError, match="no pgvd record of intel-split"):
         check_run(plain, [_rec("other", "standard", 0.1, 0.9)], Path("r"), [entry])
@@ -183,7 +183,7 @@ def test_main_measures_the_pairs_of_the_run_and_writes_report_table_and_picture(
     tmp_path: Path, capsys, monkeypatch, intel_split
 ):
     entry = Entry(intel_split, "intel-x", "intel", "standard", "overlap")
-    monkeypatch.setattr("bench.truth_evidence.build", lambda *a, **k: [entry])
+    monkeypatch.setattr("bench.studies.truth_evidence.build", lambda *a, **k: [entry])
     out, png = tmp_path / "te.md", tmp_path / "te.png"
     run = tmp_path / "merge.json"
     truth = intel_split.truth.tolist()

@@ -62,7 +62,7 @@ def test_report_counts_each_kind_and_names_the_false_links():
         r.update(margin=m, seconds=0.05, reason="accepted")
     rows[1]["reason"] = "refinement left the prediction's basin: moved 3.10 m and 0.2 deg"
     rows.append({**rows[0], "outcome": "rejected", "reason": "overlap too small: 1.0 m"})
-    text = markdown(rows, "python3 -m bench.verify", 0.5, 3.0)
+    text = markdown(rows, "python3 -m bench verify", 0.5, 3.0)
     assert "| low | 1/3 (33 %) | 1/3 (33 %) | 0/1 (0 %) | 1/1 (100 %) | - |" in text
     # only near predictions' rejections are told apart: a wrong one is meant to be rejected
     assert "| low | overlap too small | 1 |" in text and "basin" not in text

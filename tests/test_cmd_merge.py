@@ -362,8 +362,8 @@ def test_maps_that_overlap_nowhere_exit_3_and_bad_input_2(shared: Path, tmp_path
 
 def test_map_images_painted_free_are_merged_and_the_user_told(tmp_path: Path, shared: Path):
     """Two parts of intel's image, their unexplored area painted white, B in another frame."""
+    from bench.data.pairs import painted_pair
     from bench.mapimages import part_pairs
-    from bench.pairs import painted_pair
 
     p = read_map(shared / "maps/intel/intel.yaml").probability()
     (pair,) = part_pairs("intel", p, 1, np.random.default_rng(21))

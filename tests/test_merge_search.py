@@ -45,7 +45,7 @@ def test_a_candidate_a_few_degrees_off_is_refined_to_the_truth(intel_parts, off_
     start = HeadingCandidate(psi + np.radians(off_deg), 1e-4, 0.9)
     out = _with_refined([start], ca, cb, ON)
     # the Radon candidate is kept, and the refined one is added within the 2 degrees of
-    # heading recall (bench.recall): 3 degree steps on 0.4 m cells place it no closer
+    # heading recall (bench.studies.recall): 3 degree steps on 0.4 m cells place it no closer
     assert out[0] == start and len(out) == 2
     assert _gap_deg(out[1].psi, psi) <= 2.0 + 1e-9, np.degrees([out[1].psi, psi])
     assert out[1].variance == start.variance

@@ -1,4 +1,4 @@
-"""bench.pairs: two robots' maps from two segments of a real log, with their true matrix."""
+"""bench.data.pairs: two robots' maps from two segments of a real log, with their true matrix."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from bench.pairs import (
+from bench.data.pairs import (
     MIN_OVERLAP,
     make_pair,
     make_pairs,
@@ -94,7 +94,7 @@ def test_write_pair_round_trip(split, tmp_path):
 
 
 def test_bundled_examples_reproduce(tmp_path):
-    """examples/ is what ``python3 -m bench.make_examples`` writes (up to float round-off)."""
+    """examples/ is what ``python3 -m bench make_examples`` writes (up to float round-off)."""
     from bench.make_examples import ROOT, main
 
     assert main(["--out", str(tmp_path)]) == 0
@@ -120,7 +120,7 @@ def test_drifted_pair_truth_is_the_best_rigid_placement(intel, split):
 
 @pytest.fixture(scope="module")
 def avz_run(shared):
-    from bench.sources import SOURCES, simulate
+    from bench.data.sources import SOURCES, simulate
 
     return simulate(next(s for s in SOURCES if s.name == "avz-sim"), seed=1, shared=shared)
 
@@ -143,7 +143,7 @@ def test_simulated_pair_truth_reproduces_the_overlap(avz_run):
 
 
 def test_mirror_scans_reflect_every_hit(avz_run):
-    from bench.negatives import mirror_scans
+    from bench.data.negatives import mirror_scans
 
     part = avz_run[100:110]
     mirrored = mirror_scans(part)
@@ -160,7 +160,7 @@ def test_mirror_scans_reflect_every_hit(avz_run):
 
 
 def test_drifted_pair_truth_is_the_fit_on_the_overlap(intel):
-    from bench.drift import Drift
+    from bench.data.drift import Drift
 
     segments = ((0.0, 0.2), (0.1, 0.3))
     clean = make_pair(intel, *segments, seed=3)
@@ -178,7 +178,7 @@ def test_drifted_pair_truth_is_the_fit_on_the_overlap(intel):
 
 
 def test_gmapping_runs_meet_at_their_common_origin(shared):
-    from bench.gmapping import gmapping_pairs
+    from bench.data.gmapping import gmapping_pairs
 
     pairs = gmapping_pairs(6, seed=2, shared=shared)
     assert len({(p.info["a"], p.info["b"]) for p in pairs}) == 6

@@ -88,9 +88,9 @@ def test_registration_reads_speckle_unknown_only_when_asked_and_says_so():
 def test_a_speckled_map_image_merges_right_only_despeckled(shared):
     """Two parts of willow's image, each with its own 0.5 % of free cells made lone walls:
     wrong or rejected as drawn, right despeckled, and so by default, through the retry."""
+    from bench.data.pairs import speckled_pair
     from bench.mapimages import RESOLUTION, part_pairs
     from bench.merge import evaluate
-    from bench.pairs import speckled_pair
     from pgvd.io import read_map
     from pgvd.merge import merge
     from pgvd.transform import resample

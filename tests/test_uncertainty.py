@@ -301,7 +301,7 @@ def test_heading_scale_widens_the_heading_about_the_matched_walls(shared) -> Non
 
 def test_merge_covariance_is_consistent_on_real_pairs(shared) -> None:
     from bench.covariance import nees, pose_error
-    from bench.pairs import make_pairs
+    from bench.data.pairs import make_pairs
     from pgvd.carmen import read_carmen
     from pgvd.merge import MergeParams, merge
 

@@ -79,9 +79,9 @@ def test_an_l_shaped_building_painted_free_keeps_its_floor_and_bay():
 
 
 def test_a_painted_map_image_merges_right_and_read_as_drawn_does_not(shared):
+    from bench.data.pairs import painted_pair
     from bench.mapimages import part_pairs
     from bench.merge import evaluate
-    from bench.pairs import painted_pair
     from pgvd.io import read_map
     from pgvd.merge import MergeParams, merge
 

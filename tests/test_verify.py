@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import chi2
 
 from bench.covariance import pose_error
-from bench.pairs import make_pair
+from bench.data.pairs import make_pair
 from pgvd.carmen import read_carmen
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map

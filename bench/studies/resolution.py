@@ -5,13 +5,13 @@ cells were set there.  A user's SLAM may map at 2.5 cm or 10 cm.  For each
 ``--resolutions`` value, overlapping pairs and negatives are cut from the intel
 and freiburg-079 logs with one seed, the same segments whatever the cell size (as
 far as the overlap band allows), and merged.  The negatives are those of the merge
-bench (:mod:`bench.negatives`): disjoint parts of one log, a part against its
+bench (:mod:`bench.data.negatives`): disjoint parts of one log, a part against its
 mirror image, look-alike corridors (fewer where a building has no two out of
 each other's sight) and a part of one building against a part of the other.
 A pose is right when accepted within 2 degrees and 0.15 m (B's occupied
 cells, mean): a bound in metres, so that the cell sizes compare.
 
-    python3 -m bench.resolution [--resolutions 0.0175 0.025 0.05 0.1] [--overlap 8]
+    python3 -m bench resolution [--resolutions 0.0175 0.025 0.05 0.1] [--overlap 8]
         [--negatives 3] [--out bench/results]
 
 Writes ``resolution.md``: per cell size, right / overlapping pairs, wrong and
@@ -27,11 +27,11 @@ import sys
 import time
 from pathlib import Path
 
+from bench.data.negatives import cross_pairs, lookalike_pairs, mirror_pairs
+from bench.data.pairs import MAX_DRAWS, MapPair, make_pairs
+from bench.data.sets import cached
+from bench.data.sources import SHARED
 from bench.merge import CACHE, RESULTS, errors
-from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
-from bench.pairs import MAX_DRAWS, MapPair, make_pairs
-from bench.sets import cached
-from bench.sources import SHARED
 from pgvd.carmen import read_carmen
 from pgvd.merge import MergeParams, merge
 
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     if any(not r > 0 for r in args.resolutions) or args.overlap < 1 or args.negatives < 0:
         parser.error("resolutions must be > 0, --overlap >= 1 and --negatives >= 0")
     params = MergeParams(diagnostics=False)
-    command = " ".join(["python3 -m bench.resolution", *(sys.argv[1:] if argv is None else argv)])
+    command = " ".join(["python3 -m bench resolution", *(sys.argv[1:] if argv is None else argv)])
     lines = [
         "# The merge at other cell sizes",
         "",

@@ -1,6 +1,6 @@
 """The bench's pair sets, per source, cached on disk.
 
-Sets (issue 10):
+Sets:
 
 ``standard``  overlap >= 30 % (half of the pairs drawn within 30-75 %);
 ``low``       overlap 15-35 %;
@@ -8,7 +8,7 @@ Sets (issue 10):
 ``negative``  disjoint parts of one building, look-alike corridors, mirror images
               (per source) and different buildings (across sources);
 ``gmapping``  the three gmapping runs of fr079_albertB against each other
-              (:mod:`bench.gmapping`), standard set of that source.
+              (:mod:`bench.data.gmapping`), standard set of that source.
 
 Every pair is a pure function of its source, the set, the seed and the counts.
 """
@@ -21,15 +21,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.drift import Drift
+from bench.data.drift import Drift
+from bench.data.gmapping import gmapping_pairs
+from bench.data.negatives import cross_pairs, lookalike_pairs, mirror_pairs
+from bench.data.pairs import MAX_DRAWS, MapPair, make_pairs
+from bench.data.sources import SIM_VERSION, SOURCES, Source, load_run
 from bench.environment import cache_suffix, digest
-from bench.gmapping import gmapping_pairs
-from bench.negatives import cross_pairs, lookalike_pairs, mirror_pairs
-from bench.pairs import MAX_DRAWS, MapPair, make_pairs
-from bench.sources import SIM_VERSION, SOURCES, Source, load_run
 from pgvd.carmen import LaserScan
 
-#: Odometry drift of the drifted set (:mod:`bench.drift`).
+#: Odometry drift of the drifted set (:mod:`bench.data.drift`).
 DRIFT = Drift()
 STANDARD_BAND = (0.3, 1.0)
 MIDDLE_BAND = (0.3, 0.75)

@@ -16,10 +16,10 @@ away); above, one too narrow.  Accepted wrong poses are no Gaussian error: they 
 counted apart.  The fr079 gmapping pairs are left out: their truth is itself a fit
 (``bench/results/gmapping_truth.md``).
 
-Run from the project root after ``python3 -m bench.merge`` (which writes both files at the
+Run from the project root after ``python3 -m bench merge`` (which writes both files at the
 end of a run)::
 
-    python3 -m bench.covariance_wide     # reads bench/results/merge.json
+    python3 -m bench covariance_wide     # reads bench/results/merge.json
 
 Writes ``covariance-wide.md`` and ``covariance-wide.png`` (NEES of every pose against the
 chi2(3) quantiles).
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.covariance import consistency, nees, pose_error
-from bench.report import OVERLAP_SETS, pose_right, records_main
+from bench.tables import OVERLAP_SETS, pose_right, records_main, rerun
 
 #: Sources whose pairs :mod:`bench.covariance` draws its calibration pairs from (their logs).
 CALIBRATION_BUILDINGS = ("intel", "fr079")
@@ -80,13 +80,15 @@ def _row(name: str, stats: dict) -> str:
     )
 
 
-def markdown(records: list[dict], source: str) -> str:
+def markdown(records: list[dict], source: str, command: str) -> str:
     """The report of the module docstring, from a run's records."""
     right, wrong = accepted_right(records)
     lines = [
         "# The reported covariance on the wide merge bench",
         "",
-        f"From the pgvd records of `{source}` (`python3 -m bench.covariance_wide`): every "
+        f"`{command}`",
+        "",
+        f"From the pgvd records of `{source}`: every "
         f"overlapping pair accepted at a right pose ({len(right)}; {wrong} accepted at a wrong "
         "pose are left out, and so are the fr079 gmapping pairs, whose truth is itself a "
         "fit). The covariance was calibrated on other pairs of the intel "
@@ -139,7 +141,7 @@ def chart(records: list[dict], path: Path) -> None:
 def write(records: list[dict], out: Path, source: str) -> str:
     """Write ``covariance-wide.md`` and ``covariance-wide.png`` to ``out``; returns the
     markdown."""
-    text = markdown(records, source)
+    text = markdown(records, Path(source).name, rerun("covariance_wide", Path(source)))
     out.mkdir(parents=True, exist_ok=True)
     (out / "covariance-wide.md").write_text(text)
     chart(records, out / "covariance-wide.png")

@@ -3,7 +3,7 @@
 The merge accepts its winner when the margin over the best rival
 (:mod:`pgvd.decision`) reaches ``MergeParams.min_margin``.  Here every
 overlapping pair of the development bench is scored as the merge scores a
-winner: on the decision's maps (:func:`bench.redecide.decision_maps`), each
+winner: on the decision's maps (:func:`bench.studies.redecide.decision_maps`), each
 few-metre square of the overlap re-aligned for drift first
 (:func:`pgvd.merge.score_hypothesis`), against no rival at all (evidence 0,
 :func:`pgvd.decision.margin_against`: a rival only lowers the margin).  The
@@ -26,7 +26,7 @@ largest bad margin, and the threshold each target would need.  Not modelled:
 the retry with lone wall cells read as unknown (``MergeParams.speckle_retry``),
 which decides a rejected pair of raw map images a second time.
 
-    python3 -m bench.truth_evidence bench/results/merge.json [--png OUT.png] [--out OUT.md]
+    python3 -m bench truth_evidence bench/results/merge.json [--png OUT.png] [--out OUT.md]
 
 Per-pair margins go beside the report (``OUT.json``).  ``--held-out`` measures the
 pairs the bench cuts from the logs kept to evaluate the merge (``python3 -m
@@ -47,14 +47,14 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.acceptance import margins
-from bench.ceiling import groups, read_run
+from bench.data.pairs import MapPair
+from bench.data.sets import FULL, Entry, build
+from bench.data.sources import SOURCES, held_out_logs
 from bench.merge import CACHE, HELD_OUT, RESULTS, evaluate
-from bench.pairs import MapPair
-from bench.redecide import decision_maps, params_from
-from bench.report import frac
-from bench.sets import FULL, Entry, build
-from bench.sources import SOURCES, held_out_logs
+from bench.studies.acceptance import margins
+from bench.studies.ceiling import groups, read_run
+from bench.studies.redecide import decision_maps, params_from
+from bench.tables import frac
 from pgvd.decision import margin_against
 from pgvd.matching import WallMap
 from pgvd.merge import MergeParams, final_refinement, score_hypothesis
@@ -70,7 +70,7 @@ CLIMB_LEVELS = 4
 #: The runs a pair's maps must have been read as given in: painted or speckled maps are
 #: other maps (``bench.merge --unknown free``, ``--speckle``).
 ALTERED = ("--unknown", "--speckle")
-#: The fields of a run's pgvd record this reads beyond :data:`bench.ceiling.FIELDS`.
+#: The fields of a run's pgvd record this reads beyond :data:`bench.studies.ceiling.FIELDS`.
 PGVD_FIELDS = ("result", "success")
 
 
@@ -236,7 +236,7 @@ def measure(entries: list[Entry], params: MergeParams, run: dict[str, dict]) -> 
 
 def bad_margins(records: list[dict]) -> list[tuple[str, float]]:
     """``(pair, margin)`` of every pgvd winner of a run that is wrong or on a negative pair,
-    accepted or not (:func:`bench.acceptance.margins`)."""
+    accepted or not (:func:`bench.studies.acceptance.margins`)."""
     classes = margins(records)
     return [(r["pair"], m) for cls in ("wrong", "negative") for r, m in classes[cls]]
 
@@ -262,7 +262,7 @@ class Reach:
 
 
 def reach(rows: list[dict], threshold: float, worst: float) -> list[Reach]:
-    """:class:`Reach` per group of :func:`bench.ceiling.groups` of ``rows``
+    """:class:`Reach` per group of :func:`bench.studies.ceiling.groups` of ``rows``
     (:func:`measure`)."""
     out = []
     for name, target, member in groups(rows):
@@ -365,13 +365,13 @@ def report(
         "against "
         "the rivals its search found: a threshold with no bad accept in this run is above it. "
         "'threshold the target needs': the margin of the group's ceil(target x pairs)-th best "
-        f"pair. Pairs the run accepted right above their bound: {below}. Targets: issue 10.\n",
+        f"pair. Pairs the run accepted right above their bound: {below}.\n",
         *(
             [
                 "Scored with `--param`: the run's bad winners keep the margins it gave them with "
                 "its own parameters, so the column above their largest compares two statistics; "
-                "replay them with the same `--param` (`bench.redecide -v`) to compare like with "
-                "like.\n"
+                "replay them with the same `--param` (`python3 -m bench redecide -v`) to compare "
+                "like with like.\n"
             ]
             if overridden
             else []
@@ -382,7 +382,7 @@ def report(
 
 
 def pgvd_records(doc: dict, path: Path) -> list[dict]:
-    """The pgvd records of a run read by :func:`bench.ceiling.read_run`.
+    """The pgvd records of a run read by :func:`bench.studies.ceiling.read_run`.
 
     Raises
     ------
@@ -484,7 +484,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"the run accepted right above the bound: {', '.join(below)}", file=sys.stderr)
     out.with_suffix(".json").write_text(json.dumps(rows, indent=1) + "\n")
     worst = max(bad, key=lambda b: b[1])
-    cmd = f"python3 -m bench.truth_evidence {args.run}"
+    cmd = f"python3 -m bench truth_evidence {args.run}"
     if args.held_out:
         cmd += " --held-out"
     if args.png is not None:

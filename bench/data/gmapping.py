@@ -5,7 +5,7 @@ parameters from the same Albert-B log of building 079, and share one YAML
 origin, ``(-30, -20, 0)``: gmapping starts every run at the log's first pose,
 so their metric frames coincide.  The truth is therefore the identity of the
 metric frames (:func:`pgvd.grid.relative_matrix`), and it was checked, not
-assumed (``python3 -m bench.gmapping`` redoes it, with a picture):
+assumed (``python3 -m bench gmapping`` redoes it, with a picture):
 
 * an exhaustive search of rigid fits of B's walls onto A's (chamfer distance,
   +-2 deg in 0.1 deg and +-8 cells in 0.5 cells, then 0.01 deg / 0.05 cells
@@ -31,12 +31,12 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from bench.pairs import MapPair, overlap_fraction, turn_about
+from bench.data.pairs import MapPair, overlap_fraction, turn_about
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.transform import warp
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared"
 RUNS = ("map312", "map342", "map371")
 #: Unknown border kept around the known cells of a run, cells.
@@ -135,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     runs = load()
     lines = [
         "# fr079_albertB gmapping runs: the true relative transform",
+        "",
+        "`python3 -m bench gmapping`",
         "",
         "Best rigid fit of B's walls onto A's near the identity (chamfer, rotation about "
         "the centroid of B's walls), whole map and right half (x >= centroid) only.",

@@ -4,7 +4,7 @@ A *run* is a time-ordered list of scans with their true poses.  Log runs are
 the corrected intel and freiburg-079 logs; simulated runs are a
 :mod:`pgvd.trajectory` tour through a development map image, scanned by
 :mod:`pgvd.lidar`'s LMS200 model.  Both feed the same pair generator
-(:mod:`bench.pairs`), so a simulated pair is made exactly as a log pair is.
+(:mod:`bench.data.pairs`), so a simulated pair is made exactly as a log pair is.
 The bench uses only development data (the project's shared data notes);
 :func:`held_out_logs` and :func:`held_out_maps` find the logs and map images kept for
 evaluation (``bench.merge --held-out``, ``bench.mapimages --held-out``).
@@ -24,7 +24,7 @@ from pgvd.io import read_map
 from pgvd.lidar import LMS200, RayCaster, scan_at
 from pgvd.trajectory import tour
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared"
 #: Bump when the simulator, the trajectory or a source changes, so caches are not reused.
 SIM_VERSION = 2

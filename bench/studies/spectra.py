@@ -1,6 +1,6 @@
 """Why a heading is missed: the two maps' angle spectra and their correlation, eq. (10).
 
-    python3 -m bench.spectra PAIR [PAIR ...] [--cache bench/cache] [--out heading-spectra.png]
+    python3 -m bench spectra PAIR [PAIR ...] [--cache bench/cache] [--out heading-spectra.png]
 
 For each bench pair (looked up in the generated pairs under ``bench/cache/``, as
 :mod:`bench.show` does), the left panel draws A's angle spectrum and B's turned by the true
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.data.pairs import MapPair
 from bench.merge import CACHE, RESULTS
-from bench.pairs import MapPair
 from bench.show import find_pair
 from pgvd.grid import heading
 from pgvd.merge import MergeParams, registration_probability

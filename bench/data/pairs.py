@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from bench.drift import Drift, overlap_fit
+from bench.data.drift import Drift, overlap_fit
 from pgvd.carmen import LaserScan
 from pgvd.grid import Grid, heading, rigid_matrix, world_pose_to_pixel_matrix
 from pgvd.integrate import (
@@ -206,7 +206,7 @@ def render(
 def drift(
     part: list[LaserScan], odom_noise: Drift | tuple[float, float], seed: int
 ) -> list[LaserScan]:
-    """The scans as a drifting robot places them: a :class:`bench.drift.Drift` model, or
+    """The scans as a drifting robot places them: a :class:`bench.data.drift.Drift` model, or
     ``(sigma_t, sigma_r)`` of :func:`pgvd.integrate.perturb_odometry`."""
     if isinstance(odom_noise, Drift):
         return odom_noise.apply(part, seed)
@@ -233,7 +233,7 @@ def make_pair(
     resolution : metres per cell of both maps.
     odom_noise : optional odometry drift on both robots (see :func:`drift`).  A drifted
         pair has no exact rigid truth; its truth is then the rigid alignment on the
-        overlap (:func:`bench.drift.overlap_fit`), and ``info`` holds the residual
+        overlap (:func:`bench.data.drift.overlap_fit`), and ``info`` holds the residual
         distortion (``drift_rms_m``) no rigid transform removes.
     model : inverse sensor model.
     name : label of the pair.

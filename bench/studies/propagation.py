@@ -1,6 +1,6 @@
 """Does propagating the transform's uncertainty, eqs. (4)-(8), make a chained fusion truer?
 
-    python3 -m bench.propagation [--hops 3 5] [--starts 8]
+    python3 -m bench propagation [--hops 3 5] [--starts 8]
 
 A real chain: consecutive, half-overlapping segments of the intel and
 freiburg-079 logs are robots R0, R1, ..., Rk, each map in its own random
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.pairs import random_frame, true_matrix
+from bench.data.pairs import random_frame, true_matrix
 from pgvd.carmen import LaserScan, read_carmen
 from pgvd.fusion import fuse_maps
 from pgvd.grid import Grid, relative_matrix
@@ -36,7 +36,7 @@ from pgvd.integrate import MapFrame, frame_for, integrate, select_segment
 from pgvd.merge import MergeParams, merge
 from pgvd.uncertainty import compose_covariance
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared"
 RESULTS = ROOT / "bench" / "results"
 LOGS = {"intel": "intel-corrected.log.gz", "fr079": "freiburg-079-corrected.log.gz"}
@@ -282,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     records = run(args.logs, args.hops, args.starts, args.seed)
     summary = summarise(records)
-    command = "python3 -m bench.propagation " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python3 -m bench propagation " + " ".join(argv if argv is not None else sys.argv[1:])
     (args.out / "propagation.json").write_text(
         json.dumps({"summary": summary, "records": records}, indent=2) + "\n"
     )

@@ -1,6 +1,6 @@
 """Pairs that must not merge: different buildings, look-alike corridors, a building's mirror image.
 
-(Disjoint parts of one building come from :func:`bench.pairs.make_pairs`.)
+(Disjoint parts of one building come from :func:`bench.data.pairs.make_pairs`.)
 
 * ``cross``: a segment of one building against a segment of another.
 * ``lookalike``: two straight corridor runs of one building, 8 to 20 m of
@@ -13,7 +13,7 @@
   A segment that happens to be nearly mirror symmetric is congruent to its
   mirror image, and no test on the maps alone can reject that pair (uos_avz's
   X-shaped hall of four corridors is one); the report counts mirror false
-  accepts apart, so they can be looked at (``python3 -m bench.show``).
+  accepts apart, so they can be looked at (``python3 -m bench show``).
 
 Every map is in its own random frame; the pairs carry ``truth = None`` (no
 transform is right), except look-alikes, which keep the true relation of the
@@ -26,7 +26,7 @@ import dataclasses
 
 import numpy as np
 
-from bench.pairs import MAX_DRAWS, Footprints, MapPair, make_pair, render
+from bench.data.pairs import MAX_DRAWS, Footprints, MapPair, make_pair, render
 from pgvd.carmen import LaserScan
 from pgvd.integrate import DEFAULT_MODEL
 

@@ -23,10 +23,10 @@ way on the other buildings' winners, and the wrong and false accepts it makes
 on the building left out (a cross-building negative belongs to both of its
 buildings).
 
-Run from the project root after ``python3 -m bench.merge``::
+Run from the project root after ``python3 -m bench merge``::
 
-    python3 -m bench.acceptance                       # reads bench/results/merge.json
-    python3 -m bench.acceptance --merge /tmp/d10/merge.json --out /tmp/d10
+    python3 -m bench acceptance                       # reads bench/results/merge.json
+    python3 -m bench acceptance --merge /tmp/d10/merge.json --out /tmp/d10
 
 ``bench.merge`` writes both files itself at the end of a run.
 """
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import NEGATIVE, OVERLAP_SETS, frac, pose_right, records_main
+from bench.tables import NEGATIVE, OVERLAP_SETS, frac, pose_right, records_main, rerun
 
 CLASSES = ("right", "wrong", "negative")
 #: Thresholds of the table, beside the merge's own.
@@ -119,10 +119,14 @@ def held_out_rows(classes: dict[str, list[tuple[dict, float]]], step: float = 0.
     return rows
 
 
-def markdown(classes: dict[str, list[tuple[dict, float]]], threshold: float, source: str) -> str:
+def markdown(
+    classes: dict[str, list[tuple[dict, float]]], threshold: float, source: str, command: str
+) -> str:
     """The report: the margin of each class and what each threshold accepts."""
     lines = [
         "# Acceptance margin on the merge bench",
+        "",
+        f"`{command}`",
         "",
         f"From the pgvd records of `{source}`; the merge's threshold is {threshold}.",
         "",
@@ -200,7 +204,7 @@ def write(records: list[dict], out: Path, source: str) -> str:
 
     threshold = MergeParams().min_margin
     classes = margins(records)
-    text = markdown(classes, threshold, source)
+    text = markdown(classes, threshold, Path(source).name, rerun("acceptance", Path(source)))
     out.mkdir(parents=True, exist_ok=True)
     (out / "acceptance.md").write_text(text)
     chart(classes, threshold, out / "acceptance.png")

@@ -33,7 +33,7 @@ ICP (3 and 2 cells): the better of the two by evidence.  It tells
 whether the remaining failures need a better search, a better decision, or
 evidence the two maps do not hold.
 
-    python3 -m bench.evidence [bench/results/merge.json] [--set low] [--out FILE]
+    python3 -m bench evidence [bench/results/merge.json] [--set low] [--out FILE]
 """
 
 from __future__ import annotations
@@ -45,10 +45,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.data.pairs import MapPair
+from bench.data.sets import FULL, build
 from bench.merge import CACHE, RESULTS, evaluate
-from bench.pairs import MapPair
-from bench.redecide import decision_maps
-from bench.sets import FULL, build
+from bench.studies.redecide import decision_maps
 from pgvd.matching import Agreement, WallMap, refine
 from pgvd.merge import MergeParams, decide_finalists, final_refinement, score_hypothesis
 from pgvd.pooling import decision_pool, from_pooled, to_pooled
@@ -123,7 +123,7 @@ def assess(pair: MapPair, record: dict, maps: tuple[WallMap, WallMap], params: M
         Its pgvd record of ``merge.json``: ``finalists`` (3x3 B->A matrices, may be
         empty), ``matrix`` (the returned pose) and ``set``.
     maps : tuple of WallMap
-        :func:`bench.redecide.decision_maps` of the pair.
+        :func:`bench.studies.redecide.decision_maps` of the pair.
     params : MergeParams
         The decision's parameters.
 
@@ -232,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
             got = rows[-1]["class"]
         done = sum(map(len, stays.values()))
         print(f"[evidence] {done}/{len(chosen)} {entry.pair.name}: {got}", flush=True)
-    command = "python3 -m bench.evidence " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python3 -m bench evidence " + " ".join(argv if argv is not None else sys.argv[1:])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(markdown(rows, stays, command.strip()))
     print(f"wrote {args.out}")

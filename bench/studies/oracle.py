@@ -3,7 +3,7 @@
 Two stages, one at a time, everything else as the merge has it:
 
 ``--stage heading``: the overlapping pairs whose searched headings all miss the
-truth by more than the success bound (:func:`bench.recall.nearest_gap`), with
+truth by more than the success bound (:func:`bench.studies.recall.nearest_gap`), with
 the exact true heading added to the Radon candidates of eq. (10)
 (:func:`pgvd.rotation.estimate_headings`).  It bounds what any better heading
 stage can gain on them.
@@ -18,7 +18,7 @@ whether the decision would accept it.
 Both wrap private functions of :mod:`pgvd.merge` for one merge, as
 :mod:`bench.capture` does.
 
-    python3 -m bench.oracle [bench/results/merge.json] [--stage heading|finalist] [--out FILE]
+    python3 -m bench oracle [bench/results/merge.json] [--stage heading|finalist] [--out FILE]
 """
 
 from __future__ import annotations
@@ -33,11 +33,11 @@ from unittest import mock
 
 import numpy as np
 
+from bench.data.pairs import MapPair
+from bench.data.sets import FULL, build
 from bench.merge import CACHE, RESULTS, evaluate
-from bench.pairs import MapPair
-from bench.recall import nearest_gap
-from bench.report import MAX_HEADING_DEG, mark
-from bench.sets import FULL, build
+from bench.studies.recall import nearest_gap
+from bench.tables import MAX_HEADING_DEG, mark
 from pgvd.grid import heading
 from pgvd.merge import MergeParams, merge
 from pgvd.pooling import block_scale, decision_pool, from_pooled
@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or RESULTS / f"oracle-{args.stage}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     rows = rerun(records, args.stage, args.cache, args.seed)
-    command = "python3 -m bench.oracle " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python3 -m bench oracle " + " ".join(argv if argv is not None else sys.argv[1:])
     out.write_text(markdown(rows, args.stage, command.strip()))
     print(f"wrote {out}")
     return 0

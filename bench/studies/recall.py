@@ -26,19 +26,20 @@ whole-pose score is not the truth is lost to the evidence, not to the search.
 Printed per set and per source, with the heading misses listed (methods that
 record no searched headings or finalists get the first two columns only).
 
-    python3 -m bench.recall [bench/results/merge.json] [--method pgvd] [--tolerance 2]
+    python3 -m bench recall [bench/results/merge.json] [--method pgvd] [--tolerance 2]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from bench.merge import RESULTS
-from bench.report import MAX_HEADING_DEG, frac, pose_right
+from bench.tables import MAX_HEADING_DEG, frac, pose_right
 
 
 def angle_gap(a_deg: float, b_deg: float) -> float:
@@ -137,7 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     if not records:
         print(f"{args.json}: no overlapping pair recorded for {args.method}")
         return 1
+    command = "python3 -m bench recall " + " ".join(argv if argv is not None else sys.argv[1:])
     print(f"# Heading (within {args.tolerance} deg) and pose recall ({args.method})\n")
+    print(f"`{command.strip()}`\n")
     print("\n".join(table(records, args.tolerance)))
     gaps = [g for g in map(nearest_gap, records) if g is not None]
     if gaps:

@@ -16,7 +16,7 @@ a right pose) against the run's own, wrong and false accepts, and the largest
 margin of a winner at a wrong pose or on a negative pair: a threshold above
 it accepts none of them.  ``-v`` prints every pair.
 
-    python3 -m bench.redecide [bench/results/merge.json] [--set drifted] [--param min_margin=0.7]
+    python3 -m bench redecide [bench/results/merge.json] [--set drifted] [--param min_margin=0.7]
 
 ``--method pgvd-heading`` replays the records of that bench method instead of
 ``pgvd``'s (its finalists; the decision's parameters are still ``MergeParams``
@@ -38,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.data.sets import FULL, Entry, build
+from bench.data.sources import SOURCES
 from bench.merge import CACHE, RESULTS, evaluate
-from bench.report import mark
-from bench.sets import FULL, Entry, build
-from bench.sources import SOURCES
+from bench.tables import mark
 from pgvd.decision import margin_against
 from pgvd.grid import Grid
 from pgvd.matching import WallMap
