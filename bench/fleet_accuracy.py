@@ -205,15 +205,16 @@ class Recorder:
 class Settings:
     """What every run of one bench invocation shares."""
 
-    seed: int = 7
+    seeds: tuple[int, ...] = (7, 8, 9)
     log_seconds: float = 60.0
     timeout: float = 300.0
     tolerance: fh.Tolerance = field(default_factory=fh.Tolerance)
     min_overlap: float = 0.3
 
 
-def run_case(building: Building, n: int, settings: Settings, workdir: Path) -> dict:
-    """Run ``n`` agents on ``building`` until they agree on final maps (or time out).
+def run_case(building: Building, n: int, seed: int, settings: Settings, workdir: Path) -> dict:
+    """Run ``n`` agents on ``building``, in frames drawn from ``seed``, until they agree on
+    final maps (or time out).
 
     Returns
     -------
@@ -222,7 +223,7 @@ def run_case(building: Building, n: int, settings: Settings, workdir: Path) -> d
         (times in seconds since launch) and its summary (:func:`summarise`).
     """
     robots = [f"r{i + 1}" for i in range(n)]
-    frames = random_frames(n, settings.seed)
+    frames = random_frames(n, seed)
     specs = {
         r: (f"carmen:{building.path}@{seg[0]}-{seg[1]}", ",".join(f"{v:.4f}" for v in frame))
         for r, seg, frame in zip(robots, segments(n), frames, strict=True)
@@ -259,7 +260,7 @@ def run_case(building: Building, n: int, settings: Settings, workdir: Path) -> d
         "building": building.name,
         "source": f"{building.kind}:{building.path}",
         "robots": n,
-        "seed": settings.seed,
+        "seed": seed,
         "speed": round(speed, 2),
         "agreed_s": None if agreed_at is None else round(agreed_at, 2),
         "wall_s": round(end, 2),
@@ -339,14 +340,14 @@ def _final_overlaps(overlaps: Sequence[Mapping]) -> dict[str, float]:
 
 
 def table(cases: Sequence[Mapping]) -> str:
-    """One markdown row per building and N."""
+    """One markdown row per building, N and seed."""
     head = (
-        "| building | N | agreed after (s) | global maps seen | wrong placements shown "
+        "| building | N | seed | agreed after (s) | global maps seen | wrong placements shown "
         "| robots ever wrong | longest wrong (s) | wrong at end | overlapping robots placed "
         "right at end | pairs reaching overlap | placed together | delay s (median / max) "
         "| delay epochs (median / max) |"
     )
-    lines = [head, "|" + "---|" * 13]
+    lines = [head, "|" + "---|" * 14]
     for c in cases:
         s = c["summary"]
         placed = [d for d in s["delays"] if d["seconds"] is not None]
@@ -355,7 +356,7 @@ def table(cases: Sequence[Mapping]) -> str:
         frac = s["placed_right_fraction"]
         agreed = "NO" if c["agreed_s"] is None else c["agreed_s"]
         lines.append(
-            f"| {c['building']} | {c['robots']} | {agreed} "
+            f"| {c['building']} | {c['robots']} | {c['seed']} | {agreed} "
             f"| {s['global_maps_seen']} | {s['wrong_spells_count']} "
             f"| {','.join(s['wrong_robots']) or '-'} | {s['wrong_longest_s']} "
             f"| {s['wrong_at_end']} "
@@ -378,10 +379,11 @@ def markdown(cases: Sequence[Mapping], argv: Sequence[str], settings: Settings, 
     tol = settings.tolerance
     return (
         "# Fleet accuracy\n\n"
-        f"`python3 -m bench.fleet_accuracy {' '.join(argv)}` on {os.cpu_count()} cores "
+        f"`{' '.join(['python3 -m bench.fleet_accuracy', *argv])}` on {os.cpu_count()} cores "
         f"(shared with other jobs), {stamp}; wall time {wall / 60:.1f} min.\n"
         "Real agents replay overlapping, growing segments of each log in random frames "
-        f"(seed {settings.seed}; the whole log lasts {settings.log_seconds:g} s of replay), "
+        f"(seeds {', '.join(map(str, settings.seeds))}; the whole log lasts "
+        f"{settings.log_seconds:g} s of replay), "
         "peer to peer on localhost, as `pgvd demo` runs them.  Every agent's status.json "
         f"was polled every {POLL_S:g} s and each distinct global map recorded.\n\n"
         + table(cases)
@@ -401,6 +403,12 @@ def markdown(cases: Sequence[Mapping], argv: Sequence[str], settings: Settings, 
 
 
 COLOURS = {"unplaced": "#d9d9d9", "some": "#a1d99b", "right": "#238b45", "wrong": "#d7301f"}
+LABELS = {
+    "unplaced": "unplaced",
+    "some": "right on some agents",
+    "right": "right on every agent",
+    "wrong": "wrong on an agent",
+}
 
 
 def timeline(case: Mapping, truth: fh.Truth, tol: fh.Tolerance) -> list[tuple[float, dict]]:
@@ -424,27 +432,28 @@ def timeline(case: Mapping, truth: fh.Truth, tol: fh.Tolerance) -> list[tuple[fl
 
 
 def picture(cases: Sequence[Mapping], tol: fh.Tolerance, path: Path) -> None:
-    """Per building (rows) and N (columns): robots on y, time on x, coloured by placement."""
+    """Per building and seed (rows) and N (columns): robots on y, time on x, coloured by
+    placement."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    buildings = list(dict.fromkeys(c["building"] for c in cases))
+    rows = list(dict.fromkeys((c["building"], c["seed"]) for c in cases))
     sizes = sorted({c["robots"] for c in cases})
     fig, axes = plt.subplots(
-        len(buildings), len(sizes), figsize=(3.6 * len(sizes), 0.6 + 1.6 * len(buildings)),
+        len(rows), len(sizes), figsize=(3.6 * len(sizes), 0.6 + 1.6 * len(rows)),
         squeeze=False,
     )  # fmt: skip
     for ax in axes.flat:
         ax.set_axis_off()
     for case in cases:
-        ax = axes[buildings.index(case["building"]), sizes.index(case["robots"])]
+        ax = axes[rows.index((case["building"], case["seed"])), sizes.index(case["robots"])]
         ax.set_axis_on()
         _panel(ax, case, truth_of(case), tol)
     fig.legend(
-        handles=[Patch(color=c, label=k) for k, c in COLOURS.items()]
+        handles=[Patch(color=c, label=LABELS[k]) for k, c in COLOURS.items()]
         + [Patch(color="black", label="true overlap reaches threshold")],
         loc="lower center", ncol=5, fontsize=8,
     )  # fmt: skip
@@ -470,7 +479,7 @@ def _panel(ax, case: Mapping, truth: fh.Truth, tol: fh.Tolerance) -> None:
             ax.plot([d["overlap_at"]] * 2, [y - 0.45, y + 0.45], color="black", lw=1.2)
     ax.set_yticks(range(len(robots)), robots, fontsize=7)
     ax.set_xlim(0, end)
-    ax.set_title(f"{case['building']}, N={case['robots']}", fontsize=9)
+    ax.set_title(f"{case['building']}, N={case['robots']}, seed {case['seed']}", fontsize=9)
     ax.set_xlabel("s since launch", fontsize=7)
     ax.tick_params(axis="x", labelsize=7)
 
@@ -490,7 +499,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     ap.add_argument("--robots", type=int, nargs="+", default=[2, 3, 4, 6])
     ap.add_argument("--quick", action="store_true", help="the bundled Intel log, N=2,3 only")
     ap.add_argument("--held-out", action="store_true", help="every held-out log, reported apart")
-    ap.add_argument("--seed", type=int, default=Settings.seed)
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(Settings.seeds),
+                    help="one fleet run per seed of the random frames")  # fmt: skip
     ap.add_argument("--log-seconds", type=float, default=Settings.log_seconds,
                     help="wall seconds a whole log's replay lasts")  # fmt: skip
     ap.add_argument("--timeout", type=float, default=Settings.timeout, help="s per fleet run")
@@ -536,25 +546,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     sizes = [2, 3] if args.quick else args.robots
     settings = Settings(
-        args.seed, args.log_seconds, args.timeout,
+        tuple(args.seeds[:1] if args.quick else args.seeds), args.log_seconds, args.timeout,
         fh.Tolerance(args.max_deg, args.max_cells), args.min_overlap,
     )  # fmt: skip
     t_start = time.time()
     cases = []
-    for building in buildings:
-        for n in sizes:
-            print(f"fleet_accuracy: {building.name}, {n} agents ...", file=sys.stderr, flush=True)
-            with tempfile.TemporaryDirectory(prefix=f"pgvd-accuracy{n}-") as tmp:
-                case = run_case(building, n, settings, Path(tmp))
-            cases.append(case)
-            s = case["summary"]
-            print(
-                f"fleet_accuracy: {building.name} N={n}: agreed {case['agreed_s']} s, "
-                f"{s['wrong_spells_count']} wrong placements shown, right at end "
-                f"{len(s['placed_right_at_end'])}/{len(s['overlapping_robots'])}",
-                file=sys.stderr,
-                flush=True,
-            )
+    for building, seed, n in itertools.product(buildings, settings.seeds, sizes):
+        name = f"{building.name} N={n} seed {seed}"
+        print(f"fleet_accuracy: {name} ...", file=sys.stderr, flush=True)
+        with tempfile.TemporaryDirectory(prefix=f"pgvd-accuracy{n}-") as tmp:
+            case = run_case(building, n, seed, settings, Path(tmp))
+        cases.append(case)
+        s = case["summary"]
+        print(
+            f"fleet_accuracy: {name}: agreed {case['agreed_s']} s, "
+            f"{s['wrong_spells_count']} wrong placements shown, right at end "
+            f"{len(s['placed_right_at_end'])}/{len(s['overlapping_robots'])}",
+            file=sys.stderr,
+            flush=True,
+        )
     write_results(cases, argv, settings, time.time() - t_start, args.out, args.held_out)
     return 0
 

@@ -144,7 +144,7 @@ def test_two_agents_on_the_intel_log_report_what_their_status_files_say(tmp_path
     from bench import fleet_accuracy as fa
 
     settings = fa.Settings(log_seconds=30.0, timeout=180.0)
-    case = fa.run_case(fa.Building("log", LOG), 2, settings, tmp_path / "fleet")
+    case = fa.run_case(fa.Building("log", LOG), 2, 7, settings, tmp_path / "fleet")
     assert case["agreed_s"] is not None and case["dead_agents"] == []
     status = {
         r: json.loads((tmp_path / "fleet" / r / "state" / "status.json").read_text())
@@ -173,7 +173,7 @@ def test_two_agents_on_the_intel_log_report_what_their_status_files_say(tmp_path
     assert summary["global_maps_seen"] == len(hist["maps"]) >= 2
     fa.write_results([case], ["--test"], settings, case["wall_s"], tmp_path / "out", False)
     md = (tmp_path / "out" / "fleet-accuracy.md").read_text()
-    assert "| intel | 2 |" in md
+    assert "| intel | 2 | 7 |" in md
     assert (tmp_path / "out" / "fleet-accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     saved = json.loads((tmp_path / "out" / "fleet-accuracy.json").read_text())
     assert saved["cases"][0]["summary"] == json.loads(json.dumps(summary))
