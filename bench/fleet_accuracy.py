@@ -467,12 +467,11 @@ def _panel(ax, case: Mapping, truth: fh.Truth, tol: fh.Tolerance) -> None:
     steps = timeline(case, truth, tol)
     end = case["wall_s"]
     for y, r in enumerate(robots):
-        start = 0.0
-        state = "unplaced"
-        for t, states in steps:
-            ax.broken_barh([(start, t - start)], (y - 0.4, 0.8), color=COLOURS[state])
-            start, state = t, states[r]
-        ax.broken_barh([(start, end - start)], (y - 0.4, 0.8), color=COLOURS[state])
+        # one bar per run of a state: bars drawn edge to edge leave hairline gaps
+        changes = [(0.0, "unplaced")] + [(t, states[r]) for t, states in steps] + [(end, "")]
+        runs = [changes[0]] + [c for p, c in itertools.pairwise(changes) if c[1] != p[1]]
+        for (t0, state), (t1, _) in itertools.pairwise(runs):
+            ax.broken_barh([(t0, t1 - t0)], (y - 0.4, 0.8), color=COLOURS[state])
     for d in case["summary"]["delays"]:
         for r in d["pair"].split("-"):
             y = robots.index(r)

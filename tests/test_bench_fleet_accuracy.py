@@ -112,6 +112,33 @@ def test_delay_runs_from_the_overlap_threshold_until_both_agents_place_the_pair(
     assert fh.pair_delays(maps, progress, overlaps, TRUTH, TOL, 0.6) == []
 
 
+def test_timeline_colours_a_robot_by_what_all_agents_show() -> None:
+    from bench.fleet_accuracy import timeline
+
+    case = {
+        "robots": 2,
+        "history": {
+            "maps": [
+                shown(1.0, "r1", RIGHT_T),
+                shown(2.0, "r2", None),
+                shown(3.0, "r2", RIGHT_T),
+                shown(4.0, "r1", WRONG_T),
+            ]
+        },
+    }
+    states = [(t, s["r2"]) for t, s in timeline(case, TRUTH, TOL)]
+    # r2's agent not heard from yet, then alone on it, then right on both, then wrong on r1
+    assert states == [(1.0, "some"), (2.0, "some"), (3.0, "right"), (4.0, "wrong")]
+
+
+def test_held_out_logs_are_every_log_but_the_development_ones(tmp_path: Path) -> None:
+    from bench.fleet_accuracy import DEV_LOGS, held_out_logs
+
+    for name in [p.name for p in DEV_LOGS] + ["other-corrected.log.gz", "notes.txt"]:
+        (tmp_path / name).write_bytes(b"")
+    assert held_out_logs(tmp_path) == [tmp_path / "other-corrected.log.gz"]
+
+
 def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "bench.fleet_accuracy", *args]
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
