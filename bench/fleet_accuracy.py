@@ -123,6 +123,7 @@ class GrowingMaps:
         }
 
     def truth(self) -> fh.Truth:
+        """The robots' true frames, as their agents report them (``world_to_pixel``)."""
         return fh.Truth(
             {r: np.array(s.describe()["world_to_pixel"]) for r, s in self.sources.items()},
             {r: s.map_frame.shape for r, s in self.sources.items()},
@@ -177,6 +178,7 @@ class Recorder:
         self._last_progress: dict[str, tuple[int, int]] = {}
 
     def sample(self, statuses: Mapping[str, dict | None]) -> None:
+        """Record what changed in the agents' statuses, at the time each agent wrote it."""
         for robot, s in statuses.items():
             if s is None:
                 continue
