@@ -1,0 +1,206 @@
+"""bench.fleet_accuracy: placement errors and delays on built histories, one real fleet run."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.evaluate import true_matrix
+from agent.launcher import ROOT
+from bench import fleet_history as fh
+from pgvd.integrate import se2
+
+TOL = fh.Tolerance(2.0, 3.0)
+#: r1's frame is the world's (10 px per metre); r2's is turned 30 degrees and shifted.
+TRUTH = fh.Truth(
+    {
+        "r1": np.diag([10.0, 10.0, 1.0]),
+        "r2": np.diag([10.0, 10.0, 1.0]) @ se2(4.0, -2.0, np.radians(30.0)),
+    },
+    {"r1": (100, 100), "r2": (100, 100)},
+)
+RIGHT_T = true_matrix(TRUTH.world_to_pixel["r1"], TRUTH.world_to_pixel["r2"])
+WRONG_T = RIGHT_T + np.array([[0, 0, 10.0], [0, 0, 0], [0, 0, 0]])  # 10 cells off
+
+
+def comp(t2: np.ndarray | None) -> list[dict]:
+    """A global map: r1 and r2 together with r2 at ``t2``, or each alone if None."""
+    if t2 is None:
+        return [
+            {"anchor": r, "members": [r], "transforms": {r: np.eye(3).tolist()}}
+            for r in ("r1", "r2")
+        ]
+    transforms = {"r1": np.eye(3).tolist(), "r2": t2.tolist()}
+    return [{"anchor": "r1", "members": ["r1", "r2"], "transforms": transforms}]
+
+
+def shown(t: float, agent: str, t2: np.ndarray | None) -> dict:
+    return {"t": t, "agent": agent, "components": comp(t2)}
+
+
+def test_relative_error_is_zero_at_the_truth_and_counts_corner_cells_off_it() -> None:
+    transforms = comp(RIGHT_T)[0]["transforms"]
+    deg, cells = fh.relative_error(transforms, "r1", "r2", TRUTH)
+    assert deg == pytest.approx(0, abs=1e-9) and cells == pytest.approx(0, abs=1e-9)
+    deg, cells = fh.relative_error(comp(WRONG_T)[0]["transforms"], "r1", "r2", TRUTH)
+    assert deg == pytest.approx(0, abs=1e-9) and cells == pytest.approx(10.0)
+    # seen from r2, r1 is as far off: the same error, measured on r1's canvas
+    deg, cells = fh.relative_error(comp(WRONG_T)[0]["transforms"], "r2", "r1", TRUTH)
+    assert cells == pytest.approx(10.0)
+
+
+def test_placements_alone_right_and_wrong() -> None:
+    assert fh.placements(comp(None), TRUTH, TOL) == {"r1": "unplaced", "r2": "unplaced"}
+    assert fh.placements(comp(RIGHT_T), TRUTH, TOL) == {"r1": "right", "r2": "right"}
+    # the wrong placement is r2's; the anchor is not counted wrong a second time
+    assert fh.placements(comp(WRONG_T), TRUTH, TOL) == {"r1": "unplaced", "r2": "wrong"}
+    assert fh.placements(comp(WRONG_T), TRUTH, fh.Tolerance(2.0, 12.0))["r2"] == "right"
+
+
+def test_wrong_spells_end_at_the_agents_next_right_map_or_at_the_run_end() -> None:
+    maps = [
+        shown(0.5, "r1", None),
+        shown(1.0, "r1", WRONG_T),
+        shown(2.0, "r2", WRONG_T),
+        shown(2.5, "r1", WRONG_T),  # still wrong: the spell goes on
+        shown(3.0, "r1", RIGHT_T),
+    ]
+    spells = fh.wrong_spells(maps, TRUTH, TOL, end=10.0)
+    assert spells == [
+        {"agent": "r1", "robot": "r2", "start": 1.0, "end": 3.0, "seconds": 2.0, "at_end": False},
+        {"agent": "r2", "robot": "r2", "start": 2.0, "end": 10.0, "seconds": 8.0, "at_end": True},
+    ]
+    assert fh.placed_right_at_end(maps, ["r1", "r2"], TRUTH, TOL) == {"r1": False, "r2": False}
+    maps.append(shown(4.0, "r2", RIGHT_T))
+    assert fh.placed_right_at_end(maps, ["r1", "r2"], TRUTH, TOL) == {"r1": True, "r2": True}
+
+
+def test_delay_runs_from_the_overlap_threshold_until_both_agents_place_the_pair() -> None:
+    maps = [
+        shown(1.0, "r1", WRONG_T),  # together, but wrongly: not placed
+        shown(3.0, "r1", RIGHT_T),
+        shown(4.0, "r2", None),
+        shown(5.0, "r2", RIGHT_T),  # now both robots' agents show them together
+    ]
+    progress = [
+        {"t": 0.0, "robot": "r1", "cursor": 5, "epochs": 1},
+        {"t": 1.0, "robot": "r2", "cursor": 5, "epochs": 1},
+        {"t": 4.0, "robot": "r1", "cursor": 9, "epochs": 3},
+        {"t": 5.0, "robot": "r2", "cursor": 9, "epochs": 2},
+    ]
+    overlaps = [
+        {"t": 1.0, "pair": "r1-r2", "overlap": 0.1},
+        {"t": 2.0, "pair": "r1-r2", "overlap": 0.35},
+        {"t": 4.0, "pair": "r1-r2", "overlap": 0.5},
+    ]
+    (delay,) = fh.pair_delays(maps, progress, overlaps, TRUTH, TOL, 0.3)
+    assert delay == {
+        "pair": "r1-r2",
+        "overlap_at": 2.0,
+        "placed_at": 5.0,
+        "seconds": 3.0,
+        "epochs": (3 - 1) + (2 - 1),
+    }
+    # a pair never placed has no delay; a pair that never reached the threshold is left out
+    (never,) = fh.pair_delays(maps[:3], progress, overlaps, TRUTH, TOL, 0.3)
+    assert never["placed_at"] is None and never["seconds"] is None and never["epochs"] is None
+    assert fh.pair_delays(maps, progress, overlaps, TRUTH, TOL, 0.6) == []
+
+
+def test_timeline_colours_a_robot_by_what_all_agents_show() -> None:
+    from bench.fleet_accuracy import timeline
+
+    case = {
+        "robots": 2,
+        "history": {
+            "maps": [
+                shown(1.0, "r1", RIGHT_T),
+                shown(2.0, "r2", None),
+                shown(3.0, "r2", RIGHT_T),
+                shown(4.0, "r1", WRONG_T),
+            ]
+        },
+    }
+    states = [(t, s["r2"]) for t, s in timeline(case, TRUTH, TOL)]
+    # r2's agent not heard from yet, then alone on it, then right on both, then wrong on r1
+    assert states == [(1.0, "some"), (2.0, "some"), (3.0, "right"), (4.0, "wrong")]
+
+
+def test_held_out_logs_are_every_log_but_the_development_ones(tmp_path: Path) -> None:
+    from bench.fleet_accuracy import DEV_LOGS, held_out_logs
+
+    for name in [p.name for p in DEV_LOGS] + ["other-corrected.log.gz", "notes.txt"]:
+        (tmp_path / name).write_bytes(b"")
+    assert held_out_logs(tmp_path) == [tmp_path / "other-corrected.log.gz"]
+
+
+def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "bench.fleet_accuracy", *args]
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
+    return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=60)
+
+
+@pytest.mark.parametrize(
+    ("args", "why"),
+    [
+        (["--robots", "1"], "--robots must be between 2 and 12"),
+        (["--buildings", "map:some.yaml"], "not available"),
+        (["--buildings", "log:no-such.log.gz"], "log not found: no-such.log.gz"),
+        (["--buildings", "intel"], "a building is log:PATH or map:PATH.yaml"),
+        (["--quick", "--held-out"], "exclude each other"),
+        (["--min-overlap", "0"], "--min-overlap must be in (0, 1]"),
+        (["--timeout", "x"], "invalid float value"),
+    ],
+)
+def test_bad_arguments_are_one_line_and_exit_2(tmp_path: Path, args: list[str], why: str) -> None:
+    res = bench(*args, "--out", str(tmp_path / "out"), cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().count("\n") == 0 and why in res.stderr
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.fleet
+@pytest.mark.slow
+def test_two_agents_on_the_intel_log_report_what_their_status_files_say(tmp_path: Path) -> None:
+    from agent.scenario import LOG
+    from bench import fleet_accuracy as fa
+
+    settings = fa.Settings(log_seconds=30.0, timeout=180.0)
+    case = fa.run_case(fa.Building("log", LOG), 2, 7, settings, tmp_path / "fleet")
+    assert case["agreed_s"] is not None and case["dead_agents"] == []
+    status = {
+        r: json.loads((tmp_path / "fleet" / r / "state" / "status.json").read_text())
+        for r in ("r1", "r2")
+    }
+    truth = fa.truth_of(case)
+    summary, hist = case["summary"], case["history"]
+    for robot, s in status.items():
+        # the bench's truth is the agents' own
+        assert np.allclose(truth.world_to_pixel[robot], s["source"]["world_to_pixel"])
+        # the last map recorded of each agent is the one its status file holds
+        last = [m for m in hist["maps"] if m["agent"] == robot][-1]
+        assert [(c["anchor"], c["members"], c["digest"]) for c in last["components"]] == [
+            (c["anchor"], c["members"], c["digest"]) for c in s["components"]
+        ]
+        cursor = [p["cursor"] for p in hist["progress"] if p["robot"] == robot][-1]
+        assert cursor == s["source"]["progress"][0] == s["source"]["progress"][1]
+    final = [fh.placements(s["components"], truth, TOL) for s in status.values()]
+    assert summary["wrong_at_end"] == sum(p.get(r) == fh.WRONG for p in final for r in p)
+    right = sorted(r for r in ("r1", "r2") if all(p.get(r) == fh.RIGHT for p in final))
+    assert summary["overlapping_robots"] == ["r1", "r2"]  # the segments share a third of the log
+    assert summary["placed_right_at_end"] == right
+    # the pair reached the overlap threshold; placed right at the end, it was placed at a time
+    (delay,) = summary["delays"]
+    assert right != ["r1", "r2"] or delay["placed_at"] is not None
+    assert summary["global_maps_seen"] == len(hist["maps"]) >= 2
+    fa.write_results([case], ["--test"], settings, case["wall_s"], tmp_path / "out", False)
+    md = (tmp_path / "out" / "fleet-accuracy.md").read_text()
+    assert "| intel | 2 | 7 |" in md
+    assert (tmp_path / "out" / "fleet-accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    saved = json.loads((tmp_path / "out" / "fleet-accuracy.json").read_text())
+    assert saved["cases"][0]["summary"] == json.loads(json.dumps(summary))
