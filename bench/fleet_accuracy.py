@@ -90,8 +90,7 @@ def parse_building(spec: str) -> Building:
         raise BenchError(f"a building is log:PATH or map:PATH.yaml, got {spec!r}")
     if kind == "map":
         raise BenchError(
-            f"{spec}: map buildings are not available yet: they need a simulated-lidar "
-            "agent source"
+            f"{spec}: map buildings are not available yet: they need a simulated-lidar agent source"
         )
     path = Path(rest)
     if not path.is_file():
@@ -152,9 +151,7 @@ def overlap_history(maps: GrowingMaps, progress: Sequence[Mapping]) -> list[dict
     """True overlaps of every pair at each recorded change of a replay cursor."""
     truth = maps.truth()
     out = []
-    for t, group in itertools.groupby(
-        sorted(progress, key=lambda p: p["t"]), key=lambda p: p["t"]
-    ):
+    for t, group in itertools.groupby(sorted(progress, key=lambda p: p["t"]), key=lambda p: p["t"]):
         for p in group:
             maps.advance(p["robot"], p["cursor"])
         out += [
