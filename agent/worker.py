@@ -56,7 +56,7 @@ from pgvd.grid import Grid
 from pgvd.posegraph import Solution, components, solve, triangle_groups
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
-    from pgvd.merge import MergeParams
+    from pgvd.params import MergeParams
 
 log = logging.getLogger("pgvd.agent")
 
@@ -120,7 +120,7 @@ class _Unproven:
 
 def _merge_params(min_agreement: float | None) -> MergeParams:
     """The merge's parameters for a fleet, ``min_agreement`` overridden unless None."""
-    from pgvd.merge import MergeParams
+    from pgvd.params import MergeParams
 
     params = MergeParams(diagnostics=False)
     return params if min_agreement is None else replace(params, min_agreement=min_agreement)

@@ -39,8 +39,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from bench.report import MAX_CELL_ERROR, MAX_HEADING_DEG
+from pgvd.alignment import AlignmentFit
+from pgvd.covariance import CALIBRATED, CovarianceModel, calibrated_covariance
 from pgvd.grid import matrix_to_pose
-from pgvd.matching import CALIBRATED, AlignmentFit, CovarianceModel, calibrated_covariance
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -65,9 +66,11 @@ def _wall_error(b_walls: np.ndarray, truth: np.ndarray, estimate: np.ndarray) ->
 def collect(n_pairs: int, seed: int, out: Path) -> int:
     """Merge ``n_pairs`` overlapping pairs per log; store errors and alignment terms."""
     from bench.pairs import make_pairs
+    from pgvd.alignment import alignment_fit
     from pgvd.carmen import read_carmen
-    from pgvd.matching import WallMap, alignment_fit
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
+    from pgvd.walls import WallMap
 
     params = MergeParams(diagnostics=False)
     records = []

@@ -49,10 +49,14 @@ from bench.merge import CACHE, RESULTS, evaluate
 from bench.pairs import MapPair
 from bench.redecide import decision_maps
 from bench.sets import FULL, build
-from pgvd.matching import Agreement, WallMap, refine
-from pgvd.merge import MergeParams, decide_finalists, final_refinement, score_hypothesis
+from pgvd.alignment import refine
+from pgvd.overlay import Agreement
+from pgvd.params import MergeParams
 from pgvd.pooling import decision_pool, from_pooled, to_pooled
+from pgvd.refinement import final_refinement
 from pgvd.sampling import subsample
+from pgvd.scoring import decide_finalists, score_hypothesis
+from pgvd.walls import WallMap
 
 CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
 SETS = ("standard", "low", "drifted")

@@ -44,9 +44,11 @@ from bench.sets import FULL, Entry, build
 from bench.sources import SOURCES
 from pgvd.decision import margin_against
 from pgvd.grid import Grid
-from pgvd.matching import WallMap
-from pgvd.merge import MergeParams, decide_finalists, fine_maps, registration_probability
+from pgvd.inputs import registration_probability
+from pgvd.params import MergeParams
 from pgvd.pooling import decision_pool, from_pooled, to_pooled
+from pgvd.scoring import decide_finalists, fine_maps
+from pgvd.walls import WallMap
 
 SETS = ("standard", "low", "drifted", "negative")
 
@@ -60,7 +62,7 @@ def params_from(overrides: list[str]) -> MergeParams:
         An override without ``=``, an unknown field or a value its type refuses.
     """
     base = MergeParams(diagnostics=False)
-    fields = {f.name for f in dataclasses.fields(base)}
+    fields = set(MergeParams.field_names())
     changes: dict[str, object] = {}
     for item in overrides:
         name, sep, value = item.partition("=")

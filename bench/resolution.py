@@ -33,7 +33,8 @@ from bench.pairs import MAX_DRAWS, MapPair, make_pairs
 from bench.sets import cached
 from bench.sources import SHARED
 from pgvd.carmen import read_carmen
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 
 LOGS = {"intel": "intel-corrected.log.gz", "fr079": "freiburg-079-corrected.log.gz"}
 #: A right pose: within these of the truth (degrees; metres, mean over B's occupied cells).

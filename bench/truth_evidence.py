@@ -56,9 +56,11 @@ from bench.report import frac
 from bench.sets import FULL, Entry, build
 from bench.sources import SOURCES, held_out_logs
 from pgvd.decision import margin_against
-from pgvd.matching import WallMap
-from pgvd.merge import MergeParams, final_refinement, score_hypothesis
+from pgvd.params import MergeParams
 from pgvd.pooling import decision_pool, from_pooled, to_pooled
+from pgvd.refinement import final_refinement
+from pgvd.scoring import score_hypothesis
+from pgvd.walls import WallMap
 
 #: Heading offsets (degrees) and shifts (cells of the decision's maps) of :func:`around`.
 HEADING_STEPS = (-1.0, -0.5, 0.0, 0.5, 1.0)

@@ -37,7 +37,7 @@ import numpy as np
 from bench.merge import CACHE, RESULTS, evaluate
 from bench.pairs import MapPair, turn_about
 from bench.sets import FULL, build
-from pgvd.merge import MergeParams
+from pgvd.params import MergeParams
 from pgvd.verify import BASIN_DEG, BASIN_M, verify
 
 #: How far a wrong chain's shift puts B (m): farther than the check's basin, within a building.

@@ -1,6 +1,6 @@
 """Pooling a probability grid into blocks, and the pixel frames of pooled maps.
 
-The coarse search runs on maps pooled to ``MergeParams.coarse_resolution``
+The coarse search runs on maps pooled to ``SearchParams.coarse_resolution``
 (:func:`coarsen`, :func:`block_scale`).  The decision (finalists refined and
 scored, the acceptance margin, the covariance) runs on maps pooled to about
 :data:`REFERENCE_RESOLUTION`, the cell size every one of its distances in

@@ -17,7 +17,7 @@ kept: free space that reaches the map's edge through cells over 1 m from
 every wall, alone or with the hull, gained painted pairs of the robots' own
 partial maps but lost map images or accepted negatives (README, "What still
 fails").  Registration applies it only to maps with (almost) no unknown cells
-(:func:`pgvd.merge.registration_probability`), which no SLAM map is: the maps
+(:func:`pgvd.inputs.registration_probability`), which no SLAM map is: the maps
 the bench was tuned on are read exactly as before.
 """
 

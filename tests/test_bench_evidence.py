@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from bench.evidence import assess, classify, markdown, truth_stays
-from pgvd.matching import Agreement
-from pgvd.merge import MergeParams, fine_maps
+from pgvd.overlay import Agreement
+from pgvd.params import MergeParams
+from pgvd.scoring import fine_maps
 
 
 def test_classify_orders_the_causes():

@@ -10,8 +10,11 @@ import pytest
 from bench.mapimages import random_framed as _random_frame
 from bench.mapimages import thickened
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
+from pgvd.inputs import registration_probability
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, MergeResult, merge, registration_probability
+from pgvd.merge import merge
+from pgvd.params import MergeParams
+from pgvd.result import MergeResult
 from pgvd.rotation import estimate_headings
 from pgvd.transform import resample
 

@@ -38,7 +38,8 @@ from pgvd.io import (
 
 if TYPE_CHECKING:
     from agent.multimerge import ManyMerge
-    from pgvd.merge import MergeParams, MergeResult
+    from pgvd.params import MergeParams
+    from pgvd.result import MergeResult
 
 _MAP_SUFFIXES = (*YAML_SUFFIXES, ".npy")
 #: Largest ``--prior`` offset (m) of B's map frame from A's.
@@ -128,7 +129,7 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
 def _say_mostly_walls(named: list[tuple[str, Grid]]) -> None:
     """A note (stderr) for each map that is mostly walls, which is how an image that stores
     unknown space black reads: the merge is tried all the same, and likely rejected."""
-    from pgvd.merge import MergeParams
+    from pgvd.params import MergeParams
     from pgvd.unexplored import MOSTLY_WALLS, wall_share
 
     params = MergeParams()
@@ -369,7 +370,8 @@ def run(args: argparse.Namespace) -> int:
     b = _read(args.b, args)
     # imported after the files are read: bad input is refused without loading scipy
     from pgvd.fusion import fuse_maps
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
     from pgvd.render import merge_figure
     from pgvd.transform import resample, scale_matrix
 
