@@ -406,7 +406,9 @@ def _verdict(
     extra = {"margin": o.decision.margin, "distortion_px": o.distortion, "headings_deg": searched}
     why = _why_rejected(o, params)
     if why is not None:
-        return rejected(why, clock, matrix, o.agreement.ratio, **extra)
+        limits = params.decision
+        grey = limits.GREY_MARGIN <= o.decision.margin < limits.min_margin
+        return rejected(why, clock, matrix, o.agreement.ratio, candidate=grey, **extra)
     cov = pose_covariance(o.fine_a, o.fine_b, o.winner, o.res)
     cov = covariance_from_pooled(cov, o.winner, o.pool)
     clock.lap("covariance")

@@ -25,7 +25,7 @@ not know its group; the stages read their group.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from typing import Any
+from typing import Any, ClassVar
 
 from pgvd.overlay import OverlayWeights
 from pgvd.rotation import OCCUPIED
@@ -113,6 +113,9 @@ class DecisionParams:
         too, so that a corridor alike along its length does not pass.
     min_margin : the returned pose's margin over its best rival, per overlapping wall,
         must reach this: just above the largest margin of a wrong or negative winner.
+    GREY_MARGIN : a rejected pose of margin in ``[GREY_MARGIN, min_margin)`` is a
+        candidate, worth a look but no merge: right poses the bench rejects have margins
+        0.05-0.56, and wrong winners reach 0.53 (a constant, not a parameter).
     margin_noise : the margin is lowered by this over the square root of the overlap's
         wall count: a small overlap's margin swings more.
     min_agreement : floor on agree / (agree + disagree) of the final overlay; 0, the
@@ -128,6 +131,7 @@ class DecisionParams:
     rival_distance: float = 1.0
     probe_shifts: tuple[float, ...] = (1.5, 3.0)
     min_margin: float = 0.57
+    GREY_MARGIN: ClassVar[float] = 0.0
     margin_noise: float = 3.0
     min_agreement: float = 0.0
     min_overlap: float = 3.0

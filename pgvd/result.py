@@ -28,6 +28,13 @@ class MergeResult:
         rigid fit.  NaN when no hypothesis reached the full-resolution stage.
     headings_deg : tuple of float
         The candidate headings (degrees) that went through the PGVD/Gamma stages.
+    candidate : bool
+        A rejection whose best pose (``matrix``) has a margin in the grey zone
+        ``[DecisionParams.GREY_MARGIN, min_margin)``: worth a look, not a merge.
+
+    A rejection whose best pose reached the decision keeps that pose in ``matrix``,
+    ``rotation_deg`` and ``translation_px`` (its ``margin`` is finite); one rejected
+    before has the identity.
     """
 
     accepted: bool
@@ -42,6 +49,7 @@ class MergeResult:
     margin: float = float("nan")
     distortion_px: float = float("nan")
     headings_deg: tuple[float, ...] = ()
+    candidate: bool = False
 
     def with_time(self, step: str, ms: float) -> MergeResult:
         """This result with ``ms`` milliseconds of work done beside its stages (a check
@@ -53,6 +61,7 @@ class MergeResult:
         """The object ``pgvd merge --json`` prints, plus ``reason``.
 
         A rejected result has no covariance: its entries are ``None`` (JSON null).
+        ``candidate`` is true when a rejected best pose lies in the grey zone.
         """
         return {
             "accepted": bool(self.accepted),
@@ -67,6 +76,7 @@ class MergeResult:
             "reason": self.reason,
             "margin": float(self.margin) if np.isfinite(self.margin) else None,
             "distortion_px": float(self.distortion_px) if np.isfinite(self.distortion_px) else None,
+            "candidate": bool(self.candidate),
         }
 
 

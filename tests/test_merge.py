@@ -78,7 +78,7 @@ def test_result_json_and_diagnostics(albert, shared):
     js = r.to_json()
     assert set(js) == {
         "accepted", "matrix", "rotation_deg", "translation_px", "covariance", "score",
-        "timings_ms", "reason", "margin", "distortion_px",
+        "timings_ms", "reason", "margin", "distortion_px", "candidate",
     }  # fmt: skip
     assert js["margin"] >= MergeParams().min_margin and js["distortion_px"] >= 0
     assert np.array(js["matrix"]).shape == (3, 3) and np.array(js["covariance"]).shape == (3, 3)
