@@ -93,7 +93,7 @@ from pgvd.pooling import block_scale, coarsen, covariance_from_pooled, decision_
 from pgvd.result import MergeResult, StageClock, merge_result, rejected
 from pgvd.retry import Progress, retried
 from pgvd.rotation import HeadingCandidate, estimate_headings
-from pgvd.scoring import decide_hypotheses, fine_maps
+from pgvd.scoring import decide_hypotheses, fine_maps, overlay_floors
 from pgvd.walls import WallMap
 
 
@@ -383,12 +383,7 @@ def _why_rejected(outcome: _Decided, params: MergeParams) -> str | None:
             f"{limits.min_margin} (evidence {evidence:.0f}, best rival {decision.rival:.0f}: "
             f"{describe_rival(decision, centre, outcome.res)})"
         )
-    if agreement.ratio < limits.min_agreement:
-        return f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {limits.min_agreement}"
-    overlap_m = 0.5 * agreement.agree * outcome.res
-    if overlap_m < limits.min_overlap:
-        return f"overlap too small: {overlap_m:.1f} m of agreeing walls < {limits.min_overlap} m"
-    return None
+    return overlay_floors(agreement, outcome.res, params)
 
 
 def _verdict(

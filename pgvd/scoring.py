@@ -9,6 +9,7 @@ import numpy as np
 from pgvd.agreement import local_agreement, map_agreement
 from pgvd.decision import Decision, Scored, decide, restate, shifted
 from pgvd.hypotheses import Hypothesis
+from pgvd.overlay import Agreement
 from pgvd.parallel import both
 from pgvd.params import MergeParams
 from pgvd.pooling import block_scale, pooled
@@ -150,3 +151,20 @@ def decide_hypotheses(
     refined = refine_finalists(starts, fine_a, fine_b, params)
     index, decision, matrix = decide_finalists(refined, fine_a, fine_b, params, res)
     return finalists[index], decision, matrix
+
+
+
+def overlay_floors(agreement: Agreement, res: float, params: MergeParams) -> str | None:
+    """Why the whole-map overlay of a decided pose fails the decision's floors, or None.
+
+    ``agreement`` counts the walls of both maps (:func:`pgvd.agreement.map_agreement`) on
+    maps of ``res`` m cells: the share that agrees must reach ``min_agreement``, and the
+    agreeing walls, counted once per map, ``min_overlap`` metres (``params.decision``).
+    """
+    limits = params.decision
+    if agreement.ratio < limits.min_agreement:
+        return f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {limits.min_agreement}"
+    overlap_m = 0.5 * agreement.agree * res
+    if overlap_m < limits.min_overlap:
+        return f"overlap too small: {overlap_m:.1f} m of agreeing walls < {limits.min_overlap} m"
+    return None

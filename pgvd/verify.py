@@ -39,7 +39,6 @@ A caller that asks both reads the maps once (:func:`pooled_maps`) and hands them
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,8 +51,8 @@ from pgvd.inputs import check_extent, check_resolutions, registration_probabilit
 from pgvd.parallel import both
 from pgvd.params import MergeParams
 from pgvd.pooling import covariance_from_pooled, decision_pool, from_pooled, to_pooled
-from pgvd.result import MergeResult
-from pgvd.scoring import decide_finalists, decision_map
+from pgvd.result import MergeResult, StageClock, merge_result, rejected
+from pgvd.scoring import decide_finalists, decision_map, overlay_floors
 from pgvd.walls import WallMap
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
@@ -281,42 +280,20 @@ def verify(
     """
     params = params or MergeParams(diagnostics=False)
     m0 = _check(predicted)
-    t0 = last = time.perf_counter()
-    timings: dict[str, float] = {}
-
-    def lap(stage: str) -> None:
-        nonlocal last
-        now = time.perf_counter()
-        timings[stage] = timings.get(stage, 0.0) + 1e3 * (now - last)
-        last = now
-
-    def result(
-        accepted: bool,
-        reason: str,
-        m: np.ndarray,
-        score: float,
-        cov: np.ndarray,
-        margin: float = float("nan"),
-    ) -> MergeResult:
-        # m and cov are in the pooled maps' frame: brought back to the full maps' pixels
-        full = from_pooled(m, pool)
-        psi, tx, ty = matrix_to_pose(full)
-        cov = covariance_from_pooled(cov, m, pool)
-        timings["total"] = 1e3 * (time.perf_counter() - t0)
-        return MergeResult(
-            accepted, full, float(np.degrees(psi)), (tx, ty), cov, score, timings, reason,
-            margin=margin,
-        )  # fmt: skip
-
-    nan = np.full((3, 3), np.nan)
+    clock = StageClock(None)
     # checked on maps pooled to about 5 cm cells, as the merge decides (pgvd.pooling)
     maps = _held_or_read(a, b, params, maps)
     pool, res, fine_a, fine_b = maps.pool, maps.cell, maps.a, maps.b
+
+    def result(m: np.ndarray, score: float, why: str, margin: float = np.nan) -> MergeResult:
+        # m is in the pooled maps' frame: brought back to the full maps' pixels
+        return rejected(why, clock, from_pooled(m, pool), score, margin=margin)
+
     start = to_pooled(m0, pool)
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:
-        return result(False, "a map has fewer than 10 wall cells", start, 0.0, nan)
+        return result(start, 0.0, "a map has fewer than 10 wall cells")
     matrix = refine(fine_a.tree, fine_b.walls, start)
-    lap("refine")
+    clock.lap("refine")
     margin = float("nan")
     # a prediction that ICP alone carries out of the basin is rejected before the decision,
     # which costs more; the decision's final refinement must keep the pose inside it too
@@ -325,25 +302,20 @@ def verify(
         _, decision, matrix = decide_finalists([matrix], fine_a, fine_b, params, res)
         margin = decision.margin
         why = _left_basin(start, matrix, fine_b.walls, res)
-    lap("verify")
+    clock.lap("verify")
     if why is not None:
-        return result(False, why, matrix, 0.0, nan, margin)
+        return result(matrix, 0.0, why, margin)
     agreement = map_agreement(fine_a, fine_b, matrix)
-    overlap_m = 0.5 * agreement.agree * res
-    lap("verify")
-    limits = params.decision
-    if agreement.ratio < limits.min_agreement:
-        why = f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {limits.min_agreement}"
-        return result(False, why, matrix, agreement.ratio, nan, margin)
-    if overlap_m < limits.min_overlap:
-        why = f"overlap too small: {overlap_m:.1f} m of agreeing walls < {limits.min_overlap} m"
-        return result(False, why, matrix, agreement.ratio, nan, margin)
-    if margin < limits.min_margin:
+    clock.lap("verify")
+    why = overlay_floors(agreement, res, params)
+    if why is None and margin < params.decision.min_margin:
         why = (
             f"the predicted pose does not stand out: margin {margin:.2f} < "
-            f"{limits.min_margin} (best shifted pose {decision.rival:.0f})"
+            f"{params.decision.min_margin} (best shifted pose {decision.rival:.0f})"
         )
-        return result(False, why, matrix, agreement.ratio, nan, margin)
-    cov = pose_covariance(fine_a, fine_b, matrix, res)
-    lap("covariance")
-    return result(True, "accepted", matrix, agreement.ratio, cov, decision.margin)
+    if why is not None:
+        return result(matrix, agreement.ratio, why, margin)
+    cov = covariance_from_pooled(pose_covariance(fine_a, fine_b, matrix, res), matrix, pool)
+    clock.lap("covariance")
+    full = from_pooled(matrix, pool)
+    return merge_result(True, "accepted", clock, full, agreement.ratio, cov, margin=margin)
