@@ -56,7 +56,7 @@ from pgvd.grid import Grid
 from pgvd.posegraph import Solution, components, solve, triangle_groups
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
-    from pgvd.merge import MergeParams
+    from pgvd.params import MergeParams
 
 log = logging.getLogger("pgvd.agent")
 
@@ -65,7 +65,7 @@ log = logging.getLogger("pgvd.agent")
 class Registration:
     """What a pairwise registration decided; ``matrix`` maps B pixels to A pixels.
 
-    ``reason`` says why, in the merge's words (:attr:`pgvd.merge.MergeResult.reason`): an
+    ``reason`` says why, in the merge's words (:attr:`pgvd.result.MergeResult.reason`): an
     operator reading the agent's log sees why two robots' maps were not linked.
     """
 
@@ -120,7 +120,7 @@ class _Unproven:
 
 def _merge_params(min_agreement: float | None) -> MergeParams:
     """The merge's parameters for a fleet, ``min_agreement`` overridden unless None."""
-    from pgvd.merge import MergeParams
+    from pgvd.params import MergeParams
 
     params = MergeParams(diagnostics=False)
     return params if min_agreement is None else replace(params, min_agreement=min_agreement)

@@ -1,11 +1,11 @@
 """Everything a merge exposes, as JSON, so later analyses need no rerun.
 
-:func:`result_json` serialises every field of :class:`pgvd.merge.MergeResult`
+:func:`result_json` serialises every field of :class:`pgvd.result.MergeResult`
 (whatever fields it has today or gains later) except the diagnostics images.
 
 :class:`SearchedHeadings` records which candidate headings went through the
 matching stages (PGVD, Gamma, rho) in a merge: the bench wraps
-``pgvd.merge._search_heading``, the function each searched heading passes
+``pgvd.hypotheses.search_heading``, the function each searched heading passes
 through, for the duration of one merge.  That is private API: if it is gone,
 nothing is recorded (None) rather than something guessed, and a
 ``candidates`` field of MergeResult, if the method exposes one, is in
@@ -13,7 +13,7 @@ nothing is recorded (None) rather than something guessed, and a
 
 :class:`Finalists` records, the same way, the refined B->A matrices of the
 finalists that reach the decision: the ``scored`` hypotheses handed to
-``pgvd.merge.decide`` (:func:`pgvd.decision.decide`).  With them the bench
+``pgvd.scoring.decide`` (:func:`pgvd.decision.decide`).  With them the bench
 separates "the search did not find the pose" from "the decision did not pick
 or accept it" (pose recall, :mod:`bench.studies.recall`).
 """
@@ -68,13 +68,13 @@ def result_json(result: object) -> dict:
 
 
 @contextlib.contextmanager
-def _wrapping(name: str, seen: Callable[..., None]) -> Iterator[bool]:
-    """Wrap ``pgvd.merge.<name>`` so that ``seen`` gets each call's arguments first.
+def _wrapping(name: str, seen: Callable[..., None], module: str = "pgvd.merge") -> Iterator[bool]:
+    """Wrap ``<module>.<name>`` so that ``seen`` gets each call's arguments first.
 
     Yields False (and wraps nothing) when the private function is gone.
     """
     # pgvd.merge is the function (pgvd's public API); the module is in sys.modules.
-    core = importlib.import_module("pgvd.merge")
+    core = importlib.import_module(module)
     original = getattr(core, name, None)
     if original is None:
         yield False
@@ -105,9 +105,7 @@ class SearchedHeadings:
         # a merge retried (a raw map, MergeParams.speckle_retry) reports its last pass
         with (
             _wrapping("_merge_pass", lambda *_, **__: seen.clear()),
-            _wrapping(
-                "_search_heading", lambda turned, *_, **__: seen.append(turned.heading)
-            ) as ok,
+            _wrapping("search_heading", lambda turned, *_, **__: seen.append(turned.heading)) as ok,
         ):
             yield
         self.degrees = [float(np.degrees(h.psi)) for h in seen] if ok else None
@@ -132,7 +130,9 @@ class Finalists:
         # of a merge retried (a raw map), the last pass's
         with (
             _wrapping("_merge_pass", lambda *_, **__: calls.clear()),
-            _wrapping("decide", lambda scored, *_, **__: calls.append(list(scored))) as ok,
+            _wrapping(
+                "decide", lambda scored, *_, **__: calls.append(list(scored)), "pgvd.scoring"
+            ) as ok,
         ):
             yield
         self.matrices = [np.asarray(s.matrix) for s in calls[-1]] if calls else []

@@ -11,7 +11,7 @@ pose error ``(tx, ty, psi)`` of the result against the truth and the terms of
 
 ``fit`` splits the pairs in two halves (alternating in the order of their
 names, so both halves hold both logs), fits the constants of
-:func:`pgvd.matching.calibrated_covariance` by maximum likelihood on the
+:func:`pgvd.covariance.calibrated_covariance` by maximum likelihood on the
 first half only, and reports on the second half only: the mean NEES
 against the 95 % band of the mean of n chi2(3) (mean 3, variance 6/n), the
 share of errors inside the 95 % ellipsoid, and the same for the heading
@@ -39,8 +39,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from bench.tables import MAX_CELL_ERROR, MAX_HEADING_DEG
+from pgvd.alignment import AlignmentFit
+from pgvd.covariance import CALIBRATED, CovarianceModel, calibrated_covariance
 from pgvd.grid import matrix_to_pose
-from pgvd.matching import CALIBRATED, AlignmentFit, CovarianceModel, calibrated_covariance
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -65,9 +66,11 @@ def _wall_error(b_walls: np.ndarray, truth: np.ndarray, estimate: np.ndarray) ->
 def collect(n_pairs: int, seed: int, out: Path) -> int:
     """Merge ``n_pairs`` overlapping pairs per log; store errors and alignment terms."""
     from bench.data.pairs import make_pairs
+    from pgvd.alignment import alignment_fit
     from pgvd.carmen import read_carmen
-    from pgvd.matching import WallMap, alignment_fit
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
+    from pgvd.walls import WallMap
 
     params = MergeParams(diagnostics=False)
     records = []
@@ -107,7 +110,7 @@ def collect(n_pairs: int, seed: int, out: Path) -> int:
 
 
 def alignment(rec: dict) -> AlignmentFit:
-    """The :class:`pgvd.matching.AlignmentFit` stored in a record."""
+    """The :class:`pgvd.alignment.AlignmentFit` stored in a record."""
     return AlignmentFit(
         info=np.array(rec["info"]),
         sigma2=rec["sigma2"],
@@ -193,7 +196,7 @@ def consistency(errors: np.ndarray, covs: np.ndarray) -> dict:
     }
 
 
-#: The model whose constants are ``pgvd.matching.CALIBRATED``.
+#: The model whose constants are ``pgvd.covariance.CALIBRATED``.
 CHOSEN = "calibrated (misfit + floor + heading scale)"
 #: Models compared in the report: the free constants of each (see :func:`fit_model`).
 MODELS = {
@@ -206,7 +209,7 @@ MODELS = {
 
 
 #: The row of the constants the merge reports with, whatever this run's fit gives.
-IN_USE = "in use: pgvd.matching.CALIBRATED"
+IN_USE = "in use: pgvd.covariance.CALIBRATED"
 
 #: Models refitted on random halvings (``fit --splits``): chosen before and with the heading scale.
 RESPLIT = ("misfit + floor", CHOSEN)
@@ -347,7 +350,7 @@ def markdown(summary: dict) -> str:
         "accepted B -> A matrix about B's pixel origin (eq. (1)); the 95 % ellipsoid is "
         "NEES < chi2(3).ppf(0.95) = 7.81, and 3.84 for the heading alone.",
         "",
-        "Fitted constants (`pgvd.matching.CovarianceModel`; constants not fitted are fixed "
+        "Fitted constants (`pgvd.covariance.CovarianceModel`; constants not fitted are fixed "
         "at correlation 1, misfit_power 1, no floor, heading_scale 1):",
         "",
     ]

@@ -50,8 +50,9 @@ from bench.merge import VARIANTS, add_output_arguments, evaluate, output_dir
 from bench.tables import mark
 from pgvd.grid import Grid, rigid_matrix
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
 from pgvd.morphology import grow
+from pgvd.params import MergeParams
 from pgvd.transform import resample, warp
 
 #: Cell size the maps are merged at (the development logs' and most images').

@@ -117,7 +117,8 @@ Method = Callable[[Grid, Grid], tuple[bool, np.ndarray, dict]]
 
 
 def _pgvd(**overrides) -> Method:
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
     from pgvd.pooling import decision_pool
 
     params = MergeParams(diagnostics=False, **overrides)

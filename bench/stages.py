@@ -45,11 +45,12 @@ from scipy import fft as sfft  # noqa: E402
 
 from pgvd.grid import Grid, rigid_matrix  # noqa: E402
 from pgvd.io import read_map  # noqa: E402
-from pgvd.merge import MergeParams, merge  # noqa: E402
+from pgvd.merge import merge  # noqa: E402
+from pgvd.params import MergeParams  # noqa: E402
 from pgvd.transform import warp  # noqa: E402
 
-# the submodule itself: the package attribute pgvd.merge is the function
-merge_module = importlib.import_module("pgvd.merge")
+# the module of the merge's stage clock
+merge_module = importlib.import_module("pgvd.result")
 
 STAGES = ("rotation", "coarsen", "pgvd", "graph", "gamma", "verify", "refine", "covariance")
 

@@ -38,7 +38,7 @@ import numpy as np
 from bench.data.pairs import MapPair, turn_about
 from bench.data.sets import FULL, build
 from bench.merge import CACHE, RESULTS, evaluate
-from pgvd.merge import MergeParams
+from pgvd.params import MergeParams
 from pgvd.verify import BASIN_DEG, BASIN_M, verify
 
 #: How far a wrong chain's shift puts B (m): farther than the check's basin, within a building.

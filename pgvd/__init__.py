@@ -36,8 +36,10 @@ Pictures
 
 The paper's blocks live in submodules, one concept per function:
 :mod:`pgvd.rotation` (10), :mod:`pgvd.uncertainty` (4)-(8), :mod:`pgvd.gvd`
-(13)-(24), :mod:`pgvd.graph` (Sec. IV-D, (25)), :mod:`pgvd.matching`
-(26)-(32), :mod:`pgvd.fusion` (33)-(37).
+(13)-(24), :mod:`pgvd.graph` (Sec. IV-D, (25)), :mod:`pgvd.edge_matching`
+(26)-(32), :mod:`pgvd.fusion` (33)-(37).  The merge's own stages (Fig. 1, and the
+verification the paper leaves to future work) are listed in :mod:`pgvd.merge`; its
+parameters, by stage, in :mod:`pgvd.params`.
 
 ``import pgvd`` loads none of them: each name above is imported from its
 submodule on first use (PEP 562), so a program that only reads a map does
@@ -73,9 +75,9 @@ _HOME = {
     "resample": "pgvd.transform",
     "union_canvas": "pgvd.transform",
     "warp": "pgvd.transform",
-    "MergeDiagnostics": "pgvd.merge",
-    "MergeParams": "pgvd.merge",
-    "MergeResult": "pgvd.merge",
+    "MergeDiagnostics": "pgvd.diagnostics",
+    "MergeParams": "pgvd.params",
+    "MergeResult": "pgvd.result",
     "merge": "pgvd.merge",
     "verify": "pgvd.verify",
     "compose_covariance": "pgvd.uncertainty",

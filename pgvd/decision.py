@@ -11,7 +11,7 @@ The decision here compares the winner with its rivals on the same pair.
 Every finalist hypothesis is refined and scored by the overlay evidence
 ``E = agree - w * disagree`` (walls on walls, walls on clear free space, both
 ways, on one subsample of wall cells, each few-metre square of the overlap
-re-aligned by a few cells first: :func:`pgvd.matching.local_agreement`).
+re-aligned by a few cells first: :func:`pgvd.agreement.local_agreement`).
 The *rival* is the best of the finalists whose pose differs from the
 winner's (a look-alike corridor, the other side of a symmetric building, a
 quarter turn) and of the winner shifted by a few metres (a corridor that
@@ -26,7 +26,7 @@ on all its wall cells, scored again (:func:`restate`).  The first term is a
 mean over the ``n`` walls of the overlap; the second lowers it by about its
 sampling error, so that a small overlap (a few hundred walls, whose margin
 swings most from one scoring to the next) must stand out more than a large
-one to pass the same threshold (``MergeParams.margin_noise``, measured there).
+one to pass the same threshold (``DecisionParams.margin_noise``, measured there).
 
 It scales with the evidence of the pair itself, not with fixed floors: a
 rival that scores as well as the winner drives its first term to 0 whatever
@@ -34,18 +34,15 @@ the size of the overlap (a look-alike corridor), while a small overlap whose
 every other pose is contradicted by the maps can pass however short it is.
 A rival with negative evidence (the maps contradict that pose) counts as no
 rival, evidence 0, the empty overlay: being contradicted less than a rival
-is no evidence for a pose.  Up to 0eb44ed a contradicted rival counted
-*for* the winner, and the margin hung on which rivals the search
-happened to find: with every candidate heading turned by 0.1 degree
-(``python -m bench.merge --methods pgvd pgvd-turned+0.1 pgvd-turned-0.1``,
-``bench/results/merge-turned.md`` at 0eb44ed) a disjoint willow pair, fr079
-against its mirror image and two wrong poses passed at margins 0.75-1.13,
-each with 5-16 % of its own walls on free space
-and its best rival at -23 to -657.  Scored as here, the largest margin of a
-wrong or negative winner is 0.53-0.54 in both turned runs, in the default
-one and in two more whose candidate headings moved (their finalists replayed
-with ``bench.redecide``).  The threshold is set on the development negatives
-of the merge bench (``bench/results/acceptance.md``).
+is no evidence for a pose, and a margin taken from a contradicted rival would
+hang on which rivals the search happened to find.  Scored so, the largest margin
+of a wrong or negative winner is 0.53-0.54 in the default run of the merge bench,
+in the two with every candidate heading turned by 0.1 degree either way
+(``python -m bench.merge --methods pgvd pgvd-turned+0.1 pgvd-turned-0.1``) and in
+two more whose candidate headings moved (their finalists replayed with
+``python3 -m bench redecide``).  The threshold is set on the
+development negatives of the merge bench (``bench/results/acceptance.md``);
+``docs/studies-merge-history.md`` has what scoring rivals otherwise accepted.
 """
 
 from __future__ import annotations
@@ -54,7 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pgvd.matching import Agreement
+from pgvd.overlay import Agreement
 
 
 @dataclass(frozen=True)
@@ -66,7 +63,7 @@ class Scored:
     matrix : numpy.ndarray
         3x3 B pixel -> A pixel.
     agreement : Agreement
-        Its overlay counts (:func:`pgvd.matching.map_agreement`) on a subsample.
+        Its overlay counts (:func:`pgvd.agreement.map_agreement`) on a subsample.
     """
 
     matrix: np.ndarray

@@ -133,7 +133,7 @@ def fuse_maps(
         3x3, B pixel -> A pixel.
     covariance : numpy.ndarray
         3x3 over ``(tx px, ty px, psi rad)`` of ``matrix`` read as eq. (1)
-        (``rigid_matrix(psi, tx, ty)``), eq. (3), as :class:`pgvd.merge.MergeResult`
+        (``rigid_matrix(psi, tx, ty)``), eq. (3), as :class:`pgvd.result.MergeResult`
         reports it.
     center : tuple of float, optional
         B pixel about which that heading error acts: eq. (1) rotates about

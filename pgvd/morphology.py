@@ -32,7 +32,7 @@ def grow_max(values: np.ndarray, cells: int = 1) -> np.ndarray:
 
     Cells beyond the edge do not count.  For non-negative values inside a
     zero border at least ``cells`` wide, as the edge sub-matrices of
-    :func:`pgvd.matching.similarity` are, this equals
+    :func:`pgvd.edge_matching.similarity` are, this equals
     ``scipy.ndimage.grey_dilation(values, size=2 cells + 1)``, at a fraction
     of its per-call cost on arrays of a few hundred cells.
 

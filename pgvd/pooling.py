@@ -1,13 +1,13 @@
 """Pooling a probability grid into blocks, and the pixel frames of pooled maps.
 
-The coarse search runs on maps pooled to ``MergeParams.coarse_resolution``
+The coarse search runs on maps pooled to ``SearchParams.coarse_resolution``
 (:func:`coarsen`, :func:`block_scale`).  The decision (finalists refined and
 scored, the acceptance margin, the covariance) runs on maps pooled to about
 :data:`REFERENCE_RESOLUTION`, the cell size every one of its distances in
 cells was set on (:func:`decision_pool`): a wall within 2 cells of the other
 map's agrees, and at 1.75 cm cells 2 cells are 3.5 cm, a stricter test than
 the 10 cm it is at 5 cm.  On 16 overlapping pairs of the intel and
-freiburg-079 logs mapped at each cell size (``python3 -m bench.resolution``), the
+freiburg-079 logs mapped at each cell size (``python3 -m bench resolution``), the
 decision at full resolution accepted 12/16 right at 1.75 cm and 14/16 at 2.5 cm,
 against 15/16 at 5 cm; pooled, 16/16 and 16/16, and none of 18 negatives at any
 cell size.  Counting its distances in metres instead accepted a disjoint intel

@@ -141,7 +141,7 @@ def _wall_box(*probs: np.ndarray, margin: int = 20) -> tuple[slice, slice]:
 def merge_figure(a: Grid, b: Grid, result: _Result, crop: bool = True) -> np.ndarray:
     """Overlay | PGVD of A | PGVD of B warped, on one canvas holding both maps, captioned.
 
-    ``result`` is a :class:`pgvd.merge.MergeResult` (matrix B px -> A px,
+    ``result`` is a :class:`pgvd.result.MergeResult` (matrix B px -> A px,
     diagnostics with ``pgvd_a``/``edges_a`` in A's frame and
     ``pgvd_b``/``edges_b`` in B's).  A rejected result is drawn with its
     best candidate transform when it has one, so a person sees why it failed.

@@ -27,7 +27,7 @@ from pgvd.sampling import subsample
 OCCUPIED = 0.65
 #: The Laplace variance of a correlation peak (``tau / -C''``) overstates the heading
 #: error: on the development pairs (intel and freiburg-079 log pairs, pairs cut from the
-#: development map images; ``python -m bench.acceptance``) the mean of ``(error /
+#: development map images; ``python3 -m bench acceptance``) the mean of ``(error /
 #: sigma)^2`` of the candidate nearest the truth was 0.11 with the raw variance.
 #: Scaling the variance by this makes it 1, so the heading sigma of eq. (10) matches
 #: the measured error of the rotation stage.

@@ -16,14 +16,14 @@ holds at most ``most`` wall cells, itself included.  A wall, even one a
 laser draws as a dotted line at a grazing angle, has wall cells every cell or
 two along it, so with a radius of 2 cells or more its cells have several
 neighbours in that square (the two end dots of a dotted wall may not); a lone
-cell or a pair has none.  With ``MergeParams.speckle_radius`` (``pgvd merge
+cell or a pair has none.  With ``OffParams.speckle_radius`` (``pgvd merge
 --despeckle``), registration reads speckle as unknown
-(:func:`pgvd.merge.registration_probability`); fusion keeps the map as drawn.  It is
+(:func:`pgvd.inputs.registration_probability`); fusion keeps the map as drawn.  It is
 off by default: a laser's own map holds lone cells that are real (far walls drawn as
 sparse dots, chair legs), and reading them as unknown loses pairs of the development
-bench (:class:`pgvd.merge.MergeParams`).  A merge that is rejected is tried once more
+bench (:class:`pgvd.params.MergeParams`).  A merge that is rejected is tried once more
 with speckle read as unknown when a map's lone wall cells are 0.4 % of its free cells or
-more (:func:`speckle_share`, ``MergeParams.speckle_retry``): more than most laser maps
+more (:func:`speckle_share`, ``ReadingParams.speckle_retry``): more than most laser maps
 have, as raw images with half a per cent of speckle do.
 """
 
@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: ``pgvd merge --despeckle``'s ``MergeParams.speckle_radius`` (m): 3 cells at 0.05 m, where
+#: ``pgvd merge --despeckle``'s ``OffParams.speckle_radius`` (m): 3 cells at 0.05 m, where
 #: a laser's dotted wall still has a dot every cell or two, and speckle at 0.5 % of the free
 #: cells has another within it about once in five.
 DESPECKLE_RADIUS = 0.15

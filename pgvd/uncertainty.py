@@ -409,7 +409,7 @@ def propagate(
     center : tuple of float, optional
         Rotation centre in B's pixels; default B's pixel origin, where
         eq. (1) with ``P1`` = B's pixel puts it (the convention of
-        ``matrix_to_pose`` and of :class:`pgvd.merge.MergeResult`).
+        ``matrix_to_pose`` and of :class:`pgvd.result.MergeResult`).
     cval : float, optional
         Value outside B (0 for log-odds, 0.5 for probabilities).
 

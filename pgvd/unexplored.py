@@ -15,10 +15,11 @@ wings, or a room the robot never entered stays free inside the hull: the rule
 under-restores, and never adds a wall.  A tighter rule was measured and not
 kept: free space that reaches the map's edge through cells over 1 m from
 every wall, alone or with the hull, gained painted pairs of the robots' own
-partial maps but lost map images or accepted negatives (README, "What still
-fails").  Registration applies it only to maps with (almost) no unknown cells
-(:func:`pgvd.merge.registration_probability`), which no SLAM map is: the maps
-the bench was tuned on are read exactly as before.
+partial maps but lost map images or accepted negatives (the project's
+``docs/studies.md``, "Map images: tried and not kept").  Registration applies it
+only to maps with (almost) no unknown cells
+(:func:`pgvd.inputs.registration_probability`), which no SLAM map is: the maps the
+bench was tuned on are read exactly as before.
 """
 
 from __future__ import annotations

@@ -7,27 +7,24 @@ to *find* it; only to *confirm* it.  :func:`verify` does the confirmation, at a 
 the cost:
 
 1. ``refine``: trimmed ICP of B's walls onto A's, started at the prediction
-   (:func:`pgvd.matching.refine`), then refined on all its walls as the merge's winner is
-   (:func:`pgvd.merge.decide_finalists`);
+   (:func:`pgvd.alignment.refine`), then refined on all its walls as the merge's winner is
+   (:func:`pgvd.scoring.decide_finalists`);
 2. ``basin``: the refinement must not have moved the prediction by more than
    :data:`BASIN_M` at B's wall centroid or :data:`BASIN_DEG` in heading.  A prediction
    that needed a larger correction was not a prediction of this transform, and ICP far
    from its start may have slid along a corridor to a look-alike place;
 3. ``verify``: the merge's own tests: the pose, refined on all its walls, must stand out
    from itself shifted by a few metres by the merge's ``min_margin`` (:mod:`pgvd.decision`,
-   :func:`pgvd.merge.weigh`, the same drift-tolerant evidence), and the overlay must pass
-   the merge's ``min_agreement`` and ``min_overlap``.  Up to f79e8fe a prediction also had
-   to meet fixed floors, an overlay agreement of 0.92 over 15 m of walls (the merge's
-   acceptance before its decision), and its pose was not refined further.  Checked at
-   the truth turned by N(0, 3 deg) and shifted by N(0, 0.5 m) along each axis, on every pair
-   of the merge bench (``python -m bench.verify``, ``bench/results/verify.md``), the
-   floors confirmed 55 of 86 standard, 8 of 48 low-overlap and 9 of 48 drifted pairs,
-   against 59, 18 and 14 now.  Either way
-   4 of the 656 checks confirmed a wrong pose: with the floors two mirror images (a map
-   against its mirror image, checked where the two look most alike), a drifted pair and
-   an intel pair refined off the truth; now three mirror images and the same drifted pair;
+   :func:`pgvd.scoring.weigh`, the same drift-tolerant evidence), and the overlay must pass
+   the merge's ``min_agreement`` and ``min_overlap``.  Checked at the truth turned by
+   N(0, 3 deg) and shifted by N(0, 0.5 m) along each axis, on every pair of the merge
+   bench (``python -m bench.verify``, ``bench/results/verify.md``), this confirms 59 of
+   86 standard, 18 of 48 low-overlap and 14 of 48 drifted pairs; 4 of the 656 checks
+   confirm a wrong pose (three mirror images, checked where a map and its mirror image
+   look most alike, and a drifted pair).  Fixed floors on the overlay were tried instead
+   (``docs/studies-merge-history.md``);
 4. ``covariance``: the merge's own, calibrated on real pairs
-   (:func:`pgvd.matching.pose_covariance`).
+   (:func:`pgvd.covariance.pose_covariance`).
 
 Maps finer than 3.4 cm are checked pooled to about 5 cm cells, as the merge decides
 (:mod:`pgvd.pooling`); the result is in the full maps' pixels.
@@ -42,24 +39,21 @@ A caller that asks both reads the maps once (:func:`pooled_maps`) and hands them
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from pgvd.agreement import map_agreement
+from pgvd.alignment import refine
+from pgvd.covariance import pose_covariance
 from pgvd.grid import Grid, finite_3x3, matrix_to_pose
-from pgvd.matching import WallMap, map_agreement, pose_covariance, refine
-from pgvd.merge import (
-    MergeParams,
-    MergeResult,
-    check_extent,
-    check_resolutions,
-    decide_finalists,
-    decision_map,
-    registration_probability,
-)
+from pgvd.inputs import check_extent, check_resolutions, registration_probability
 from pgvd.parallel import both
+from pgvd.params import MergeParams
 from pgvd.pooling import covariance_from_pooled, decision_pool, from_pooled, to_pooled
+from pgvd.result import MergeResult, StageClock, merge_result, rejected
+from pgvd.scoring import decide_finalists, decision_map, overlay_floors
+from pgvd.walls import WallMap
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
 BASIN_M = 1.0
@@ -80,7 +74,7 @@ def _check(predicted: np.ndarray) -> np.ndarray:
 
 def _check_pair(a: Grid, b: Grid, params: MergeParams) -> None:
     """``ValueError`` for maps of different cell sizes, or one too small to check
-    (:func:`pgvd.merge.check_extent`), before either is read."""
+    (:func:`pgvd.inputs.check_extent`), before either is read."""
     check_resolutions(a, b)
     for name, g in (("A", a), ("B", b)):
         check_extent(name, g, params)
@@ -116,7 +110,7 @@ def _left_basin(
 
 def wall_maps(a: Grid, b: Grid, params: MergeParams, pool: int = 1) -> tuple[WallMap, WallMap]:
     """A's and B's wall maps, each read as registration reads it
-    (:func:`pgvd.merge.registration_probability`) and pooled ``pool x pool``
+    (:func:`pgvd.inputs.registration_probability`) and pooled ``pool x pool``
     (:func:`pgvd.pooling.decision_pool`; 1: full resolution)."""
     return both(lambda g: decision_map(registration_probability(g, params), params, pool), a, b)
 
@@ -259,7 +253,7 @@ def verify(
         3x3 rigid matrix (eqs. (1)-(2)), B pixel -> A pixel, e.g. a chain of links composed.
     params : MergeParams, optional
         The merge's parameters: how it reads the maps (``occupied``, ``free``), its decision
-        (``min_margin`` and the evidence of :func:`pgvd.merge.score_hypothesis`) and its
+        (``min_margin`` and the evidence of :func:`pgvd.scoring.score_hypothesis`) and its
         floors (``min_agreement``, ``min_overlap``).
     maps : PooledMaps, optional
         :func:`pooled_maps` of ``a`` and ``b`` with ``params``, read here when None (pass
@@ -277,7 +271,7 @@ def verify(
     ------
     ValueError
         A prediction that is not a finite rigid 3x3 matrix, different resolutions, or a
-        map under three search cells a side (:func:`pgvd.merge.check_extent`).
+        map under three search cells a side (:func:`pgvd.inputs.check_extent`).
 
     References
     ----------
@@ -286,42 +280,20 @@ def verify(
     """
     params = params or MergeParams(diagnostics=False)
     m0 = _check(predicted)
-    t0 = last = time.perf_counter()
-    timings: dict[str, float] = {}
-
-    def lap(stage: str) -> None:
-        nonlocal last
-        now = time.perf_counter()
-        timings[stage] = timings.get(stage, 0.0) + 1e3 * (now - last)
-        last = now
-
-    def result(
-        accepted: bool,
-        reason: str,
-        m: np.ndarray,
-        score: float,
-        cov: np.ndarray,
-        margin: float = float("nan"),
-    ) -> MergeResult:
-        # m and cov are in the pooled maps' frame: brought back to the full maps' pixels
-        full = from_pooled(m, pool)
-        psi, tx, ty = matrix_to_pose(full)
-        cov = covariance_from_pooled(cov, m, pool)
-        timings["total"] = 1e3 * (time.perf_counter() - t0)
-        return MergeResult(
-            accepted, full, float(np.degrees(psi)), (tx, ty), cov, score, timings, reason,
-            margin=margin,
-        )  # fmt: skip
-
-    nan = np.full((3, 3), np.nan)
+    clock = StageClock(None)
     # checked on maps pooled to about 5 cm cells, as the merge decides (pgvd.pooling)
     maps = _held_or_read(a, b, params, maps)
     pool, res, fine_a, fine_b = maps.pool, maps.cell, maps.a, maps.b
+
+    def result(m: np.ndarray, score: float, why: str, margin: float = np.nan) -> MergeResult:
+        # m is in the pooled maps' frame: brought back to the full maps' pixels
+        return rejected(why, clock, from_pooled(m, pool), score, margin=margin)
+
     start = to_pooled(m0, pool)
     if len(fine_a.walls) < 10 or len(fine_b.walls) < 10:
-        return result(False, "a map has fewer than 10 wall cells", start, 0.0, nan)
+        return result(start, 0.0, "a map has fewer than 10 wall cells")
     matrix = refine(fine_a.tree, fine_b.walls, start)
-    lap("refine")
+    clock.lap("refine")
     margin = float("nan")
     # a prediction that ICP alone carries out of the basin is rejected before the decision,
     # which costs more; the decision's final refinement must keep the pose inside it too
@@ -330,24 +302,20 @@ def verify(
         _, decision, matrix = decide_finalists([matrix], fine_a, fine_b, params, res)
         margin = decision.margin
         why = _left_basin(start, matrix, fine_b.walls, res)
-    lap("verify")
+    clock.lap("verify")
     if why is not None:
-        return result(False, why, matrix, 0.0, nan, margin)
+        return result(matrix, 0.0, why, margin)
     agreement = map_agreement(fine_a, fine_b, matrix)
-    overlap_m = 0.5 * agreement.agree * res
-    lap("verify")
-    if agreement.ratio < params.min_agreement:
-        why = f"overlaid maps disagree: agreement {agreement.ratio:.2f} < {params.min_agreement}"
-        return result(False, why, matrix, agreement.ratio, nan, margin)
-    if overlap_m < params.min_overlap:
-        why = f"overlap too small: {overlap_m:.1f} m of agreeing walls < {params.min_overlap} m"
-        return result(False, why, matrix, agreement.ratio, nan, margin)
-    if margin < params.min_margin:
+    clock.lap("verify")
+    why = overlay_floors(agreement, res, params)
+    if why is None and margin < params.decision.min_margin:
         why = (
             f"the predicted pose does not stand out: margin {margin:.2f} < "
-            f"{params.min_margin} (best shifted pose {decision.rival:.0f})"
+            f"{params.decision.min_margin} (best shifted pose {decision.rival:.0f})"
         )
-        return result(False, why, matrix, agreement.ratio, nan, margin)
-    cov = pose_covariance(fine_a, fine_b, matrix, res)
-    lap("covariance")
-    return result(True, "accepted", matrix, agreement.ratio, cov, decision.margin)
+    if why is not None:
+        return result(matrix, agreement.ratio, why, margin)
+    cov = covariance_from_pooled(pose_covariance(fine_a, fine_b, matrix, res), matrix, pool)
+    clock.lap("covariance")
+    full = from_pooled(matrix, pool)
+    return merge_result(True, "accepted", clock, full, agreement.ratio, cov, margin=margin)

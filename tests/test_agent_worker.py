@@ -28,7 +28,8 @@ from agent.worker import (
 )
 from pgvd.grid import Grid, rigid_matrix, world_pose_to_pixel_matrix
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 
 
 def V(epoch: int, minor: int = 0) -> int:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bench.covariance import PAIRS_FILE, _covs, _targets_met, consistency, split
-from pgvd.matching import CALIBRATED
+from pgvd.covariance import CALIBRATED
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,9 @@ finalists."""
 from __future__ import annotations
 
 from bench.studies.evidence import assess, classify, markdown, truth_stays
-from pgvd.matching import Agreement
-from pgvd.merge import MergeParams, fine_maps
+from pgvd.overlay import Agreement
+from pgvd.params import MergeParams
+from pgvd.scoring import fine_maps
 
 
 def test_classify_orders_the_causes():

@@ -95,8 +95,7 @@ def test_pgvd_det_column_fails_loudly_without_its_switch(monkeypatch):
     class WithoutSwitch:
         diagnostics: bool = True
 
-    # the submodule: the attribute pgvd.merge is the function merge
-    monkeypatch.setattr(importlib.import_module("pgvd.merge"), "MergeParams", WithoutSwitch)
+    monkeypatch.setattr(importlib.import_module("pgvd.params"), "MergeParams", WithoutSwitch)
     with pytest.raises(TypeError, match="probabilistic"):
         methods()
 

@@ -15,7 +15,8 @@ from bench.studies.oracle import (
     true_finalist,
     with_truth,
 )
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 from pgvd.rotation import estimate_headings
 
 
@@ -39,7 +40,7 @@ def test_true_finalist_finds_the_supported_hypothesis_at_the_truth(intel_split):
     assert seen["coarse_err"] < 2.0 and seen["was_finalist"]
     assert evaluate(intel_split, result.accepted, result.matrix)["success"]
     # and the merge's private functions are restored afterwards
-    assert _MERGE_MODULE._finalists.__name__ == "_finalists"
+    assert _MERGE_MODULE.choose_finalists.__name__ == "choose_finalists"
 
 
 def test_search_misses_selects_pose_not_found_at_a_searched_heading():

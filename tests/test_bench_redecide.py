@@ -9,8 +9,9 @@ from bench.capture import Finalists
 from bench.studies.redecide import frontier, params_from, replay, split_margins, summary
 from pgvd.decision import Decision, Scored, margin_against
 from pgvd.io import read_map
-from pgvd.matching import Agreement
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.overlay import Agreement
+from pgvd.params import MergeParams
 
 
 def test_params_from_reads_each_field_as_its_type():

@@ -10,7 +10,7 @@ import numpy as np
 from bench.data.pairs import MapPair
 from bench.studies.spectra import draw, spectra
 from pgvd.io import read_map
-from pgvd.merge import MergeParams
+from pgvd.params import MergeParams
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -22,7 +22,8 @@ from bench.studies.truth_evidence import (
     table,
     truth_margin,
 )
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 
 
 def _rec(pair: str, set_: str, heading, margin, **kw) -> dict:

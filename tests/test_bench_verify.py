@@ -12,7 +12,7 @@ from bench.verify import (
     wall_centre,
 )
 from pgvd.grid import heading
-from pgvd.merge import MergeParams
+from pgvd.params import MergeParams
 
 
 def _where(pair, matrix: np.ndarray) -> tuple[float, float]:

@@ -5,11 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pgvd.agreement import local_agreement, map_agreement
+from pgvd.alignment import residual_distortion
 from pgvd.decision import Scored, decide, describe_rival, restate, same_pose, shifted
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
-from pgvd.matching import Agreement, WallMap, local_agreement, map_agreement, residual_distortion
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.overlay import Agreement
+from pgvd.params import MergeParams
+from pgvd.walls import WallMap
 
 WEIGHT = MergeParams().disagreement_weight
 

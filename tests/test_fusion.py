@@ -115,7 +115,8 @@ def test_fuse_maps_blurs_by_the_covariance(shared: Path) -> None:
 
 
 def test_propagation_does_work_with_a_calibrated_covariance(shared: Path) -> None:
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
 
     # two gmapping runs of one building: independently built maps, a real merge
     d = shared / "maps/fr079_albertB"

@@ -91,7 +91,7 @@ def test_pgvd_in_unit_interval_and_lower_where_contacts_are_uncertain():
 def test_pgvd_on_real_map_is_lower_at_frontiers(shared):
     from pgvd.gvd import free_space
     from pgvd.io import read_map
-    from pgvd.merge import coarsen
+    from pgvd.pooling import coarsen
 
     p = coarsen(read_map(shared / "maps/intel_split_gt/intel_partA.yaml").probability(), 4)
     s, sp = pgvd(p)

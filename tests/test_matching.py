@@ -8,26 +8,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from pgvd.agreement import map_agreement
+from pgvd.alignment import alignment_fit, refine, refine_point_to_line, residual_distortion
+from pgvd.covariance import calibrated_covariance
+from pgvd.edge_matching import EdgeCorrelator, PairSupport, rho_test, similarity
 from pgvd.graph import build_graph
 from pgvd.grid import rigid_matrix
 from pgvd.io import read_map
-from pgvd.matching import (
-    EdgeCorrelator,
-    MapView,
-    OverlayScores,
-    OverlayWeights,
-    PairSupport,
-    WallMap,
-    alignment_fit,
-    calibrated_covariance,
-    map_agreement,
-    refine,
-    refine_point_to_line,
-    residual_distortion,
-    rho_test,
-    similarity,
-)
-from pgvd.merge import coarsen
+from pgvd.overlay import MapView, OverlayScores, OverlayWeights
+from pgvd.pooling import coarsen
+from pgvd.walls import WallMap
 
 
 def _shapes(offset: tuple[int, int], shape=(80, 90)) -> np.ndarray:

@@ -10,8 +10,11 @@ import pytest
 from bench.mapimages import random_framed as _random_frame
 from bench.mapimages import thickened
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
+from pgvd.inputs import registration_probability
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, MergeResult, merge, registration_probability
+from pgvd.merge import merge
+from pgvd.params import MergeParams
+from pgvd.result import MergeResult
 from pgvd.rotation import estimate_headings
 from pgvd.transform import resample
 
@@ -75,7 +78,7 @@ def test_result_json_and_diagnostics(albert, shared):
     js = r.to_json()
     assert set(js) == {
         "accepted", "matrix", "rotation_deg", "translation_px", "covariance", "score",
-        "timings_ms", "reason", "margin", "distortion_px",
+        "timings_ms", "reason", "margin", "distortion_px", "candidate",
     }  # fmt: skip
     assert js["margin"] >= MergeParams().min_margin and js["distortion_px"] >= 0
     assert np.array(js["matrix"]).shape == (3, 3) and np.array(js["covariance"]).shape == (3, 3)

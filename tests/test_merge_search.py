@@ -7,9 +7,12 @@ import pytest
 
 from bench.capture import Finalists
 from pgvd.grid import Grid, heading, relative_matrix, rigid_matrix
+from pgvd.heading_search import known_box, with_refined
 from pgvd.io import read_map
-from pgvd.matching import MapView, OverlayScores, OverlayWeights
-from pgvd.merge import MergeParams, _known_box, _with_refined, coarsen, merge
+from pgvd.merge import merge
+from pgvd.overlay import MapView, OverlayScores, OverlayWeights
+from pgvd.params import MergeParams
+from pgvd.pooling import coarsen
 from pgvd.rotation import HeadingCandidate
 from pgvd.transform import warp
 
@@ -31,7 +34,7 @@ def intel_parts(shared):
     turned = warp(pb, turn, (side, side), order=0, cval=0.5)
     k = round(0.2 / a.resolution)
     ca = coarsen(a.probability(), k)
-    ca = ca[_known_box(ca)]
+    ca = ca[known_box(ca)]
     return ca, coarsen(turned, k), heading(truth @ np.linalg.inv(turn))
 
 
@@ -43,7 +46,7 @@ def _gap_deg(a: float, b: float) -> float:
 def test_a_candidate_a_few_degrees_off_is_refined_to_the_truth(intel_parts, off_deg):
     ca, cb, psi = intel_parts
     start = HeadingCandidate(psi + np.radians(off_deg), 1e-4, 0.9)
-    out = _with_refined([start], ca, cb, ON)
+    out = with_refined([start], ca, cb, ON)
     # the Radon candidate is kept, and the refined one is added within the 2 degrees of
     # heading recall (bench.studies.recall): 3 degree steps on 0.4 m cells place it no closer
     assert out[0] == start and len(out) == 2
@@ -54,9 +57,9 @@ def test_a_candidate_a_few_degrees_off_is_refined_to_the_truth(intel_parts, off_
 def test_a_candidate_at_the_truth_stays_and_span_zero_turns_the_refinement_off(intel_parts):
     ca, cb, psi = intel_parts
     right = HeadingCandidate(psi, 1e-4, 0.9)
-    assert _with_refined([right], ca, cb, ON) == [right]
+    assert with_refined([right], ca, cb, ON) == [right]
     off = HeadingCandidate(psi + np.radians(4.0), 1e-4, 0.9)
-    assert _with_refined([off], ca, cb, MergeParams(heading_span=0.0)) == [off]
+    assert with_refined([off], ca, cb, MergeParams(heading_span=0.0)) == [off]
 
 
 #: Where map312 is cut (fractions of its height): the parts share 15 % of it.
@@ -84,7 +87,7 @@ def test_free_space_and_heavier_conflicts_rank_a_small_true_overlap_first(shared
     # conflicts (MergeParams.search_conflict_weight's measurement).
     p = read_map(shared / "maps" / "fr079_albertB" / "map312.yaml").probability()
     c = coarsen(p, round(MergeParams().coarse_resolution / 0.05))
-    c = c[_known_box(c)]
+    c = c[known_box(c)]
     cut_a, cut_b = round(CUT_A * c.shape[0]), round(CUT_B * c.shape[0])
     overlay = OverlayScores(MapView(c[:cut_a], 0.65, 0.3, 1), free=True).overlay(
         MapView(c[cut_b:], 0.65, 0.3, 1)

@@ -34,7 +34,7 @@ def test_grow_equals_scipy_square_dilation(mask, cells):
     cells=st.integers(1, 3),
 )
 def test_grow_max_equals_scipy_grey_dilation_inside_a_zero_border(values, cells):
-    # the edge sub-matrices of pgvd.matching are padded by as many zeros as they grow
+    # the edge sub-matrices of pgvd.edge_matching are padded by as many zeros as they grow
     padded = np.pad(values, cells)
     expected = ndi.grey_dilation(padded, size=2 * cells + 1)
     assert np.array_equal(grow_max(padded, cells), expected)

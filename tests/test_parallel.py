@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
 from pgvd.parallel import both
+from pgvd.params import MergeParams
 from pgvd.speckle import DESPECKLE_RADIUS
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

@@ -11,8 +11,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from pgvd.grid import Grid, heading, rigid_matrix
+from pgvd.inputs import registration_probability
 from pgvd.io import read_map
-from pgvd.merge import MergeParams, fine_maps, merge, registration_probability
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 from pgvd.pooling import (
     block_scale,
     covariance_from_pooled,
@@ -20,6 +22,7 @@ from pgvd.pooling import (
     from_pooled,
     to_pooled,
 )
+from pgvd.scoring import fine_maps
 from pgvd.verify import pooled_maps, predicted_overlap, verify, wall_maps
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

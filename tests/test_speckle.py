@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from pgvd.grid import Grid
-from pgvd.merge import MergeParams, registration_probability
+from pgvd.inputs import registration_probability
+from pgvd.params import MergeParams
 from pgvd.speckle import DESPECKLE_RADIUS, lone_walls, radius_cells, speckle_share, without_speckle
 
 OCCUPIED = MergeParams().occupied

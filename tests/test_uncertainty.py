@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from pgvd.covariance import CovarianceModel
 from pgvd.grid import matrix_to_pose, rigid_matrix
-from pgvd.matching import CovarianceModel
 from pgvd.transform import warp
 from pgvd.uncertainty import (
     compose_covariance,
@@ -221,14 +221,15 @@ def test_rotation_blur_below_one_angle_bin_is_identity_not_a_crash() -> None:
 
 def _walls(shared_dir, name: str):
     from pgvd.io import read_map
-    from pgvd.matching import WallMap
+    from pgvd.walls import WallMap
 
     g = read_map(shared_dir / name)
     return g, WallMap(g.probability(), 0.65, 0.3)
 
 
 def test_calibrated_covariance_grows_with_fewer_supporting_walls(shared) -> None:
-    from pgvd.matching import alignment_fit, calibrated_covariance
+    from pgvd.alignment import alignment_fit
+    from pgvd.covariance import calibrated_covariance
 
     g, wm = _walls(shared, "maps/intel_split_gt/intel_partA.yaml")
     m = rigid_matrix(0.3, 40.0, -25.0)
@@ -251,7 +252,8 @@ def test_calibrated_covariance_grows_with_fewer_supporting_walls(shared) -> None
 
 
 def test_calibrated_covariance_floor_acts_about_the_matched_walls() -> None:
-    from pgvd.matching import AlignmentFit, calibrated_covariance
+    from pgvd.alignment import AlignmentFit
+    from pgvd.covariance import calibrated_covariance
 
     # no residual information at all: only the floor, about a centroid c of B's pixels
     c, psi0 = np.array([100.0, 40.0]), 0.3
@@ -273,7 +275,8 @@ def test_calibrated_covariance_floor_acts_about_the_matched_walls() -> None:
 
 
 def test_heading_scale_widens_the_heading_about_the_matched_walls(shared) -> None:
-    from pgvd.matching import alignment_fit, calibrated_covariance
+    from pgvd.alignment import alignment_fit
+    from pgvd.covariance import calibrated_covariance
 
     g, wm = _walls(shared, "maps/intel_split_gt/intel_partA.yaml")
     m = rigid_matrix(0.3, 40.0, -25.0)
@@ -303,7 +306,8 @@ def test_merge_covariance_is_consistent_on_real_pairs(shared) -> None:
     from bench.covariance import nees, pose_error
     from bench.data.pairs import make_pairs
     from pgvd.carmen import read_carmen
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
 
     scans = read_carmen(shared / "logs/intel-corrected.log.gz")
     # seed 3: none of these pairs is among those the constants were fitted on (seed 10)
@@ -326,7 +330,7 @@ def test_calibrated_constants_are_those_the_bench_fitted() -> None:
     import json
     from pathlib import Path
 
-    from pgvd.matching import CALIBRATED
+    from pgvd.covariance import CALIBRATED
 
     doc = json.loads(
         (Path(__file__).resolve().parents[1] / "bench/results/covariance.json").read_text()

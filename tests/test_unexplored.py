@@ -51,7 +51,8 @@ def test_restore_only_turns_free_cells_outside_the_hull_unknown(p):
 @given(maps, st.floats(0.0, 1.0))
 def test_registration_restores_only_maps_without_unknown_and_says_so(p, min_unknown):
     from pgvd.grid import Grid
-    from pgvd.merge import MergeParams, registration_probability
+    from pgvd.inputs import registration_probability
+    from pgvd.params import MergeParams
 
     grid = Grid.from_probability(p, 0.05)
     params = MergeParams(free=FREE, occupied=OCCUPIED, min_unknown=min_unknown)
@@ -83,7 +84,8 @@ def test_a_painted_map_image_merges_right_and_read_as_drawn_does_not(shared):
     from bench.mapimages import part_pairs
     from bench.merge import evaluate
     from pgvd.io import read_map
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
 
     p = read_map(shared / "maps" / "intel" / "intel.yaml").probability()
     (pair,) = part_pairs("intel", p, 1, np.random.default_rng(21))

@@ -14,7 +14,7 @@ from bench.data.pairs import make_pair
 from pgvd.carmen import read_carmen
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
-from pgvd.merge import MergeParams
+from pgvd.params import MergeParams
 from pgvd.transform import resample
 from pgvd.verify import BASIN_DEG, BASIN_M, basin_move, predicted_overlap, verify
 

@@ -38,7 +38,8 @@ from pgvd.io import (
 
 if TYPE_CHECKING:
     from agent.multimerge import ManyMerge
-    from pgvd.merge import MergeParams, MergeResult
+    from pgvd.params import MergeParams
+    from pgvd.result import MergeResult
 
 _MAP_SUFFIXES = (*YAML_SUFFIXES, ".npy")
 #: Largest ``--prior`` offset (m) of B's map frame from A's.
@@ -128,7 +129,7 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
 def _say_mostly_walls(named: list[tuple[str, Grid]]) -> None:
     """A note (stderr) for each map that is mostly walls, which is how an image that stores
     unknown space black reads: the merge is tried all the same, and likely rejected."""
-    from pgvd.merge import MergeParams
+    from pgvd.params import MergeParams
     from pgvd.unexplored import MOSTLY_WALLS, wall_share
 
     params = MergeParams()
@@ -230,7 +231,7 @@ def report(result: MergeResult, a: Grid, b: Grid, b_scale: np.ndarray | None) ->
 def _summary(result: MergeResult, doc: dict) -> str:
     total = doc["timings_ms"].get("total", float("nan"))
     if not result.accepted:
-        return f"no overlap: {result.reason} ({total:.0f} ms)"
+        return f"no overlap: {result.reason} ({total:.0f} ms)" + _rejected_pose(result, doc)
     psi, tx, ty = matrix_to_pose(np.asarray(result.matrix))
     sd = np.sqrt(np.clip(np.diag(np.asarray(result.covariance, dtype=float)), 0, None))
     frame = doc["map_frame"]
@@ -245,6 +246,20 @@ def _summary(result: MergeResult, doc: dict) -> str:
         f"translation ({tx:.1f}, {ty:.1f}) px (+-{sd[0]:.1f}, {sd[1]:.1f}), "
         f"score {result.score:.3f}, {total:.0f} ms; B's map frame in A's: "
         f"x {x} m, y {y} m, yaw {yaw} rad"
+    )
+
+
+def _rejected_pose(result: MergeResult, doc: dict) -> str:
+    """A second line for a rejection whose best pose reached the decision: that pose (B as
+    read from its file, as ``doc`` gives it), its margin, and whether it is a candidate (a
+    margin in the grey zone); empty when no pose reached the decision."""
+    if not math.isfinite(result.margin):
+        return ""
+    tx, ty = doc["translation_px"]
+    kind = "candidate pose (margin in the grey zone)" if result.candidate else "best pose"
+    return (
+        f"\n{kind}, not merged: rotation {doc['rotation_deg']:.2f} deg, translation "
+        f"({tx:.1f}, {ty:.1f}) px, margin {result.margin:.2f}"
     )
 
 
@@ -369,7 +384,8 @@ def run(args: argparse.Namespace) -> int:
     b = _read(args.b, args)
     # imported after the files are read: bad input is refused without loading scipy
     from pgvd.fusion import fuse_maps
-    from pgvd.merge import MergeParams, merge
+    from pgvd.merge import merge
+    from pgvd.params import MergeParams
     from pgvd.render import merge_figure
     from pgvd.transform import resample, scale_matrix
 

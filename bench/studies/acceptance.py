@@ -200,7 +200,7 @@ def chart(classes: dict[str, list[tuple[dict, float]]], threshold: float, path: 
 
 def write(records: list[dict], out: Path, source: str) -> str:
     """Write ``acceptance.md`` and ``acceptance.png`` to ``out``; returns the markdown."""
-    from pgvd.merge import MergeParams
+    from pgvd.params import MergeParams
 
     threshold = MergeParams().min_margin
     classes = margins(records)

@@ -1,6 +1,6 @@
 """The merge's reported covariance on the wide merge bench: is it consistent there too?
 
-The covariance (eq. (3), :func:`pgvd.matching.calibrated_covariance`) is calibrated by
+The covariance (eq. (3), :func:`pgvd.covariance.calibrated_covariance`) is calibrated by
 :mod:`bench.covariance` on pairs of the intel and freiburg-079 *logs* only.  This reads
 the pgvd records of a merge bench run (``merge.json``, :mod:`bench.merge`) and measures
 the covariance each accepted right pose reported against that pose's error: on the

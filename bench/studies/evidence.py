@@ -2,13 +2,13 @@
 
 For every overlapping pair of a merge-bench run that failed, the true pose and
 every wrong finalist are counted as the decision counts hypotheses
-(:func:`pgvd.merge.score_hypothesis`: walls on walls ``agree``, walls on clear
+(:func:`pgvd.scoring.score_hypothesis`: walls on walls ``agree``, walls on clear
 free space ``disagree``, both ways, each few-metre square re-aligned first), and
 the pair is put in one class:
 
 ``margin``     the returned pose is right, but it did not stand out (rejected);
 ``search``     with the truth among the finalists, the decision
-               (:func:`pgvd.merge.decide_finalists`: rivals, probes and the last
+               (:func:`pgvd.scoring.decide_finalists`: rivals, probes and the last
                refinement included) picks it, returns a right pose and accepts it:
                the search lost it;
 ``faint``      the decision picks the truth and returns a right pose, but it does not
@@ -22,7 +22,7 @@ the pair is put in one class:
                weighting of the two counts prefers the truth.
 
 Over every overlapping pair, failed or not, the report also counts those whose
-exact truth the merge's last refinement (:func:`pgvd.merge.final_refinement`)
+exact truth the merge's last refinement (:func:`pgvd.refinement.final_refinement`)
 moves out of the success bounds: where the two maps' best fit is not the truth
 within the bounds, no search or decision can succeed.
 
@@ -49,10 +49,14 @@ from bench.data.pairs import MapPair
 from bench.data.sets import FULL, build
 from bench.merge import CACHE, RESULTS, evaluate
 from bench.studies.redecide import decision_maps
-from pgvd.matching import Agreement, WallMap, refine
-from pgvd.merge import MergeParams, decide_finalists, final_refinement, score_hypothesis
+from pgvd.alignment import refine
+from pgvd.overlay import Agreement
+from pgvd.params import MergeParams
 from pgvd.pooling import decision_pool, from_pooled, to_pooled
+from pgvd.refinement import final_refinement
 from pgvd.sampling import subsample
+from pgvd.scoring import decide_finalists, score_hypothesis
+from pgvd.walls import WallMap
 
 CLASSES = ("margin", "search", "faint", "refinement", "weighting", "dominated")
 SETS = ("standard", "low", "drifted")

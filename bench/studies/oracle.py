@@ -39,7 +39,8 @@ from bench.merge import CACHE, RESULTS, evaluate
 from bench.studies.recall import nearest_gap
 from bench.tables import MAX_HEADING_DEG, mark
 from pgvd.grid import heading
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 from pgvd.pooling import block_scale, decision_pool, from_pooled
 from pgvd.rotation import HeadingCandidate, estimate_headings
 
@@ -71,7 +72,7 @@ def true_finalist(pair: MapPair, seen: dict) -> Iterator[None]:
     ``seen`` gets ``coarse_err`` (that hypothesis' mean cell error, in coarse
     cells) and ``was_finalist``.
     """
-    pick, decide = _MERGE_MODULE._finalists, _MERGE_MODULE._decide
+    pick, decide = _MERGE_MODULE.choose_finalists, _MERGE_MODULE.decide_hypotheses
     supported: list = []
 
     def finalists(good: list, params: MergeParams) -> list:
@@ -93,8 +94,8 @@ def true_finalist(pair: MapPair, seen: dict) -> Iterator[None]:
         return decide(chosen, fine_a, fine_b, to_fine, k, params, res)
 
     with (
-        mock.patch.object(_MERGE_MODULE, "_finalists", finalists),
-        mock.patch.object(_MERGE_MODULE, "_decide", decide_with_truth),
+        mock.patch.object(_MERGE_MODULE, "choose_finalists", finalists),
+        mock.patch.object(_MERGE_MODULE, "decide_hypotheses", decide_with_truth),
     ):
         yield
 

@@ -33,7 +33,8 @@ from pgvd.carmen import LaserScan, read_carmen
 from pgvd.fusion import fuse_maps
 from pgvd.grid import Grid, relative_matrix
 from pgvd.integrate import MapFrame, frame_for, integrate, select_segment
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 from pgvd.uncertainty import compose_covariance
 
 ROOT = Path(__file__).resolve().parents[2]

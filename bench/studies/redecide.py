@@ -4,7 +4,7 @@ The search of a merge (headings, PGVD, Gamma, rho) takes most of its time and
 does not depend on the decision.  The merge bench records, for every pgvd
 pair, the refined finalists that reached the decision (``finalists`` in
 ``merge.json``, :mod:`bench.capture`).  This replays only the decision,
-:func:`pgvd.merge.decide_finalists`, on them with the current code and
+:func:`pgvd.scoring.decide_finalists`, on them with the current code and
 ``MergeParams`` (fields overridden with ``--param``), so that a change of the
 scoring or of the threshold is measured on the whole bench in a fraction of
 its time.  With the code and parameters of the run it gives the run's margins.
@@ -44,9 +44,11 @@ from bench.merge import CACHE, RESULTS, evaluate
 from bench.tables import mark
 from pgvd.decision import margin_against
 from pgvd.grid import Grid
-from pgvd.matching import WallMap
-from pgvd.merge import MergeParams, decide_finalists, fine_maps, registration_probability
+from pgvd.inputs import registration_probability
+from pgvd.params import MergeParams
 from pgvd.pooling import decision_pool, from_pooled, to_pooled
+from pgvd.scoring import decide_finalists, fine_maps
+from pgvd.walls import WallMap
 
 SETS = ("standard", "low", "drifted", "negative")
 
@@ -60,7 +62,7 @@ def params_from(overrides: list[str]) -> MergeParams:
         An override without ``=``, an unknown field or a value its type refuses.
     """
     base = MergeParams(diagnostics=False)
-    fields = {f.name for f in dataclasses.fields(base)}
+    fields = set(MergeParams.field_names())
     changes: dict[str, object] = {}
     for item in overrides:
         name, sep, value = item.partition("=")
@@ -72,8 +74,8 @@ def params_from(overrides: list[str]) -> MergeParams:
 
 
 def decision_maps(a: Grid, b: Grid, params: MergeParams) -> tuple[WallMap, WallMap]:
-    """:func:`pgvd.merge.fine_maps` of two grids, each read and pooled as the merge reads
-    it (:func:`pgvd.merge.registration_probability`, :func:`pgvd.pooling.decision_pool`)."""
+    """:func:`pgvd.scoring.fine_maps` of two grids, each read and pooled as the merge reads
+    it (:func:`pgvd.inputs.registration_probability`, :func:`pgvd.pooling.decision_pool`)."""
     pa, pb = registration_probability(a, params), registration_probability(b, params)
     return fine_maps(pa, pb, params, decision_pool(a.resolution))
 

@@ -33,7 +33,8 @@ from bench.data.sets import cached
 from bench.data.sources import SHARED
 from bench.merge import CACHE, RESULTS, errors
 from pgvd.carmen import read_carmen
-from pgvd.merge import MergeParams, merge
+from pgvd.merge import merge
+from pgvd.params import MergeParams
 
 LOGS = {"intel": "intel-corrected.log.gz", "fr079": "freiburg-079-corrected.log.gz"}
 #: A right pose: within these of the truth (degrees; metres, mean over B's occupied cells).

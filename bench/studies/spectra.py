@@ -23,7 +23,8 @@ from bench.data.pairs import MapPair
 from bench.merge import CACHE, RESULTS
 from bench.show import find_pair
 from pgvd.grid import heading
-from pgvd.merge import MergeParams, registration_probability
+from pgvd.inputs import registration_probability
+from pgvd.params import MergeParams
 from pgvd.rotation import angle_spectrum, estimate_headings, spectrum_correlation
 
 

@@ -5,11 +5,11 @@ The merge accepts its winner when the margin over the best rival
 overlapping pair of the development bench is scored as the merge scores a
 winner: on the decision's maps (:func:`bench.studies.redecide.decision_maps`), each
 few-metre square of the overlap re-aligned for drift first
-(:func:`pgvd.merge.score_hypothesis`), against no rival at all (evidence 0,
+(:func:`pgvd.scoring.score_hypothesis`), against no rival at all (evidence 0,
 :func:`pgvd.decision.margin_against`: a rival only lowers the margin).  The
 poses scored are right ones (the bench's own test, :func:`bench.merge.evaluate`):
 a grid around the truth (:func:`around`), the merge's last refinement from the
-truth (:func:`pgvd.merge.final_refinement`), the run's own returned pose and
+truth (:func:`pgvd.refinement.final_refinement`), the run's own returned pose and
 refined finalists where they are right, and a pattern search of the statistic
 from the best of them (:func:`climb`).  The best margin found is a *sampled*
 maximum over the right poses, not a proof: a right pose elsewhere could score
@@ -56,9 +56,11 @@ from bench.studies.ceiling import groups, read_run
 from bench.studies.redecide import decision_maps, params_from
 from bench.tables import frac
 from pgvd.decision import margin_against
-from pgvd.matching import WallMap
-from pgvd.merge import MergeParams, final_refinement, score_hypothesis
+from pgvd.params import MergeParams
 from pgvd.pooling import decision_pool, from_pooled, to_pooled
+from pgvd.refinement import final_refinement
+from pgvd.scoring import score_hypothesis
+from pgvd.walls import WallMap
 
 #: Heading offsets (degrees) and shifts (cells of the decision's maps) of :func:`around`.
 HEADING_STEPS = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -112,7 +114,7 @@ class _Scorer:
         return bool(evaluate(self.pair, True, from_pooled(m, self.pool))["success"])
 
     def margin(self, m: np.ndarray) -> float:
-        """``margin_against`` of the pose scored by :func:`pgvd.merge.score_hypothesis`."""
+        """``margin_against`` of the pose scored by :func:`pgvd.scoring.score_hypothesis`."""
         res = self.pair.a.resolution * self.pool
         scored = score_hypothesis(m, self.fine_a, self.fine_b, self.params, res)
         return margin_against(
