@@ -64,6 +64,7 @@ from agent.status import (
     HostFacts,
     component_json,
     global_json,
+    globalmap_line,
     link_json,
     robots_json,
     versions_of,
@@ -263,7 +264,7 @@ class FleetNode:
             actions.append(Publish(key, data, "tiles-send" if i == 0 else None))
         actions.append(Publish(self.keys.manifest(self.me), manifest))
         self.counters.add("versions_published")
-        log.info("published own map v%d (%d tile messages)", version, len(tiles))
+        log.debug("published own map v%d (%d tile messages)", version, len(tiles))
         return actions
 
     def on_link(self, rec: LinkRecord, now: Instant) -> list[Action]:
@@ -282,6 +283,7 @@ class FleetNode:
         if own is not None and own.digest != self._own_digest:
             self._own_digest = own.digest
             actions.append(PersistGlobal(own))
+            log.info("%s settled=%s", globalmap_line(own), str(state.settled).lower())
         if state.settled and self.settled_at is None:
             self.settled_at = now.wall
         elif not state.settled:
@@ -432,7 +434,7 @@ class FleetNode:
             return []
         self.counters.add("maps_received")
         self.fetches.cancel(msg.robot)
-        log.info("map %s v%d received (%dx%d)", msg.robot, version, *grid.shape)
+        log.debug("map %s v%d received (%dx%d)", msg.robot, version, *grid.shape)
         return [PersistMap(msg.robot, StoredMap(version, grid)), Register()]
 
     def _publish_pending(self, now: Instant) -> list[Action]:

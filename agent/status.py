@@ -84,6 +84,17 @@ def global_json(own: Component | None) -> dict[str, object] | None:
     return {"anchor": own.anchor, "digest": own.digest, "members": list(own.members)}
 
 
+def globalmap_line(own: Component) -> str:
+    """A global map in one logfmt line: its anchor, robots, the links it used and those the
+    pose graph dropped around a cycle, and the start of its digest."""
+    used = ",".join(f"{a}/{b}" for a, b in own.used) or "none"
+    dropped = ",".join(f"{a}/{b}" for a, b in own.rejected) or "none"
+    return (
+        f"globalmap anchor={own.anchor} robots={','.join(own.members)} links={used} "
+        f"dropped={dropped} digest={own.digest[:12]}"
+    )
+
+
 def versions_of(components: Iterable[Component]) -> dict[str, int]:
     """``{robot: version}`` that went into ``components``."""
     return {r: v for c in components for r, v in c.versions.items()}

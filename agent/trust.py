@@ -1,0 +1,164 @@
+"""A link's lifecycle: accepted, candidate, confirmed, rejected, withdrawn.
+
+The merge decides one pair at one moment; a fleet sees more.  Its maps grow version by
+version, a right pose stays put and gains agreeing walls while a mirror or look-alike pose is
+contradicted as more of the building appears, and links close cycles.  So a pair is not
+simply accepted or rejected on its first decision:
+
+- **accepted**: the first decision clears the high bar, the merge's acceptance statistic
+  ``margin >= min_margin`` (:mod:`pgvd.decision`).  On the development bench no negative or
+  wrong winner reaches it (``python -m bench.studies.greyzone``).
+- **candidate**: the best pose sits in the *grey zone*, ``GREY_FLOOR <= margin < min_margin``:
+  right poses and mirror or look-alike ones both land there, and no threshold on one decision
+  separates them.  A candidate does not enter the global map.  It is checked again at its own
+  pose (:func:`pgvd.verify.verify`, ~0.05 s) at each new version of either map.
+- **confirmed**: a candidate that earned its place, and enters the global map, when
+
+  1. a re-check clears the high bar, or
+  2. its pose holds (:data:`HOLD_M`, :data:`HOLD_DEG`) with a margin that does not fall by
+     more than :data:`MARGIN_SLACK` on :data:`HOLDS_TO_CONFIRM` newer versions, or
+  3. it lies on a consistent cycle: accepted links, over triangles, already place its robots
+     where its pose does.
+
+  An accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the
+  same pose stays confirmed.
+- **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
+  contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold).
+- **withdrawn**: an accepted or confirmed link whose next epoch contradicts it: the global
+  map is rebuilt without it.
+
+The state travels in the link record (:class:`agent.links.LinkRecord`) and on the wire, so the
+global map stays a function of the maps and the link records (fleet invariant 2): whoever
+decided a state, every agent reads the same one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+ACCEPTED = "accepted"
+CANDIDATE = "candidate"
+CONFIRMED = "confirmed"
+REJECTED = "rejected"
+WITHDRAWN = "withdrawn"
+#: Every state a link record may have.
+STATES = (ACCEPTED, CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN)
+#: The states whose links enter the global map.
+IN_MAP = frozenset({ACCEPTED, CONFIRMED})
+
+#: Lowest margin of the grey zone: below it, on the development bench, almost no right pose
+#: is worth keeping (``bench/studies/greyzone.py`` prints the counts).
+GREY_FLOOR = 0.0
+#: A re-checked pose holds when it moved at most this far (3 cells of 5 cm) ...
+HOLD_M = 0.15
+#: ... and turned at most this much.
+HOLD_DEG = 2.0
+#: Newer versions on which a candidate's pose must hold before it is confirmed.
+HOLDS_TO_CONFIRM = 2
+#: How far a margin may fall from the last check's and still count as holding: a re-check
+#: refines the pose anew, and its margin wobbles by a few hundredths at a right pose.
+MARGIN_SLACK = 0.02
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A decision on a link: its ``state``, why, and how many re-checks its pose held."""
+
+    state: str
+    reason: str
+    holds: int = 0
+
+
+def in_grey_zone(margin: float | None, min_margin: float) -> bool:
+    """Whether ``margin`` lies in ``[GREY_FLOOR, min_margin)``."""
+    return margin is not None and bool(np.isfinite(margin)) and GREY_FLOOR <= margin < min_margin
+
+
+def pose_change(before: np.ndarray, after: np.ndarray, resolution: float) -> tuple[float, float]:
+    """How far B's map moved between two B-pixel -> A-pixel matrices: metres (of B's centre
+    of pixels at the origin) and degrees."""
+    step = np.linalg.inv(np.asarray(before, dtype=np.float64)) @ np.asarray(after, np.float64)
+    shift = float(np.hypot(step[0, 2], step[1, 2])) * resolution
+    turn = abs(float(np.degrees(np.arctan2(step[1, 0], step[0, 0]))))
+    return shift, turn
+
+
+def holds(before: np.ndarray, after: np.ndarray, resolution: float) -> bool:
+    """Whether the pose ``after`` is ``before`` within :data:`HOLD_M` and :data:`HOLD_DEG`."""
+    shift, turn = pose_change(before, after, resolution)
+    return shift <= HOLD_M and turn <= HOLD_DEG
+
+
+def _margin_text(margin: float | None) -> str:
+    return "none" if margin is None or not np.isfinite(margin) else f"{margin:.2f}"
+
+
+def first_verdict(
+    accepted: bool,
+    margin: float | None,
+    has_pose: bool,
+    reason: str,
+    min_margin: float,
+    previous: str | None = None,
+    held: bool = False,
+) -> Verdict:
+    """The state of a pair's first decision in its epochs.
+
+    Parameters
+    ----------
+    accepted : the merge or check accepted the pose (its margin cleared ``min_margin``).
+    margin : the acceptance statistic at the best pose, None or NaN when none was scored.
+    has_pose : the decision holds a finite rigid pose.
+    reason : the merge's or check's words.
+    min_margin : the high bar.
+    previous : the state of the pair's link of an earlier epoch, if any.
+    held : the pose is that earlier link's, within the hold (:func:`holds`).
+    """
+    was_in = previous in IN_MAP
+    m = _margin_text(margin)
+    if accepted:
+        return Verdict(ACCEPTED, f"margin {m} clears {min_margin}")
+    if has_pose and in_grey_zone(margin, min_margin):
+        if was_in and held:
+            return Verdict(CONFIRMED, f"held over a new epoch: margin {m} at the same pose")
+        if was_in:
+            return Verdict(WITHDRAWN, f"a new epoch moved the pose: margin {m} elsewhere")
+        return Verdict(CANDIDATE, f"grey zone: margin {m} below {min_margin}")
+    if was_in:
+        return Verdict(WITHDRAWN, f"contradicted by a new epoch: {reason or f'margin {m}'}")
+    return Verdict(REJECTED, reason or f"margin {m} below the grey zone")
+
+
+def recheck_verdict(
+    held_holds: int,
+    held_margin: float | None,
+    accepted: bool,
+    margin: float | None,
+    held: bool,
+    reason: str,
+    min_margin: float,
+) -> Verdict:
+    """A candidate re-checked at its pose on newer versions of its maps.
+
+    ``held_holds``, ``held_margin``: the candidate's count of holds and its last margin;
+    ``accepted``, ``margin``, ``held``: the re-check's outcome, its margin and whether the
+    refined pose stayed within the hold of the candidate's.
+    """
+    m = _margin_text(margin)
+    if accepted:  # the refined pose stands out on its own, held or not
+        return Verdict(CONFIRMED, f"re-check clears the bar: margin {m}", held_holds + 1)
+    if margin is None or not np.isfinite(margin) or margin < GREY_FLOOR:
+        return Verdict(REJECTED, f"contradicted: {reason or f'margin {m}'}", held_holds)
+    if not held:
+        return Verdict(REJECTED, f"contradicted: the pose moved (margin {m})", held_holds)
+    floor = -np.inf if held_margin is None else held_margin - MARGIN_SLACK
+    if margin < floor:
+        return Verdict(
+            CANDIDATE, f"margin fell: {m} < {_margin_text(held_margin)}", held_holds
+        )
+    n = held_holds + 1
+    if n >= HOLDS_TO_CONFIRM:
+        return Verdict(CONFIRMED, f"pose held on {n} newer versions: margin {m}", n)
+    return Verdict(CANDIDATE, f"pose held {n}/{HOLDS_TO_CONFIRM}: margin {m}", n)
