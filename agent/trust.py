@@ -71,6 +71,13 @@ class Verdict:
     holds: int = 0
 
 
+def clean_reason(text: str, limit: int = 400) -> str:
+    """``text`` as a link's reason travels (:class:`protocol.messages.LinkTrust`): printable
+    characters only, at most ``limit`` of them (an exception's text may hold newlines)."""
+    flat = "".join(c if c.isprintable() else " " for c in text)
+    return flat if len(flat) <= limit else flat[: limit - 3] + "..."
+
+
 def in_grey_zone(margin: float | None, min_margin: float) -> bool:
     """Whether ``margin`` lies in ``[GREY_FLOOR, min_margin)``."""
     return margin is not None and bool(np.isfinite(margin)) and GREY_FLOOR <= margin < min_margin

@@ -66,6 +66,7 @@ from agent.trust import (
     IN_MAP,
     REJECTED,
     Verdict,
+    clean_reason,
     first_verdict,
     holds,
     in_grey_zone,
@@ -689,7 +690,7 @@ class FusionWorker:
             score=res.score,
             state=verdict.state,
             margin=res.margin,
-            reason=verdict.reason,
+            reason=clean_reason(verdict.reason),
             holds=verdict.holds,
         )
         log.info("%s how=%s seconds=%.2f", rec.logfmt(), how, clock.elapsed()[0])
