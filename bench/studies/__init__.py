@@ -1,0 +1,1 @@
+"""Small derivations from bench results, each a script that prints its numbers."""
