@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pgvd.grid import Grid
+
 ACCEPTED = "accepted"
 CANDIDATE = "candidate"
 CONFIRMED = "confirmed"
@@ -83,18 +85,21 @@ def in_grey_zone(margin: float | None, min_margin: float) -> bool:
     return margin is not None and bool(np.isfinite(margin)) and GREY_FLOOR <= margin < min_margin
 
 
-def pose_change(before: np.ndarray, after: np.ndarray, resolution: float) -> tuple[float, float]:
-    """How far B's map moved between two B-pixel -> A-pixel matrices: metres (of B's centre
-    of pixels at the origin) and degrees."""
-    step = np.linalg.inv(np.asarray(before, dtype=np.float64)) @ np.asarray(after, np.float64)
-    shift = float(np.hypot(step[0, 2], step[1, 2])) * resolution
+def pose_change(before: np.ndarray, after: np.ndarray, b: Grid) -> tuple[float, float]:
+    """How far map ``b`` moved between two B-pixel -> A-pixel matrices: metres at the centre
+    of ``b`` (a turn about a far pixel origin would read as a shift) and degrees."""
+    centre = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0, 1.0])
+    before, after = np.asarray(before, np.float64), np.asarray(after, np.float64)
+    shift = float(np.hypot(*(after @ centre - before @ centre)[:2])) * b.resolution
+    step = np.linalg.inv(before) @ after
     turn = abs(float(np.degrees(np.arctan2(step[1, 0], step[0, 0]))))
     return shift, turn
 
 
-def holds(before: np.ndarray, after: np.ndarray, resolution: float) -> bool:
-    """Whether the pose ``after`` is ``before`` within :data:`HOLD_M` and :data:`HOLD_DEG`."""
-    shift, turn = pose_change(before, after, resolution)
+def holds(before: np.ndarray, after: np.ndarray, b: Grid) -> bool:
+    """Whether the pose ``after`` of map ``b`` is ``before`` within :data:`HOLD_M` and
+    :data:`HOLD_DEG`."""
+    shift, turn = pose_change(before, after, b)
     return shift <= HOLD_M and turn <= HOLD_DEG
 
 

@@ -613,7 +613,7 @@ class FusionWorker:
         """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`),
         confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
         previous = next((ln for ln in snap.links if ln.pair == (a, b)), None)
-        resolution = snap.maps[a][1].resolution
+        grid_b = snap.maps[b][1]
         verdict = first_verdict(
             res.accepted,
             res.margin,
@@ -621,7 +621,7 @@ class FusionWorker:
             res.reason,
             self.min_margin,
             None if previous is None else previous.state,
-            previous is not None and holds(previous.matrix, res.matrix, resolution),
+            previous is not None and holds(previous.matrix, res.matrix, grid_b),
         )
         if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
             m = f"{res.margin:.2f}"
@@ -638,8 +638,7 @@ class FusionWorker:
         if group is None or not _current_chain(snap, group):
             return False
         predicted = predict(chains.solved()[0], a, b)
-        resolution = snap.maps[a][1].resolution
-        return predicted is not None and holds(predicted, matrix, resolution)
+        return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
 
     def _recheck(self, snap: Snapshot, held: LinkRecord) -> None:
         """Check a candidate again at its pose on the newer versions of its maps
@@ -659,7 +658,7 @@ class FusionWorker:
             held.margin,
             res.accepted,
             res.margin,
-            holds(held.matrix, res.matrix, grid_a.resolution),
+            holds(held.matrix, res.matrix, grid_b),
             res.reason,
             self.min_margin,
         )
