@@ -66,6 +66,7 @@ from agent.status import (
     global_json,
     globalmap_line,
     link_json,
+    link_states,
     robots_json,
     versions_of,
 )
@@ -355,6 +356,7 @@ class FleetNode:
         versions = self.book.versions()
         comps = [] if glob is None else glob.components
         counters = self.counters.snapshot()
+        links = self.book.links()
         return {
             "robot": self.me,
             "fleet": self.opts.fleet,
@@ -365,7 +367,8 @@ class FleetNode:
             "own_version": versions.get(self.me),
             "last_update": self.last_update,
             "robots": robots_json(self.me, versions, self.alive),
-            "links": [link_json(rec, versions) for rec in self.book.links()],
+            "links": [link_json(rec, versions) for rec in links],
+            "link_states": link_states(links),
             "components": [component_json(c) for c in comps],
             "global": global_json(component_of(comps, self.me)),
             "settled": bool(glob and glob.settled and versions_of(comps) == versions),

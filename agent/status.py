@@ -13,6 +13,7 @@ import numpy as np
 
 from agent.globalmap import Component
 from agent.links import LinkRecord
+from agent.trust import STATES
 from pgvd.grid import heading
 
 
@@ -56,7 +57,22 @@ def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]
         "decided_by": rec.decided_by,
         # False for a link of older epochs that stands in while the current one is computed.
         "current": rec.current(versions),
+        # the lifecycle (agent.trust): accepted and confirmed links enter the global map
+        "state": rec.state,
+        "margin": None if rec.margin is None else round(rec.margin, 4),
+        "reason": rec.reason,
+        "holds": rec.holds,
+        "first_version_a": rec.first_a,
+        "first_version_b": rec.first_b,
     }
+
+
+def link_states(records: Iterable[LinkRecord]) -> dict[str, list[str]]:
+    """The pairs of the links held, ``a/b``, by lifecycle state (every state listed)."""
+    out: dict[str, list[str]] = {state: [] for state in STATES}
+    for rec in records:
+        out[rec.state].append(f"{rec.a}/{rec.b}")
+    return out
 
 
 def component_json(comp: Component) -> dict[str, object]:
