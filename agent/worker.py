@@ -76,7 +76,7 @@ from pgvd.grid import Grid
 from pgvd.posegraph import Solution, components, link_problem, solve, triangle_groups
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
-    from pgvd.merge import MergeParams
+    from pgvd.merge import MergeParams, MergeResult
     from pgvd.verify import PooledMaps
 
 log = logging.getLogger("pgvd.agent")
@@ -191,6 +191,15 @@ def _grey_covariance(
     return covariance_from_pooled(cov, pooled, maps.pool)
 
 
+def _usable_margin(res: MergeResult, params: MergeParams) -> float:
+    """The margin of a merge or check result as the lifecycle reads it (:mod:`agent.trust`):
+    NaN for a rejected pose whose overlay disagrees (agreement below ``min_agreement``), which
+    no later version may confirm however it stands out."""
+    if not res.accepted and res.score < params.min_agreement:
+        return float("nan")
+    return res.margin
+
+
 def _with_grey_covariance(
     res: Registration, a: Grid, b: Grid, params: MergeParams, maps: PooledMaps | None = None
 ) -> Registration:
@@ -214,8 +223,9 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
     def register(a: Grid, b: Grid) -> Registration:
         res = merge(a, b, params)
         out = _registration(
-            res.accepted, res.matrix, res.covariance, res.score, res.reason, res.margin
-        )
+            res.accepted, res.matrix, res.covariance, res.score, res.reason,
+            _usable_margin(res, params),
+        )  # fmt: skip
         return _with_grey_covariance(out, a, b, params)
 
     return register
@@ -254,7 +264,7 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         # NaN (B without walls) fails both comparisons: inconclusive
         if seen.shift_m <= BASIN_M and seen.turn_deg <= BASIN_DEG:
             out = _registration(False, res.matrix, res.covariance, res.score, res.reason,
-                                res.margin)  # fmt: skip
+                                _usable_margin(res, params))  # fmt: skip
             return _with_grey_covariance(out, a, b, params, maps)
         return None
 
