@@ -573,3 +573,30 @@ def test_the_status_shows_the_fleet_as_the_core_holds_it(crops) -> None:
     assert (shown["used"], shown["rejected"], shown["shape"]) == ([["r1", "r2"]], [], [256, 256])
     assert status["settled"] and status["settled_at"] == T0 + 1.0
     assert status["counts"]["maps_received"] == 1 and status["counts"]["links_received"] == 1
+
+
+def test_a_candidate_received_is_held_apart_in_the_status_and_served_with_its_state(
+    crops, caplog
+) -> None:
+    caplog.set_level("INFO", logger="pgvd.agent")
+    r1, r2 = node("r1"), node("r2")
+    publish(r1, crops[0], 0.0)
+    deliver(r1, publish(r2, crops[1], 0.0), 0.1)
+    versions = r1.book.versions()
+    grey = LinkRecord(
+        "r1", versions["r1"], "r2", versions["r2"], False, rigid_matrix(0.3, 5.0, -2.0),
+        np.diag([4.0, 4.0, 1e-4]), 0.8, "r2", state="candidate", margin=0.41,
+        reason="grey zone: margin 0.41 below 0.57",
+    )  # fmt: skip
+    assert r1.on_message("pgvd/lab/link/r1/r2", wire.encode_link("lab", grey, KEY), at(0.2))
+    status = r1.status(at(1.0), HOST)
+    assert status["link_states"]["candidate"] == ["r1/r2"]
+    assert status["link_states"]["accepted"] == [] == status["link_states"]["withdrawn"]
+    (shown,) = status["links"]
+    assert (shown["state"], shown["margin"], shown["accepted"]) == ("candidate", 0.41, False)
+    (served,) = wire_links(r1)
+    assert (served.state, served.margin, served.reason) == ("candidate", 0.41, grey.reason)
+    # a global map that changes is one line of the log
+    comp = component(versions, crops[0], "cd" * 32)
+    r1.on_global(GlobalState([comp], True, T0 + 1.0), at(1.0))
+    assert any(r.getMessage().startswith("globalmap anchor=r1 robots=") for r in caplog.records)
