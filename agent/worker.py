@@ -571,7 +571,8 @@ class FusionWorker:
         return self.link_timeout + mean * max(n_robots - 1, 0) / 2.0
 
     def _register(self, snap: Snapshot, key: LinkKey, may_defer: bool = False) -> None:
-        """Decide ``key``: at the known poses' prior, by the check, or by a full search.
+        """Decide ``key``: at the known poses' prior, by the check, or by a full search; a
+        candidate of older versions (:mod:`agent.trust`) is checked again at its pose.
 
         With ``may_defer``, a check's rejection that may not stand yet (:meth:`_checked`)
         puts the key back once, after the other checks due: the links those add may put
@@ -657,12 +658,16 @@ class FusionWorker:
         (va, grid_a), (vb, grid_b) = snap.maps[a], snap.maps[b]
         clock = _Clock.start()
         self.counters.add("rechecks")
+        why = "the pose left the check's basin"
         try:
-            res = None if self.check is None else self.check(grid_a, grid_b, held.matrix)
+            if self.check is None:  # an agent without checks cannot keep a candidate
+                res, why = None, "no check to re-check it with"
+            else:
+                res = self.check(grid_a, grid_b, held.matrix)
         except Exception as exc:  # bad maps: the candidate cannot hold
-            res = Registration(False, held.matrix, _REJECTED[1], 0.0, f"re-check failed: {exc}")
-        if res is None:  # the refined pose left the check's basin
-            res = Registration(False, held.matrix, _REJECTED[1], 0.0, "the pose left the basin")
+            res, why = None, f"re-check failed: {exc}"
+        if res is None:
+            res = Registration(False, held.matrix, _REJECTED[1], 0.0, why)
         verdict = recheck_verdict(
             held.holds,
             held.margin,
