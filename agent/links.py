@@ -55,7 +55,8 @@ class LinkRecord:
 
     The lifecycle (:mod:`agent.trust`): ``state`` is one of :data:`agent.trust.STATES`, and
     ``accepted`` is True exactly for the states that enter the global map.  ``first_a``,
-    ``first_b`` are the versions the pair was first decided on in these epochs, ``holds``
+    ``first_b`` are the versions the pair was first decided on in these epochs and
+    ``first_margin`` that decision's margin, ``holds``
     how many re-checks a candidate's pose held, and ``revision`` how many times the pair
     was re-decided in these epochs: a later revision supersedes (:func:`preference`).
     """
@@ -71,6 +72,7 @@ class LinkRecord:
     decided_by: str
     state: str = ""
     margin: float | None = None
+    first_margin: float | None = None
     reason: str = ""
     first_a: int = -1
     first_b: int = -1
@@ -86,8 +88,10 @@ class LinkRecord:
             raise ValueError(f"link state must be one of {trust.STATES}, got {self.state!r}")
         if bool(self.accepted) != (self.state in trust.IN_MAP):
             raise ValueError(f"a {self.state} link cannot have accepted={self.accepted}")
-        if self.margin is not None and not np.isfinite(self.margin):
-            raise ValueError("link margin must be finite or None")
+        for name in ("margin", "first_margin"):
+            value = getattr(self, name)
+            if value is not None and not np.isfinite(value):
+                raise ValueError(f"link {name} must be finite or None")
         for name, version in (("first_a", self.version_a), ("first_b", self.version_b)):
             first = getattr(self, name)
             object.__setattr__(self, name, version if first < 0 else int(first))
@@ -151,6 +155,7 @@ class LinkRecord:
             "decided_by": self.decided_by,
             "state": self.state,
             "margin": self.margin,
+            "first_margin": self.first_margin,
             "reason": self.reason,
             "first_a": self.first_a,
             "first_b": self.first_b,
@@ -175,6 +180,9 @@ class LinkRecord:
                 # absent from a links file of before the lifecycle: read as its outcome
                 state=str(obj.get("state", "")),
                 margin=None if obj.get("margin") is None else float(obj["margin"]),  # type: ignore[arg-type]
+                first_margin=(
+                    None if obj.get("first_margin") is None else float(obj["first_margin"])  # type: ignore[arg-type]
+                ),
                 reason=str(obj.get("reason", "")),
                 first_a=int(obj.get("first_a", -1)),  # type: ignore[arg-type]
                 first_b=int(obj.get("first_b", -1)),  # type: ignore[arg-type]

@@ -235,7 +235,8 @@ def encode_link(fleet: str, rec: LinkRecord, key: bytes | None) -> bytes:
         rec.covariance.tolist(),
         rec.score,
         LinkTrust(
-            rec.state, rec.margin, rec.reason, rec.first_a, rec.first_b, rec.holds, rec.revision
+            rec.state, rec.margin, rec.first_margin, rec.reason, rec.first_a, rec.first_b,
+            rec.holds, rec.revision,
         ),
     )
     return encode(msg, key)
@@ -272,6 +273,7 @@ def _lifecycle(trust: LinkTrust | None) -> dict[str, object]:
     return {
         "state": trust.state,
         "margin": trust.margin,
+        "first_margin": trust.first_margin,
         "reason": trust.reason,
         "first_a": trust.first_version_a,
         "first_b": trust.first_version_b,

@@ -671,6 +671,7 @@ class FusionWorker:
         verdict = recheck_verdict(
             held.holds,
             held.margin,
+            held.first_margin,
             res.accepted,
             res.margin,
             holds(held.matrix, res.matrix, grid_b),
@@ -704,6 +705,8 @@ class FusionWorker:
             score=res.score,
             state=verdict.state,
             margin=res.margin,
+            # a first decision's margin is the one its candidate's growth counts from
+            first_margin=base.first_margin if base.revision else res.margin,
             reason=clean_reason(verdict.reason),
             holds=verdict.holds,
         )

@@ -11,7 +11,8 @@ Messages (:mod:`protocol.messages`, frozen dataclasses)
     base_version=None, digest=None)`` (a delta manifest when base_version is set),
     ``Link(fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted,
     matrix 3x3, covariance 3x3, score, trust=None)``, ``trust`` a
-    ``LinkTrust(state, margin, reason, first_version_a, first_version_b, holds, revision)``
+    ``LinkTrust(state, margin, first_margin, reason, first_version_a, first_version_b, holds,
+    revision)``
     (None: a link of the older format, which the decoder still reads),
     ``Heartbeat(fleet, robot, seq, map_version=None)``,
     ``Status(fleet, robot, seq, counters: {str: int | float})``.

@@ -166,9 +166,9 @@ def _body(msg: Message) -> list[Any]:
 
 def _trust(trust: LinkTrust) -> list[Any]:
     """A link's lifecycle as the one trailing field of its body (older links have none)."""
-    margin = None if trust.margin is None else _compact(trust.margin)
+    margins = [None if m is None else _compact(m) for m in (trust.margin, trust.first_margin)]
     return [
-        trust.state, margin, trust.reason, trust.first_version_a, trust.first_version_b,
+        trust.state, *margins, trust.reason, trust.first_version_a, trust.first_version_b,
         trust.holds, trust.revision,
     ]  # fmt: skip
 
@@ -456,6 +456,7 @@ def _parse_trust(values: list[Any]) -> LinkTrust:
     out = LinkTrust(
         trust.take("state", str),
         trust.take("margin", (int, float), nullable=True),
+        trust.take("first_margin", (int, float), nullable=True),
         trust.take("reason", str),
         trust.take("first_version_a", int),
         trust.take("first_version_b", int),

@@ -348,6 +348,7 @@ class LinkTrust:
     ----------
     state : one of :data:`LINK_STATES`.
     margin : the acceptance statistic at the link's pose, None when none was scored.
+    first_margin : the margin of the pair's first decision in these epochs, None likewise.
     reason : why, in words (printable, at most :data:`MAX_REASON_LENGTH` characters).
     first_version_a, first_version_b : the versions the pair was first decided on in these
         epochs: no newer than the link's own.
@@ -357,6 +358,7 @@ class LinkTrust:
 
     state: str
     margin: float | None
+    first_margin: float | None
     reason: str
     first_version_a: int
     first_version_b: int
@@ -368,8 +370,10 @@ class LinkTrust:
             raise ProtocolError(
                 f"link state must be one of {LINK_STATES}, got {self.state!r}", reason="value"
             )
-        if self.margin is not None:
-            object.__setattr__(self, "margin", check_float(self.margin, "margin"))
+        for name in ("margin", "first_margin"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, check_float(value, name))
         if not isinstance(self.reason, str):
             raise ProtocolError("link reason must be a string", reason="schema")
         if len(self.reason) > MAX_REASON_LENGTH:

@@ -281,7 +281,8 @@ def test_a_candidate_of_older_versions_is_needed_again_and_its_recheck_supersede
 
 def test_a_links_file_of_before_the_lifecycle_reads_as_its_outcome() -> None:
     old = rec("r1", 1, "r2", 1, accepted=False).to_json()
-    for name in ("state", "margin", "reason", "first_a", "first_b", "holds", "revision"):
+    for name in ("state", "margin", "first_margin", "reason", "first_a", "first_b", "holds",
+                 "revision"):  # fmt: skip
         del old[name]
     (back,) = loads(json.dumps([old]))
     assert (back.state, back.revision, back.first_b) == ("rejected", 0, V(1))

@@ -49,18 +49,22 @@ def test_a_new_epoch_confirms_a_held_link_and_withdraws_a_contradicted_one() -> 
     assert trust.first_verdict(False, 0.3, True, "", bar, trust.REJECTED).state == trust.CANDIDATE
 
 
-def test_a_candidate_needs_its_pose_to_hold_twice_with_a_margin_that_does_not_fall() -> None:
+def test_a_candidate_needs_its_pose_to_hold_twice_and_its_margin_to_grow() -> None:
     bar = 0.57
-    one = trust.recheck_verdict(0, 0.37, False, 0.365, True, "", bar)
+    one = trust.recheck_verdict(0, 0.37, 0.37, False, 0.365, True, "", bar)
     assert (one.state, one.holds) == (trust.CANDIDATE, 1)
-    two = trust.recheck_verdict(1, 0.365, False, 0.53, True, "", bar)
+    two = trust.recheck_verdict(1, 0.365, 0.37, False, 0.53, True, "", bar)
     assert (two.state, two.holds) == (trust.CONFIRMED, 2)
-    fell = trust.recheck_verdict(1, 0.5, False, 0.3, True, "", bar)
+    # a look-alike's pose that holds with a flat margin stays a candidate
+    flat = trust.recheck_verdict(1, 0.24, 0.21, False, 0.24, True, "", bar)
+    assert (flat.state, flat.holds) == (trust.CANDIDATE, 2), flat
+    fell = trust.recheck_verdict(1, 0.5, 0.3, False, 0.3, True, "", bar)
     assert (fell.state, fell.holds) == (trust.CANDIDATE, 1)
-    assert trust.recheck_verdict(1, 0.3, False, 0.2, False, "", bar).state == trust.REJECTED
-    assert trust.recheck_verdict(1, 0.3, False, -0.05, True, "x", bar).state == trust.REJECTED
-    assert trust.recheck_verdict(0, 0.3, False, None, True, "", bar).state == trust.REJECTED
-    assert trust.recheck_verdict(0, 0.3, True, 0.6, False, "", bar).state == trust.CONFIRMED
+    assert trust.recheck_verdict(1, 0.3, 0.3, False, 0.2, False, "", bar).state == trust.REJECTED
+    dropped = trust.recheck_verdict(1, 0.3, 0.3, False, -0.05, True, "x", bar)
+    assert dropped.state == trust.REJECTED and dropped.reason == "contradicted: x"
+    assert trust.recheck_verdict(0, 0.3, 0.3, False, None, True, "", bar).state == trust.REJECTED
+    assert trust.recheck_verdict(0, 0.3, 0.3, True, 0.6, False, "", bar).state == trust.CONFIRMED
 
 
 def test_a_pose_holds_within_3_cells_and_2_degrees_at_the_maps_centre() -> None:

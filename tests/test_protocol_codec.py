@@ -107,7 +107,7 @@ def sample_messages() -> list:
         Manifest("fleet", "r1", 4, g, {1: 9}, base_version=3, digest=2**64 - 1),
         Link("fleet", "r1", "r1", "r2", 3, 4, True, np.eye(3), np.eye(3) * 0.5, 0.93),
         Link("fleet", "r1", "r1", "r2", 3, 4, False, np.eye(3), np.eye(3) * 0.5, 0.61,
-             LinkTrust("candidate", 0.41, "grey zone: margin 0.41 below 0.57", 2, 4, 1, 1)),
+             LinkTrust("candidate", 0.41, 0.3, "grey zone: margin 0.41 below 0.57", 2, 4, 1, 1)),
         Heartbeat("fleet", "r1", 17, 3),
         Status("fleet", "r1", 18, {"dropped": 2, "merge_ms": 12.5}),
     ]
@@ -168,12 +168,14 @@ reasons = st.text(
 
 
 @given(
-    va=versions, vb=versions, state=states, margin=st.none() | finite, reason=reasons,
+    va=versions, vb=versions, state=states, margin=st.none() | finite,
+    first=st.none() | finite, reason=reasons,
     back=st.tuples(st.integers(0, 2**40), st.integers(0, 2**40)),
     counts=st.tuples(st.integers(0, 2**32 - 1), st.integers(0, 2**32 - 1)),
 )  # fmt: skip
-def test_link_with_its_lifecycle_round_trips(va, vb, state, margin, reason, back, counts):
-    trust = LinkTrust(state, margin, reason, max(va - back[0], 0), max(vb - back[1], 0), *counts)
+def test_link_with_its_lifecycle_round_trips(va, vb, state, margin, first, reason, back, counts):
+    firsts = (max(va - back[0], 0), max(vb - back[1], 0))
+    trust = LinkTrust(state, margin, first, reason, *firsts, *counts)
     accepted = state in ("accepted", "confirmed")
     msg = Link("f", "r1", "r1", "r2", va, vb, accepted, np.eye(3), np.eye(3), 0.5, trust)
     assert decode(encode(msg, KEY), KEY) == msg
@@ -189,16 +191,17 @@ def test_a_link_of_the_older_format_is_read_without_a_lifecycle():
 @pytest.mark.parametrize(
     ("trust", "reason", "why"),
     [
-        (["maybe", 0.4, "", 3, 4, 0, 0], "value", "link state must be one of"),
-        (["candidate", 0.4, "", 3, 4, 0], "schema", "lacks field 'revision'"),
-        (["candidate", 0.4, "", 3, 4, 0, 0, 9], "schema", "1 unknown trailing fields"),
-        (["candidate", float("nan"), "", 3, 4, 0, 0], "value", "margin must be finite"),
-        (["candidate", 0.4, "x" * 401, 3, 4, 0, 0], "limit", "reason of 401 characters"),
-        (["candidate", 0.4, "a\nb", 3, 4, 0, 0], "value", "unprintable"),
-        (["candidate", 0.4, "", 5, 4, 0, 0], "value", "first versions are newer"),
-        (["candidate", 0.4, "", 3, 4, -1, 0], "value", "holds must be in"),
-        (["candidate", 0.4, "", 3, 4, 0, 2**32], "value", "revision must be <="),
-        (["accepted", 0.4, "", 3, 4, 0, 0], "value", "accepted link cannot have accepted=False"),
+        (["maybe", 0.4, None, "", 3, 4, 0, 0], "value", "link state must be one of"),
+        (["candidate", 0.4, None, "", 3, 4, 0], "schema", "lacks field 'revision'"),
+        (["candidate", 0.4, None, "", 3, 4, 0, 0, 9], "schema", "1 unknown trailing fields"),
+        (["candidate", float("nan"), None, "", 3, 4, 0, 0], "value", "margin must be finite"),
+        (["candidate", 0.4, float("inf"), "", 3, 4, 0, 0], "value", "first_margin must be"),
+        (["candidate", 0.4, None, "x" * 401, 3, 4, 0, 0], "limit", "reason of 401 characters"),
+        (["candidate", 0.4, None, "a\nb", 3, 4, 0, 0], "value", "unprintable"),
+        (["candidate", 0.4, None, "", 5, 4, 0, 0], "value", "first versions are newer"),
+        (["candidate", 0.4, None, "", 3, 4, -1, 0], "value", "holds must be in"),
+        (["candidate", 0.4, None, "", 3, 4, 0, 2**32], "value", "revision must be <="),
+        (["accepted", 0.4, None, "", 3, 4, 0, 0], "value", "accepted link cannot have"),
         ("candidate", "schema", "field 'trust' has the wrong type str"),
     ],
 )
