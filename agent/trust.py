@@ -26,8 +26,9 @@ simply accepted or rejected on its first decision:
   same pose stays confirmed.
 - **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
   contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold).
-- **withdrawn**: an accepted or confirmed link whose next epoch contradicts it: the global
-  map is rebuilt without it.
+- **withdrawn**: an accepted or confirmed link whose next epoch contradicts it (no pose, or a
+  margin below the grey zone): the global map is rebuilt without it.  A new epoch's pose in
+  the grey zone elsewhere is a candidate again.
 
 The state travels in the link record (:class:`agent.links.LinkRecord`) and on the wire, so the
 global map stays a function of the maps and the link records (fleet invariant 2): whoever
@@ -145,9 +146,10 @@ def first_verdict(
     if has_pose and in_grey_zone(margin, min_margin):
         if was_in and held:
             return Verdict(CONFIRMED, f"held over a new epoch: margin {m} at the same pose")
-        if was_in:
-            return Verdict(WITHDRAWN, f"a new epoch moved the pose: margin {m} elsewhere")
-        return Verdict(CANDIDATE, f"grey zone: margin {m} below {min_margin}")
+        # elsewhere than an earlier link: a canvas that moved shifts every pixel pose, so
+        # the new pose earns its place as any candidate does, re-checked at each version
+        moved = "; the earlier epoch's link moved" if was_in else ""
+        return Verdict(CANDIDATE, f"grey zone: margin {m} below {min_margin}{moved}")
     if was_in:
         return Verdict(WITHDRAWN, f"contradicted by a new epoch: {reason or f'margin {m}'}")
     return Verdict(REJECTED, reason or f"margin {m} below the grey zone")
