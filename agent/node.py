@@ -243,7 +243,8 @@ class FleetNode:
     ) -> list[Action]:
         """The own source's map changed: publish it when the change gate says it is due.
 
-        ``final`` marks the source's last map (published whatever the gate says); ``resume``
+        ``final`` marks the source's last map (published whatever the gate says, in a new
+        registration epoch); ``resume``
         is what the source needs to continue from this map after a restart.
         """
         self._pending = (grid, final, dict(resume or {}))
@@ -451,7 +452,10 @@ class FleetNode:
         held = self.book.map_of(self.me)
         try:
             sent = wire.on_the_wire(grid)
-            new_epoch = epoch_due(self._epoch_base, sent, self.opts.epoch_change)
+            # A source's last map always starts an epoch: peers cannot tell it is the last,
+            # and a pair rejected on an early version of this epoch is decided once more on
+            # the final maps (a candidate is re-checked at every version anyway).
+            new_epoch = final or epoch_due(self._epoch_base, sent, self.opts.epoch_change)
             version = next_version(None if held is None else held[0], now.wall, new_epoch)
             self._unsaved = self.outbound.encode(version, sent, held)
         except ProtocolError as exc:  # e.g. a map beyond the wire's limits: keep serving

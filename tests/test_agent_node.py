@@ -68,9 +68,10 @@ def crops(shared: Path) -> tuple[Grid, Grid]:
     )
 
 
-def publish(peer: FleetNode, grid: Grid, t: float) -> list[Publish]:
-    """``peer``'s next version of ``grid``: gated, persisted, then published."""
-    (persist,) = peer.on_source(grid, at(t), final=True)
+def publish(peer: FleetNode, grid: Grid, t: float, final: bool = True) -> list[Publish]:
+    """``peer``'s next version of ``grid``: gated (``final`` passes the gate, and starts an
+    epoch), persisted, then published."""
+    (persist,) = peer.on_source(grid, at(t), final=final)
     assert isinstance(persist, PersistMap) and persist.robot == peer.me
     return [
         a
@@ -385,16 +386,27 @@ def test_the_change_gate_holds_a_map_until_its_interval_passed(crops) -> None:
     assert any(isinstance(a, PersistMap) for a in r1.tick(at(1.0)))
 
 
+def ungated(robot: str) -> FleetNode:
+    """A node whose change gate lets every changed map through, final or not."""
+    return FleetNode(NodeOptions(robot, "lab", KEY, min_change=0.0, min_interval=0.0), at(0.0))
+
+
 def test_versions_start_a_new_epoch_only_when_the_map_changed_enough(crops) -> None:
-    r1 = node("r1")
-    v1 = _version(publish(r1, crops[0], 0.0))
+    r1 = ungated("r1")
+    v1 = _version(publish(r1, crops[0], 0.0, final=False))
     assert epoch_of(v1) == int(T0) and v1 & MINOR_MASK == 0
     lo = crops[0].logodds.copy()
     lo[:3, :3] = np.where(lo[:3, :3] > 0, -2.0, 2.0)  # 9 cells change: well under 15 %
-    v2 = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 2.0))
+    v2 = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 2.0, final=False))
     assert v2 == v1 + 1
-    v3 = _version(publish(r1, crops[1], 4.0))  # another part of the building
+    v3 = _version(publish(r1, crops[1], 4.0, final=False))  # another part of the building
     assert epoch_of(v3) == int(T0 + 4.0) and v3 & MINOR_MASK == 0
+    # the source's last map starts an epoch however little it changed: peers decide every
+    # pair of this robot once more on it
+    lo = crops[1].logodds.copy()
+    lo[:3, :3] = np.where(lo[:3, :3] > 0, -2.0, 2.0)
+    v4 = _version(publish(r1, Grid(lo, crops[1].resolution, crops[1].origin), 6.0))
+    assert epoch_of(v4) == int(T0 + 6.0) and v4 & MINOR_MASK == 0
 
 
 def _version(sent: list[Publish]) -> int:
@@ -403,7 +415,7 @@ def _version(sent: list[Publish]) -> int:
 
 def test_after_a_restart_the_own_map_is_served_and_versions_move_on(crops) -> None:
     old = (int(T0) + 100) << 31 | 5  # persisted by a run whose clock was ahead
-    r1 = node("r1")
+    r1 = ungated("r1")
     r1.restore({"r1": StoredMap(old, crops[0]), "r2": StoredMap(3 << 31, crops[1])}, [], at(0.0))
     assert r1.book.versions() == {"r1": old, "r2": 3 << 31}
     assert r1.answer_latest(None, None)[-1].key == f"pgvd/lab/latest/r1/{old}/m"
@@ -414,9 +426,9 @@ def test_after_a_restart_the_own_map_is_served_and_versions_move_on(crops) -> No
     # link of this robot be registered again.
     lo = crops[0].logodds.copy()
     lo[:3, :3] = np.where(lo[:3, :3] > 0, -2.0, 2.0)
-    minor = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 6.0))
+    minor = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 6.0, False))
     assert minor == old + 1
-    new = _version(publish(r1, crops[1], 8.0))  # another part of the building
+    new = _version(publish(r1, crops[1], 8.0, final=False))  # another part of the building
     assert epoch_of(new) == epoch_of(old) + 1  # a new epoch, and newer
 
 
