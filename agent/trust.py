@@ -19,13 +19,14 @@ simply accepted or rejected on its first decision:
      more than :data:`MARGIN_SLACK` on :data:`HOLDS_TO_CONFIRM` newer versions, and its
      margin grew by :data:`MARGIN_GAIN` since its first decision (a right pose gains
      agreeing walls; a look-alike or mirror pose that holds stays flat), or
-  3. it lies on a consistent cycle: accepted links, over triangles, already place its robots
-     where its pose does.
+  3. it lies on a consistent cycle: the accepted links of the current epochs already place
+     its robots where its pose does, within the hold.
 
   An accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the
   same pose stays confirmed.
 - **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
-  contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold).
+  contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold or out
+  of the check's basin).
 - **withdrawn**: an accepted or confirmed link whose next epoch contradicts it (no pose, or a
   margin below the grey zone): the global map is rebuilt without it.  A new epoch's pose in
   the grey zone elsewhere is a candidate again.
