@@ -219,11 +219,18 @@ class LinkCache:
             self.add(rec)
 
     def add(self, rec: LinkRecord) -> bool:
-        """Store ``rec``; True if it is the link now used for its key (it changed)."""
+        """Store ``rec``; True if it is the link now used for its key (it changed).
+
+        Only the latest revision's records of a key are kept: an earlier one is never
+        preferred again (:func:`preference`), and a candidate re-checked at every version
+        would otherwise pile up its history in memory, the links file and every joiner's
+        fetch.
+        """
         held = self._by_key.setdefault(rec.key, [])
-        if any(preference(r) == preference(rec) for r in held):
+        latest = max((r.revision for r in held), default=rec.revision)
+        if rec.revision < latest or any(preference(r) == preference(rec) for r in held):
             return False
-        held.append(rec)
+        held[:] = [r for r in held if r.revision == rec.revision] + [rec]
         return min(held, key=preference) is rec
 
     def get(self, key: LinkKey) -> LinkRecord | None:

@@ -277,6 +277,8 @@ def test_a_candidate_of_older_versions_is_needed_again_and_its_recheck_supersede
     assert cache.get(("r1", 1, "r2", 1)).holds == 1
     assert needed_keys({"r1": V(1), "r2": V(1, 1)}, cache) == []
     assert not cache.add(candidate(0, 0, by="r0"))  # an older revision does not come back
+    # and only the latest revision is held: a candidate's history does not pile up
+    assert [r.revision for r in cache.candidates()] == [1]
 
 
 def test_a_links_file_of_before_the_lifecycle_reads_as_its_outcome() -> None:
