@@ -8,10 +8,14 @@ are therefore keyed by ``(a, epoch_a, b, epoch_b)``: "new pair or changed enough
 exactly "no link for the current epochs yet", and a robot mapping continuously costs a
 registration per epoch, not per version.
 
+A pair whose best pose landed in the grey zone is a *candidate* (:mod:`agent.trust`): its
+key is needed again at each new version of either map (:func:`stale_candidate`), and each
+re-check is a record of the same key with newer versions and a higher ``revision``.
+
 Two agents may register the same key (a timeout, a partition), possibly on different
 minor versions; every agent keeps all candidates and uses the same one
-(:meth:`LinkCache.get`: least ``decided_by``, then versions), so agents that have seen
-the same links agree.
+(:meth:`LinkCache.get`: latest revision, then least ``decided_by``, then versions), so
+agents that have seen the same links agree.
 
 To bound CPU on a small machine, one agent of the pair (:func:`first_registrar`) registers
 it first; the other robot's agent steps in after ``timeout`` and any third agent after
