@@ -64,7 +64,6 @@ from agent.trust import (
     CANDIDATE,
     CONFIRMED,
     IN_MAP,
-    REJECTED,
     Verdict,
     clean_reason,
     first_verdict,
@@ -170,8 +169,8 @@ def _registration(
     if not (accepted and has_pose and np.isfinite(cov).all()):
         why = reason if reason and not accepted else "no finite pose or covariance"
         pose = matrix if has_pose else _REJECTED[0]
-        return Registration(False, pose, cov if np.isfinite(cov).all() else _REJECTED[1],
-                            score, why, margin)  # fmt: skip
+        known = cov if np.isfinite(cov).all() else _REJECTED[1]
+        return Registration(False, pose, known, score, why, margin)
     return Registration(True, matrix, cov, score, reason, margin)
 
 
@@ -222,10 +221,10 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
 
     def register(a: Grid, b: Grid) -> Registration:
         res = merge(a, b, params)
+        margin = _usable_margin(res, params)
         out = _registration(
-            res.accepted, res.matrix, res.covariance, res.score, res.reason,
-            _usable_margin(res, params),
-        )  # fmt: skip
+            res.accepted, res.matrix, res.covariance, res.score, res.reason, margin
+        )
         return _with_grey_covariance(out, a, b, params)
 
     return register
@@ -263,8 +262,8 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
             return Registration(False, np.asarray(predicted, np.float64), _REJECTED[1], 0.0, why)
         # NaN (B without walls) fails both comparisons: inconclusive
         if seen.shift_m <= BASIN_M and seen.turn_deg <= BASIN_DEG:
-            out = _registration(False, res.matrix, res.covariance, res.score, res.reason,
-                                _usable_margin(res, params))  # fmt: skip
+            margin = _usable_margin(res, params)
+            out = _registration(False, res.matrix, res.covariance, res.score, res.reason, margin)
             return _with_grey_covariance(out, a, b, params, maps)
         return None
 
@@ -608,8 +607,8 @@ class FusionWorker:
         self.merges += 1
         self.merge_seconds += clock.elapsed()[0]
         verdict = self._first_verdict(snap, a, b, res)
-        self._record(LinkRecord(a, va, b, vb, False, res.matrix, res.covariance, res.score,
-                                self.me, REJECTED), res, verdict, how, clock)  # fmt: skip
+        base = LinkRecord(a, va, b, vb, False, res.matrix, res.covariance, res.score, self.me)
+        self._record(base, res, verdict, how, clock)
         if how == "searched" and res.accepted:
             self._carry_forward(a, va, b, vb, res.matrix)
 
@@ -679,10 +678,10 @@ class FusionWorker:
             self.min_margin,
         )
         if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
-            verdict = Verdict(CONFIRMED, f"on a cycle of accepted links: {verdict.reason}",
-                              verdict.holds)  # fmt: skip
-        base = replace(held, version_a=va, version_b=vb, decided_by=self.me,
-                       revision=held.revision + 1)  # fmt: skip
+            why = f"on a cycle of accepted links: {verdict.reason}"
+            verdict = Verdict(CONFIRMED, why, verdict.holds)
+        revision = held.revision + 1
+        base = replace(held, version_a=va, version_b=vb, decided_by=self.me, revision=revision)
         self._record(base, res, verdict, "rechecked", clock)
 
     def _record(
