@@ -369,7 +369,7 @@ class FleetNode:
             "last_update": self.last_update,
             "robots": robots_json(self.me, versions, self.alive),
             "links": [link_json(rec, versions) for rec in links],
-            "link_states": link_states(links),
+            "link_states": link_states(links, versions),
             "components": [component_json(c) for c in comps],
             "global": global_json(component_of(comps, self.me)),
             "settled": bool(glob and glob.settled and versions_of(comps) == versions),

@@ -67,11 +67,15 @@ def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]
     }
 
 
-def link_states(records: Iterable[LinkRecord]) -> dict[str, list[str]]:
-    """The pairs of the links held, ``a/b``, by lifecycle state (every state listed)."""
+def link_states(
+    records: Iterable[LinkRecord], versions: Mapping[str, int]
+) -> dict[str, list[str]]:
+    """The pairs, ``a/b``, of the links of the current epochs of ``versions`` by lifecycle
+    state (every state listed): an older epoch's link standing in is in ``links`` only."""
     out: dict[str, list[str]] = {state: [] for state in STATES}
     for rec in records:
-        out[rec.state].append(f"{rec.a}/{rec.b}")
+        if rec.current(versions):
+            out[rec.state].append(f"{rec.a}/{rec.b}")
     return out
 
 
