@@ -98,9 +98,10 @@ def _state(link: dict) -> str:
 
 
 def _states(links: list[dict]) -> str:
-    """How many links are in each state, those in the global map first."""
+    """How many links of the current epochs are in each state, those in the map first."""
     order = ("accepted", "confirmed", "candidate", "withdrawn", "rejected")
-    counts = {state: sum(_state(ln) == state for ln in links) for state in order}
+    current = [ln for ln in links if ln.get("current", True)]
+    counts = {state: sum(_state(ln) == state for ln in current) for state in order}
     return ", ".join(f"{n} {state}" for state, n in counts.items() if n) or "none"
 
 
