@@ -118,4 +118,5 @@ class FleetBook:
             versions = {r: v for r, (v, _) in maps.items()}
             chosen, settled = select_links(versions, self._links)
             needed = needed_keys(versions, self._links)
-            return Snapshot(maps, chosen, settled, needed, self._alive)
+            # a candidate waiting for its re-check may still enter the map: not settled
+            return Snapshot(maps, chosen, settled and not needed, needed, self._alive)

@@ -8,10 +8,14 @@ are therefore keyed by ``(a, epoch_a, b, epoch_b)``: "new pair or changed enough
 exactly "no link for the current epochs yet", and a robot mapping continuously costs a
 registration per epoch, not per version.
 
+A pair whose best pose landed in the grey zone is a *candidate* (:mod:`agent.trust`): its
+key is needed again at each new version of either map (:func:`stale_candidate`), and each
+re-check is a record of the same key with newer versions and a higher ``revision``.
+
 Two agents may register the same key (a timeout, a partition), possibly on different
 minor versions; every agent keeps all candidates and uses the same one
-(:meth:`LinkCache.get`: least ``decided_by``, then versions), so agents that have seen
-the same links agree.
+(:meth:`LinkCache.get`: latest revision, then least ``decided_by``, then versions), so
+agents that have seen the same links agree.
 
 To bound CPU on a small machine, one agent of the pair (:func:`first_registrar`) registers
 it first; the other robot's agent steps in after ``timeout`` and any third agent after
@@ -27,6 +31,8 @@ from functools import cached_property
 
 import numpy as np
 
+from agent import trust
+
 #: ``(a, epoch_a, b, epoch_b)``.
 LinkKey = tuple[str, int, str, int]
 #: Bits of a version below its epoch.
@@ -38,12 +44,25 @@ def epoch_of(version: int) -> int:
     return int(version) >> EPOCH_SHIFT
 
 
+def version_text(version: int) -> str:
+    """A version as ``epoch.minor``, as the logs show it."""
+    return f"{epoch_of(version)}.{int(version) & ((1 << EPOCH_SHIFT) - 1)}"
+
+
 @dataclass(frozen=True)
 class LinkRecord:
     """A decided pair: ``matrix`` maps pixels of ``b``'s map to pixels of ``a``'s (a < b).
 
     ``covariance`` is 3x3 over (x px, y px, psi rad) as in ``pgvd merge --json``.
-    A rejected pair (``accepted`` False) is recorded too, so nobody recomputes it.
+    A rejected pair (``accepted`` False) is recorded too, so nobody recomputes it, with its
+    best pose (identity only when the decision found none), ``margin`` and ``reason``.
+
+    The lifecycle (:mod:`agent.trust`): ``state`` is one of :data:`agent.trust.STATES`, and
+    ``accepted`` is True exactly for the states that enter the global map.  ``first_a``,
+    ``first_b`` are the versions the pair was first decided on in these epochs and
+    ``first_margin`` that decision's margin, ``holds``
+    how many re-checks a candidate's pose held, and ``revision`` how many times the pair
+    was re-decided in these epochs: a later revision supersedes (:func:`preference`).
     """
 
     a: str
@@ -55,10 +74,35 @@ class LinkRecord:
     covariance: np.ndarray
     score: float
     decided_by: str
+    state: str = ""
+    margin: float | None = None
+    first_margin: float | None = None
+    reason: str = ""
+    first_a: int = -1
+    first_b: int = -1
+    holds: int = 0
+    revision: int = 0
 
     def __post_init__(self) -> None:
         if not self.a < self.b:
             raise ValueError(f"a link is stored with a < b, got {self.a!r}, {self.b!r}")
+        if not self.state:  # a record of before the lifecycle: its outcome says it all
+            object.__setattr__(self, "state", trust.ACCEPTED if self.accepted else trust.REJECTED)
+        if self.state not in trust.STATES:
+            raise ValueError(f"link state must be one of {trust.STATES}, got {self.state!r}")
+        if bool(self.accepted) != (self.state in trust.IN_MAP):
+            raise ValueError(f"a {self.state} link cannot have accepted={self.accepted}")
+        for name in ("margin", "first_margin"):
+            value = getattr(self, name)
+            if value is not None and not np.isfinite(value):
+                raise ValueError(f"link {name} must be finite or None")
+        for name, version in (("first_a", self.version_a), ("first_b", self.version_b)):
+            first = getattr(self, name)
+            object.__setattr__(self, name, version if first < 0 else int(first))
+            if getattr(self, name) > version:
+                raise ValueError(f"link {name} is newer than the version decided on")
+        if self.holds < 0 or self.revision < 0:
+            raise ValueError("link holds and revision must be >= 0")
         for name in ("matrix", "covariance"):
             value = np.asarray(getattr(self, name), dtype=np.float64)
             if value.shape != (3, 3) or not np.isfinite(value).all():
@@ -84,6 +128,17 @@ class LinkRecord:
     def pair(self) -> tuple[str, str]:
         return (self.a, self.b)
 
+    def logfmt(self) -> str:
+        """The decision as one logfmt line (``key=value``; quoted where it has spaces), for
+        the agent's log: versions as ``epoch.minor``."""
+        margin = "none" if self.margin is None else f"{self.margin:.2f}"
+        reason = self.reason.replace("\\", "/").replace('"', "'")
+        return (
+            f"link pair={self.a}/{self.b} versions={version_text(self.version_a)}/"
+            f"{version_text(self.version_b)} outcome={self.state} margin={margin} "
+            f'holds={self.holds} by={self.decided_by} reason="{reason}"'
+        )
+
     @cached_property
     def json_text(self) -> str:
         """:meth:`to_json` as one line of JSON, made once: a record never changes, and an
@@ -102,6 +157,14 @@ class LinkRecord:
             "covariance": self.covariance.tolist(),
             "score": self.score,
             "decided_by": self.decided_by,
+            "state": self.state,
+            "margin": self.margin,
+            "first_margin": self.first_margin,
+            "reason": self.reason,
+            "first_a": self.first_a,
+            "first_b": self.first_b,
+            "holds": self.holds,
+            "revision": self.revision,
         }
 
     @classmethod
@@ -118,6 +181,17 @@ class LinkRecord:
                 covariance=np.asarray(obj["covariance"], dtype=np.float64),
                 score=float(obj["score"]),  # type: ignore[arg-type]
                 decided_by=str(obj["decided_by"]),
+                # absent from a links file of before the lifecycle: read as its outcome
+                state=str(obj.get("state", "")),
+                margin=None if obj.get("margin") is None else float(obj["margin"]),  # type: ignore[arg-type]
+                first_margin=(
+                    None if obj.get("first_margin") is None else float(obj["first_margin"])  # type: ignore[arg-type]
+                ),
+                reason=str(obj.get("reason", "")),
+                first_a=int(obj.get("first_a", -1)),  # type: ignore[arg-type]
+                first_b=int(obj.get("first_b", -1)),  # type: ignore[arg-type]
+                holds=int(obj.get("holds", 0)),  # type: ignore[arg-type]
+                revision=int(obj.get("revision", 0)),  # type: ignore[arg-type]
             )
         except (KeyError, TypeError) as exc:
             raise ValueError(f"malformed link record: {exc}") from None
@@ -128,14 +202,16 @@ def _bits(values: object) -> bytes:
     return (np.asarray(values, dtype=np.float64) + 0.0).tobytes()
 
 
-def preference(rec: LinkRecord) -> tuple[str, int, int, bool, bytes, bytes, bytes]:
-    """The order in which the candidates of one key are preferred: who decided, on which
-    versions, then the decision itself. The order is total, so that agents holding the same
-    candidates use the same one whatever order they came in: one robot can decide a pair
-    twice on the same versions (after a crash lost its links file, or after it was forgotten
-    and came back) and reach another matrix the second time."""
+def preference(rec: LinkRecord) -> tuple[object, ...]:
+    """The order in which the candidates of one key are preferred: the latest revision (a
+    re-decision supersedes what it re-decided), who decided, on which versions, then the
+    decision itself. The order is total, so that agents holding the same candidates use the
+    same one whatever order they came in: one robot can decide a pair twice on the same
+    versions (after a crash lost its links file, or after it was forgotten and came back)
+    and reach another matrix the second time."""
     content = (not rec.accepted, _bits(rec.matrix), _bits(rec.covariance), _bits(rec.score))
-    return (rec.decided_by, rec.version_a, rec.version_b, *content)
+    lifecycle = (rec.state, _bits(-1.0 if rec.margin is None else rec.margin), rec.holds)
+    return (-rec.revision, rec.decided_by, rec.version_a, rec.version_b, *content, *lifecycle)
 
 
 class LinkCache:
@@ -147,11 +223,18 @@ class LinkCache:
             self.add(rec)
 
     def add(self, rec: LinkRecord) -> bool:
-        """Store ``rec``; True if it is the link now used for its key (it changed)."""
+        """Store ``rec``; True if it is the link now used for its key (it changed).
+
+        Only the latest revision's records of a key are kept: an earlier one is never
+        preferred again (:func:`preference`), and a candidate re-checked at every version
+        would otherwise pile up its history in memory, the links file and every joiner's
+        fetch.
+        """
         held = self._by_key.setdefault(rec.key, [])
-        if any(preference(r) == preference(rec) for r in held):
+        latest = max((r.revision for r in held), default=rec.revision)
+        if rec.revision < latest or any(preference(r) == preference(rec) for r in held):
             return False
-        held.append(rec)
+        held[:] = [r for r in held if r.revision == rec.revision] + [rec]
         return min(held, key=preference) is rec
 
     def get(self, key: LinkKey) -> LinkRecord | None:
@@ -197,14 +280,26 @@ class LinkCache:
         self._by_key = keep
 
 
+def stale_candidate(rec: LinkRecord | None, versions: Mapping[str, int]) -> bool:
+    """Whether ``rec`` is a candidate (:mod:`agent.trust`) decided on older versions than
+    ``versions``: it is checked again at each new version of either map."""
+    return (
+        rec is not None
+        and rec.state == trust.CANDIDATE
+        and (rec.version_a, rec.version_b) != (versions.get(rec.a), versions.get(rec.b))
+    )
+
+
 def needed_keys(versions: Mapping[str, int], cache: LinkCache) -> list[LinkKey]:
-    """Keys of the current epochs of every pair of robots that no link covers yet."""
+    """Keys of the current epochs of every pair of robots that no link covers yet, or whose
+    link is a candidate of older versions (:func:`stale_candidate`)."""
     robots = sorted(versions)
     keys = []
     for i, a in enumerate(robots):
         for b in robots[i + 1 :]:
             key = (a, epoch_of(versions[a]), b, epoch_of(versions[b]))
-            if cache.get(key) is None:
+            held = cache.get(key)
+            if held is None or stale_candidate(held, versions):
                 keys.append(key)
     return keys
 

@@ -64,7 +64,9 @@ from agent.status import (
     HostFacts,
     component_json,
     global_json,
+    globalmap_line,
     link_json,
+    link_states,
     robots_json,
     versions_of,
 )
@@ -241,7 +243,8 @@ class FleetNode:
     ) -> list[Action]:
         """The own source's map changed: publish it when the change gate says it is due.
 
-        ``final`` marks the source's last map (published whatever the gate says); ``resume``
+        ``final`` marks the source's last map (published whatever the gate says, in a new
+        registration epoch); ``resume``
         is what the source needs to continue from this map after a restart.
         """
         self._pending = (grid, final, dict(resume or {}))
@@ -263,7 +266,7 @@ class FleetNode:
             actions.append(Publish(key, data, "tiles-send" if i == 0 else None))
         actions.append(Publish(self.keys.manifest(self.me), manifest))
         self.counters.add("versions_published")
-        log.info("published own map v%d (%d tile messages)", version, len(tiles))
+        log.debug("published own map v%d (%d tile messages)", version, len(tiles))
         return actions
 
     def on_link(self, rec: LinkRecord, now: Instant) -> list[Action]:
@@ -282,6 +285,7 @@ class FleetNode:
         if own is not None and own.digest != self._own_digest:
             self._own_digest = own.digest
             actions.append(PersistGlobal(own))
+            log.info("%s settled=%s", globalmap_line(own), str(state.settled).lower())
         if state.settled and self.settled_at is None:
             self.settled_at = now.wall
         elif not state.settled:
@@ -353,6 +357,7 @@ class FleetNode:
         versions = self.book.versions()
         comps = [] if glob is None else glob.components
         counters = self.counters.snapshot()
+        links = self.book.links()
         return {
             "robot": self.me,
             "fleet": self.opts.fleet,
@@ -363,7 +368,8 @@ class FleetNode:
             "own_version": versions.get(self.me),
             "last_update": self.last_update,
             "robots": robots_json(self.me, versions, self.alive),
-            "links": [link_json(rec, versions) for rec in self.book.links()],
+            "links": [link_json(rec, versions) for rec in links],
+            "link_states": link_states(links, versions),
             "components": [component_json(c) for c in comps],
             "global": global_json(component_of(comps, self.me)),
             "settled": bool(glob and glob.settled and versions_of(comps) == versions),
@@ -432,7 +438,7 @@ class FleetNode:
             return []
         self.counters.add("maps_received")
         self.fetches.cancel(msg.robot)
-        log.info("map %s v%d received (%dx%d)", msg.robot, version, *grid.shape)
+        log.debug("map %s v%d received (%dx%d)", msg.robot, version, *grid.shape)
         return [PersistMap(msg.robot, StoredMap(version, grid)), Register()]
 
     def _publish_pending(self, now: Instant) -> list[Action]:
@@ -446,7 +452,10 @@ class FleetNode:
         held = self.book.map_of(self.me)
         try:
             sent = wire.on_the_wire(grid)
-            new_epoch = epoch_due(self._epoch_base, sent, self.opts.epoch_change)
+            # A source's last map always starts an epoch: peers cannot tell it is the last,
+            # and a pair rejected on an early version of this epoch is decided once more on
+            # the final maps (a candidate is re-checked at every version anyway).
+            new_epoch = final or epoch_due(self._epoch_base, sent, self.opts.epoch_change)
             version = next_version(None if held is None else held[0], now.wall, new_epoch)
             self._unsaved = self.outbound.encode(version, sent, held)
         except ProtocolError as exc:  # e.g. a map beyond the wire's limits: keep serving

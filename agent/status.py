@@ -13,6 +13,7 @@ import numpy as np
 
 from agent.globalmap import Component
 from agent.links import LinkRecord
+from agent.trust import STATES
 from pgvd.grid import heading
 
 
@@ -56,7 +57,24 @@ def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]
         "decided_by": rec.decided_by,
         # False for a link of older epochs that stands in while the current one is computed.
         "current": rec.current(versions),
+        # the lifecycle (agent.trust): accepted and confirmed links enter the global map
+        "state": rec.state,
+        "margin": None if rec.margin is None else round(rec.margin, 4),
+        "reason": rec.reason,
+        "holds": rec.holds,
+        "first_version_a": rec.first_a,
+        "first_version_b": rec.first_b,
     }
+
+
+def link_states(records: Iterable[LinkRecord], versions: Mapping[str, int]) -> dict[str, list[str]]:
+    """The pairs, ``a/b``, of the links of the current epochs of ``versions`` by lifecycle
+    state (every state listed): an older epoch's link standing in is in ``links`` only."""
+    out: dict[str, list[str]] = {state: [] for state in STATES}
+    for rec in records:
+        if rec.current(versions):
+            out[rec.state].append(f"{rec.a}/{rec.b}")
+    return out
 
 
 def component_json(comp: Component) -> dict[str, object]:
@@ -82,6 +100,17 @@ def global_json(own: Component | None) -> dict[str, object] | None:
     if own is None:
         return None
     return {"anchor": own.anchor, "digest": own.digest, "members": list(own.members)}
+
+
+def globalmap_line(own: Component) -> str:
+    """A global map in one logfmt line: its anchor, robots, the links it used and those the
+    pose graph dropped around a cycle, and the start of its digest."""
+    used = ",".join(f"{a}/{b}" for a, b in own.used) or "none"
+    dropped = ",".join(f"{a}/{b}" for a, b in own.rejected) or "none"
+    return (
+        f"globalmap anchor={own.anchor} robots={','.join(own.members)} links={used} "
+        f"dropped={dropped} digest={own.digest[:12]}"
+    )
 
 
 def versions_of(components: Iterable[Component]) -> dict[str, int]:

@@ -87,6 +87,13 @@ _LINK = {
     "score": _is_num,
     "rotation_deg": _is_num,
 }
+#: A link's lifecycle (:mod:`agent.trust`): absent from the status of an older agent.
+_LINK_LIFECYCLE = {
+    "state": _is_str,
+    "margin": _maybe(_is_num),
+    "reason": _is_str,
+    "holds": _is_int,
+}
 
 
 def check_status(obj: object) -> dict:
@@ -108,6 +115,7 @@ def check_status(obj: object) -> dict:
         if not isinstance(link, dict) or set(_LINK) - set(link):
             raise ValueError(f"links[{i}] lacks fields")
         _require(link, f"links[{i}].", _LINK)
+        _require(link, f"links[{i}].", _LINK_LIFECYCLE)
     if not all(_is_str(k) and _is_int(v) for k, v in obj.get("drops", {}).items()):
         raise ValueError("drops must map reasons to counts")
     return obj

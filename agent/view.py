@@ -6,7 +6,9 @@ Three channels, in the ROS conventions those viewers already render:
   0 free, -1 unknown; rows from the map's lowest, as in a ROS OccupancyGrid), placed at the
   map's origin in the merged frame; pick the Grid's "map" colour mode;
 - ``/tf``: ``foxglove.FrameTransforms`` from the merged frame to each robot's map frame;
-- ``/pgvd/links``: JSON, one entry per link with its robots, state and score.
+- ``/pgvd/links``: JSON, one entry per link with its robots, score and lifecycle state
+  (``accepted``, ``candidate``, ``confirmed``, ``rejected``, ``withdrawn``, with its margin
+  and reason: :func:`agent.status.link_json`), so a candidate kept out of the map shows apart.
 
 The server keeps no history, so :meth:`FoxgloveView.show` is called again at the view's rate:
 a viewer that connects late sees the fleet on the next call.

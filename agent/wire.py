@@ -20,6 +20,7 @@ from pgvd.uncertainty import check_covariance
 from protocol import (
     Limits,
     Link,
+    LinkTrust,
     Manifest,
     MapReassembler,
     MapTiles,
@@ -233,6 +234,16 @@ def encode_link(fleet: str, rec: LinkRecord, key: bytes | None) -> bytes:
         rec.matrix.tolist(),
         rec.covariance.tolist(),
         rec.score,
+        LinkTrust(
+            rec.state,
+            rec.margin,
+            rec.first_margin,
+            rec.reason,
+            rec.first_a,
+            rec.first_b,
+            rec.holds,
+            rec.revision,
+        ),
     )
     return encode(msg, key)
 
@@ -256,4 +267,22 @@ def link_record(msg: Link) -> LinkRecord:
         covariance,
         msg.score,
         msg.decided_by,
+        **_lifecycle(msg.trust),
     )
+
+
+def _lifecycle(trust: LinkTrust | None) -> dict[str, object]:
+    """A received link's lifecycle as :class:`agent.links.LinkRecord` fields; a link of the
+    older format has none, and its record reads its state from its outcome."""
+    if trust is None:
+        return {}
+    return {
+        "state": trust.state,
+        "margin": trust.margin,
+        "first_margin": trust.first_margin,
+        "reason": trust.reason,
+        "first_a": trust.first_version_a,
+        "first_b": trust.first_version_b,
+        "holds": trust.holds,
+        "revision": trust.revision,
+    }

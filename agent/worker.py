@@ -49,14 +49,35 @@ import numpy as np
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
 from agent.globalmap import Component, FuseFn, Soundness, build_components, usable_links
-from agent.links import LinkKey, LinkRecord, due_keys, epoch_of, open_keys, preference
+from agent.links import (
+    LinkKey,
+    LinkRecord,
+    due_keys,
+    epoch_of,
+    open_keys,
+    preference,
+    stale_candidate,
+)
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
+from agent.trust import (
+    CANDIDATE,
+    CONFIRMED,
+    IN_MAP,
+    Verdict,
+    clean_reason,
+    first_verdict,
+    holds,
+    in_grey_zone,
+    recheck_verdict,
+)
 from pgvd.grid import Grid
-from pgvd.posegraph import Solution, components, solve, triangle_groups
+from pgvd.posegraph import Solution, components, link_problem, solve, triangle_groups
 
 if TYPE_CHECKING:  # the merge loads scipy; the worker imports it only when it runs
     from pgvd.params import MergeParams
+    from pgvd.result import MergeResult
+    from pgvd.verify import PooledMaps
 
 log = logging.getLogger("pgvd.agent")
 
@@ -74,6 +95,8 @@ class Registration:
     covariance: np.ndarray
     score: float
     reason: str = ""
+    #: the acceptance statistic at ``matrix`` (:mod:`pgvd.decision`); None when unscored
+    margin: float | None = None
 
     @property
     def rejection(self) -> str:
@@ -94,7 +117,7 @@ PREVIEW_SHARE = 0.05
 #: The share while a round of registrations only re-places the maps of the last rebuild (no
 #: map changed since), or every pair still needed is a check: the settled map is that close.
 CHECKS_PREVIEW_SHARE = PREVIEW_SHARE / 4
-#: What a rejection records: its transform means nothing; finite for the wire.
+#: What a rejection without a pose records: finite for the wire.
 _REJECTED = (np.eye(3), np.zeros((3, 3)))
 
 
@@ -127,16 +150,63 @@ def _merge_params(min_agreement: float | None) -> MergeParams:
 
 
 def _registration(
-    accepted: bool, matrix: np.ndarray, cov: np.ndarray, score: float, reason: str = ""
+    accepted: bool,
+    matrix: np.ndarray,
+    cov: np.ndarray,
+    score: float,
+    reason: str = "",
+    margin: float | None = None,
 ) -> Registration:
-    """A merge or check result as a :class:`Registration`, finite whatever happened."""
+    """A merge or check result as a :class:`Registration`, finite whatever happened.
+
+    A rejection keeps its best pose (and a covariance, if finite): a grey-zone candidate
+    (:mod:`agent.trust`) is checked again there, and the log says where it was.
+    """
     matrix = np.asarray(matrix, dtype=np.float64)
     cov = np.asarray(cov, dtype=np.float64)
     score = float(score) if np.isfinite(score) else 0.0
-    if not (accepted and np.isfinite(matrix).all() and np.isfinite(cov).all()):
+    margin = float(margin) if margin is not None and np.isfinite(margin) else None
+    has_pose = np.isfinite(matrix).all()
+    if not (accepted and has_pose and np.isfinite(cov).all()):
         why = reason if reason and not accepted else "no finite pose or covariance"
-        return Registration(False, *_REJECTED, score, why)
-    return Registration(True, matrix, cov, score, reason)
+        pose = matrix if has_pose else _REJECTED[0]
+        known = cov if np.isfinite(cov).all() else _REJECTED[1]
+        return Registration(False, pose, known, score, why, margin)
+    return Registration(True, matrix, cov, score, reason, margin)
+
+
+def _grey_covariance(
+    a: Grid, b: Grid, matrix: np.ndarray, params: MergeParams, maps: PooledMaps | None = None
+) -> np.ndarray:
+    """The covariance (3) a grey-zone pose would have had, were it accepted
+    (:func:`pgvd.covariance.pose_covariance`, as the merge reports it): a candidate that is
+    confirmed later enters the pose graph with it."""
+    from pgvd.covariance import pose_covariance
+    from pgvd.pooling import covariance_from_pooled, to_pooled
+    from pgvd.verify import pooled_maps
+
+    maps = maps or pooled_maps(a, b, params)
+    pooled = to_pooled(matrix, maps.pool)
+    cov = pose_covariance(maps.a, maps.b, pooled, maps.cell)
+    return covariance_from_pooled(cov, pooled, maps.pool)
+
+
+def _usable_margin(res: MergeResult, params: MergeParams) -> float:
+    """The margin of a merge or check result as the lifecycle reads it (:mod:`agent.trust`):
+    NaN for a rejected pose whose overlay disagrees (agreement below ``min_agreement``), which
+    no later version may confirm however it stands out."""
+    if not res.accepted and res.score < params.min_agreement:
+        return float("nan")
+    return res.margin
+
+
+def _with_grey_covariance(
+    res: Registration, a: Grid, b: Grid, params: MergeParams, maps: PooledMaps | None = None
+) -> Registration:
+    """``res``, with :func:`_grey_covariance` when it is a rejection in the grey zone."""
+    if res.accepted or not in_grey_zone(res.margin, params.min_margin):
+        return res
+    return replace(res, covariance=_grey_covariance(a, b, res.matrix, params, maps))
 
 
 def merge_registration(min_agreement: float | None = None) -> RegisterFn:
@@ -152,7 +222,9 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
 
     def register(a: Grid, b: Grid) -> Registration:
         res = merge(a, b, params)
-        return _registration(res.accepted, res.matrix, res.covariance, res.score, res.reason)
+        margin = _usable_margin(res, params)
+        out = _registration(res.accepted, res.matrix, res.covariance, res.score, res.reason, margin)
+        return _with_grey_covariance(out, a, b, params)
 
     return register
 
@@ -179,17 +251,19 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         maps = pooled_maps(a, b, params)
         res = verify(a, b, predicted, params, maps)
         if res.accepted:
-            return _registration(True, res.matrix, res.covariance, res.score)
+            return _registration(True, res.matrix, res.covariance, res.score, margin=res.margin)
         seen = predicted_overlap(a, b, predicted, res.matrix, params, maps)
         if seen.overlap_m < params.min_overlap:
             why = (
                 f"the predicted pose overlaps {seen.overlap_m:.1f} m of walls "
                 f"< {params.min_overlap} m"
             )
-            return Registration(False, *_REJECTED, 0.0, why)
+            return Registration(False, np.asarray(predicted, np.float64), _REJECTED[1], 0.0, why)
         # NaN (B without walls) fails both comparisons: inconclusive
         if seen.shift_m <= BASIN_M and seen.turn_deg <= BASIN_DEG:
-            return Registration(False, *_REJECTED, res.score, res.reason)
+            margin = _usable_margin(res, params)
+            out = _registration(False, res.matrix, res.covariance, res.score, res.reason, margin)
+            return _with_grey_covariance(out, a, b, params, maps)
         return None
 
     return check
@@ -262,7 +336,7 @@ class Chains:
             sol = solve(self.maps, self.usable)
             kept = [ln.pair for ln, u in zip(self.usable, sol.used, strict=True) if u]
             self._solved = (sol, triangle_groups(self.maps, kept))
-            log.info("solved %d links: %.2f s, %.2f s CPU", len(self.usable), *clock.elapsed())
+            log.debug("solved %d links: %.2f s, %.2f s CPU", len(self.usable), *clock.elapsed())
         return self._solved
 
 
@@ -393,7 +467,9 @@ class FusionWorker:
         opened = snap.needed
         if self.check is not None:
             chains = self._chains_of(snap)
-            checkable = {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
+            # a candidate's re-check is a check at its own pose: open at once like a chain's
+            rechecks = {ln.key for ln in snap.links} & set(snap.needed)
+            checkable = rechecks | {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
             opened = open_keys(snap.needed, checkable, robots)
         # A pair's turn (and the timeouts of the agents stepping in) counts from when its
         # wave opened, not from when it was first needed: else every agent of a late wave
@@ -441,7 +517,7 @@ class FusionWorker:
                 self._rebuild(snap)
             finally:
                 self._rebuild_seconds, cpu = clock.elapsed()
-                log.info(
+                log.debug(
                     "rebuilt %d maps, %d links (%s): %.2f s, %.2f s CPU",
                     len(snap.maps), len(snap.links), "settled" if snap.settled else "preview",
                     self._rebuild_seconds, cpu,
@@ -491,7 +567,8 @@ class FusionWorker:
         return self.link_timeout + mean * max(n_robots - 1, 0) / 2.0
 
     def _register(self, snap: Snapshot, key: LinkKey, may_defer: bool = False) -> None:
-        """Decide ``key``: at the known poses' prior, by the check, or by a full search.
+        """Decide ``key``: at the known poses' prior, by the check, or by a full search; a
+        candidate of older versions (:mod:`agent.trust`) is checked again at its pose.
 
         With ``may_defer``, a check's rejection that may not stand yet (:meth:`_checked`)
         puts the key back once, after the other checks due: the links those add may put
@@ -500,6 +577,10 @@ class FusionWorker:
         """
         a, _, b, _ = key  # epochs; the link records the versions it was computed on
         va, vb = snap.maps[a][0], snap.maps[b][0]
+        held = next((ln for ln in snap.links if ln.key == key), None)
+        if held is not None and stale_candidate(held, {a: va, b: vb}):
+            self._recheck(snap, held)
+            return
         clock = _Clock.start()
         how = "prior"
         try:
@@ -510,7 +591,7 @@ class FusionWorker:
                 if may_defer and key not in self._deferred:
                     self._deferred.add(key)
                     self.counters.add("checks_deferred")
-                    log.info("check %s - %s deferred: %.2f s, %.2f s CPU", a, b, *clock.elapsed())
+                    log.debug("check %s - %s deferred: %.2f s, %.2f s CPU", a, b, *clock.elapsed())
                     return
                 res = None
             if res is None:
@@ -522,20 +603,110 @@ class FusionWorker:
             res = Registration(False, *_REJECTED, 0.0, f"registration failed: {exc}")
         self.merges += 1
         self.merge_seconds += clock.elapsed()[0]
-        self._record(a, va, b, vb, res, how, clock)
+        verdict = self._first_verdict(snap, a, b, res)
+        base = LinkRecord(a, va, b, vb, False, res.matrix, res.covariance, res.score, self.me)
+        self._record(base, res, verdict, how, clock)
         if how == "searched" and res.accepted:
             self._carry_forward(a, va, b, vb, res.matrix)
 
+    @property
+    def min_margin(self) -> float:
+        """The high bar (:mod:`agent.trust`): the merge's own ``min_margin``."""
+        from pgvd.params import DecisionParams
+
+        return DecisionParams.min_margin
+
+    def _first_verdict(self, snap: Snapshot, a: str, b: str, res: Registration) -> Verdict:
+        """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`),
+        confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
+        previous = next((ln for ln in snap.links if ln.pair == (a, b)), None)
+        grid_b = snap.maps[b][1]
+        verdict = first_verdict(
+            res.accepted,
+            res.margin,
+            res.margin is not None,
+            res.reason,
+            self.min_margin,
+            None if previous is None else previous.state,
+            previous is not None and holds(previous.matrix, res.matrix, grid_b),
+        )
+        if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
+            m = f"{res.margin:.2f}"
+            return Verdict(CONFIRMED, f"on a cycle of accepted links: margin {m}")
+        return verdict
+
+    def _on_cycle(self, snap: Snapshot, a: str, b: str, matrix: np.ndarray) -> bool:
+        """Whether accepted links of the current epochs already place ``b`` on ``a`` where
+        ``matrix`` does (:func:`agent.trust.holds`): the pose closes a consistent cycle."""
+        if self.check is None:
+            return False
+        chains = self._chains_of(snap)
+        group = next((g for g in chains.groups if a in g and b in g), None)
+        if group is None or not _current_chain(snap, group):
+            return False
+        predicted = predict(chains.solved()[0], a, b)
+        return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
+
+    def _recheck(self, snap: Snapshot, held: LinkRecord) -> None:
+        """Check a candidate again at its pose on the newer versions of its maps
+        (:func:`agent.trust.recheck_verdict`), with :func:`pgvd.verify.verify` (~0.05 s)."""
+        a, b = held.pair
+        (va, grid_a), (vb, grid_b) = snap.maps[a], snap.maps[b]
+        clock = _Clock.start()
+        self.counters.add("rechecks")
+        why = "the pose left the check's basin"
+        try:
+            if self.check is None:  # an agent without checks cannot keep a candidate
+                res, why = None, "no check to re-check it with"
+            else:
+                res = self.check(grid_a, grid_b, held.matrix)
+        except Exception as exc:  # bad maps: the candidate cannot hold
+            res, why = None, f"re-check failed: {exc}"
+        if res is None:
+            res = Registration(False, held.matrix, _REJECTED[1], 0.0, why)
+        verdict = recheck_verdict(
+            held.holds,
+            held.margin,
+            held.first_margin,
+            res.accepted,
+            res.margin,
+            holds(held.matrix, res.matrix, grid_b),
+            res.reason,
+            self.min_margin,
+        )
+        if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
+            why = f"on a cycle of accepted links: {verdict.reason}"
+            verdict = Verdict(CONFIRMED, why, verdict.holds)
+        revision = held.revision + 1
+        base = replace(held, version_a=va, version_b=vb, decided_by=self.me, revision=revision)
+        self._record(base, res, verdict, "rechecked", clock)
+
     def _record(
-        self, a: str, va: int, b: str, vb: int, res: Registration, how: str, clock: _Clock
+        self, base: LinkRecord, res: Registration, verdict: Verdict, how: str, clock: _Clock
     ) -> None:
-        """Log the decision, cache it and publish it if it is the link of its epochs."""
-        rec = LinkRecord(a, va, b, vb, res.accepted, res.matrix, res.covariance, res.score, self.me)
-        log.info(
-            "link %s v%d - %s v%d: %s score %.3f (%s, %.2f s, %.2f s CPU)%s",
-            a, va, b, vb, "accepted" if res.accepted else "rejected", res.score, how,
-            *clock.elapsed(), f": {res.rejection}" if res.rejection else "",
-        )  # fmt: skip
+        """Log the decision, cache it and publish it if it is the link of its epochs.
+
+        ``base`` names the pair, its versions and its lifecycle so far; ``res`` and
+        ``verdict`` give its new pose and state.  A pose without a sound covariance cannot
+        enter the pose graph: such a link stays a candidate.
+        """
+        cov = res.covariance
+        if verdict.state in IN_MAP and link_problem(replace(base, covariance=cov), base.pair):
+            verdict = Verdict(CANDIDATE, f"no sound covariance: {verdict.reason}", verdict.holds)
+        rec = replace(
+            base,
+            accepted=verdict.state in IN_MAP,
+            matrix=res.matrix,
+            covariance=cov,
+            score=res.score,
+            state=verdict.state,
+            margin=res.margin,
+            # a first decision's margin is the one its candidate's growth counts from
+            first_margin=base.first_margin if base.revision else res.margin,
+            reason=clean_reason(verdict.reason),
+            holds=verdict.holds,
+        )
+        log.info("%s how=%s seconds=%.2f", rec.logfmt(), how, clock.elapsed()[0])
         if self.book.add_link(rec):
             self.on_link(rec)
 
@@ -566,7 +737,9 @@ class FusionWorker:
         if res is None or not res.accepted:
             return
         self.counters.add("checks_confirmed")
-        self._record(a, na, b, nb, res, "carried forward", clock)
+        verdict = first_verdict(True, res.margin, True, res.reason, self.min_margin)
+        base = LinkRecord(a, na, b, nb, False, res.matrix, res.covariance, res.score, self.me)
+        self._record(base, res, verdict, "carried forward", clock)
 
     def _checkable(self, chains: Chains, a: str, b: str) -> bool:
         """Whether a check may decide ``(a, b)``: both poses known, or accepted links join
@@ -682,5 +855,5 @@ class FusionWorker:
     def _rebuild(self, snap: Snapshot) -> None:
         clock = _Clock.start()
         components = build_components(snap.maps, snap.links, self.fuse, sound=self._soundness(snap))
-        log.info("built %d components: %.2f s, %.2f s CPU", len(components), *clock.elapsed())
+        log.debug("built %d components: %.2f s, %.2f s CPU", len(components), *clock.elapsed())
         self.on_global(GlobalState(components, snap.settled, time.time()))

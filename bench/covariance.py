@@ -7,7 +7,7 @@
 (:func:`bench.data.pairs.make_pairs`, each map in its own random frame, distinct
 segments and frames per pair), merges them, and stores per accepted pair the
 pose error ``(tx, ty, psi)`` of the result against the truth and the terms of
-:func:`pgvd.matching.alignment_fit` at the result: ``bench/results/covariance_pairs.json``.
+:func:`pgvd.alignment.alignment_fit` at the result: ``bench/results/covariance_pairs.json``.
 
 ``fit`` splits the pairs in two halves (alternating in the order of their
 names, so both halves hold both logs), fits the constants of

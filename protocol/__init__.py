@@ -10,7 +10,10 @@ Messages (:mod:`protocol.messages`, frozen dataclasses)
     ``Manifest(fleet, robot, version, geometry, checksums: {tile index: crc32},
     base_version=None, digest=None)`` (a delta manifest when base_version is set),
     ``Link(fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted,
-    matrix 3x3, covariance 3x3, score)``,
+    matrix 3x3, covariance 3x3, score, trust=None)``, ``trust`` a
+    ``LinkTrust(state, margin, first_margin, reason, first_version_a, first_version_b, holds,
+    revision)``
+    (None: a link of the older format, which the decoder still reads),
     ``Heartbeat(fleet, robot, seq, map_version=None)``,
     ``Status(fleet, robot, seq, counters: {str: int | float})``.
 
@@ -78,7 +81,17 @@ from protocol.errors import REASONS, ProtocolError
 from protocol.fetch import MAX_FETCH_TILES, TileFetch, fetch_parameters, parse_fetch
 from protocol.limits import Limits
 from protocol.mapsync import MapReassembler, encode_map, quantise_grid
-from protocol.messages import Geometry, Heartbeat, Link, Manifest, MapTiles, Message, Status, Tile
+from protocol.messages import (
+    Geometry,
+    Heartbeat,
+    Link,
+    LinkTrust,
+    Manifest,
+    MapTiles,
+    Message,
+    Status,
+    Tile,
+)
 from protocol.quantize import SCALE, dequantise, quantise
 
 __all__ = [
@@ -90,6 +103,7 @@ __all__ = [
     "Heartbeat",
     "Limits",
     "Link",
+    "LinkTrust",
     "Manifest",
     "MapReassembler",
     "MapTiles",

@@ -39,6 +39,7 @@ from protocol.messages import (
     Geometry,
     Heartbeat,
     Link,
+    LinkTrust,
     Manifest,
     MapTiles,
     Message,
@@ -154,12 +155,22 @@ def _body(msg: Message) -> list[Any]:
             KIND_LINK, msg.fleet, msg.decided_by, msg.robot_a, msg.robot_b, msg.version_a,
             msg.version_b, msg.accepted, [_compact(v) for row in msg.matrix for v in row],
             [_compact(v) for row in msg.covariance for v in row], _compact(msg.score),
+            *([] if msg.trust is None else [_trust(msg.trust)]),
         ]  # fmt: skip
     if isinstance(msg, Heartbeat):
         return [KIND_HEARTBEAT, msg.fleet, msg.robot, msg.seq, msg.map_version]
     if isinstance(msg, Status):
         return [KIND_STATUS, msg.fleet, msg.robot, msg.seq, dict(msg.counters)]
     raise ProtocolError(f"cannot encode a {type(msg).__name__}", reason="schema")
+
+
+def _trust(trust: LinkTrust) -> list[Any]:
+    """A link's lifecycle as the one trailing field of its body (older links have none)."""
+    margins = [None if m is None else _compact(m) for m in (trust.margin, trust.first_margin)]
+    return [
+        trust.state, *margins, trust.reason, trust.first_version_a, trust.first_version_b,
+        trust.holds, trust.revision,
+    ]  # fmt: skip
 
 
 # ---------------------------------------------------------------- decoding
@@ -244,6 +255,10 @@ class _Fields:
                 reason="schema",
             )
         return value
+
+    def more(self) -> bool:
+        """Whether fields remain: a body that grew a trailing field reads both forms."""
+        return self._next < len(self._values)
 
     def done(self) -> None:
         extra = len(self._values) - self._next
@@ -427,11 +442,29 @@ def _parse_link(fields: _Fields, limits: Limits) -> Link:
     matrix = _matrix(fields, "matrix")
     covariance = _matrix(fields, "covariance")
     score = fields.take("score", (int, float))
+    # A link of the older format ends here; the current one carries its lifecycle.
+    trust = _parse_trust(fields.take("trust", list)) if fields.more() else None
     fields.done()
     return Link(
         fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted, matrix, covariance,
-        score,
+        score, trust,
     )  # fmt: skip
+
+
+def _parse_trust(values: list[Any]) -> LinkTrust:
+    trust = _Fields(values, "link trust")
+    out = LinkTrust(
+        trust.take("state", str),
+        trust.take("margin", (int, float), nullable=True),
+        trust.take("first_margin", (int, float), nullable=True),
+        trust.take("reason", str),
+        trust.take("first_version_a", int),
+        trust.take("first_version_b", int),
+        trust.take("holds", int),
+        trust.take("revision", int),
+    )
+    trust.done()
+    return out
 
 
 def _parse_heartbeat(fields: _Fields, limits: Limits) -> Heartbeat:

@@ -330,6 +330,68 @@ class Manifest:
     __hash__ = None  # type: ignore[assignment]
 
 
+#: The states of a link's lifecycle; ``accepted`` is True exactly for those of
+#: :data:`LINK_IN_MAP` (the agent's ``agent.trust`` says what each means).
+LINK_STATES = ("accepted", "candidate", "confirmed", "rejected", "withdrawn")
+LINK_IN_MAP = ("accepted", "confirmed")
+#: Longest reason a link carries, in characters (a merge's reason is under 200).
+MAX_REASON_LENGTH = 400
+#: Most re-decisions (and holds) one link may count within its epochs.
+MAX_REVISION = 2**32 - 1
+
+
+@dataclass(frozen=True)
+class LinkTrust:
+    """Where a link stands in its lifecycle, carried so every agent reads the same state.
+
+    Attributes
+    ----------
+    state : one of :data:`LINK_STATES`.
+    margin : the acceptance statistic at the link's pose, None when none was scored.
+    first_margin : the margin of the pair's first decision in these epochs, None likewise.
+    reason : why, in words (printable, at most :data:`MAX_REASON_LENGTH` characters).
+    first_version_a, first_version_b : the versions the pair was first decided on in these
+        epochs: no newer than the link's own.
+    holds : re-checks on which a candidate's pose held.
+    revision : re-decisions of the pair in these epochs; a later one supersedes.
+    """
+
+    state: str
+    margin: float | None
+    first_margin: float | None
+    reason: str
+    first_version_a: int
+    first_version_b: int
+    holds: int
+    revision: int
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.state, str) or self.state not in LINK_STATES:
+            raise ProtocolError(
+                f"link state must be one of {LINK_STATES}, got {self.state!r}", reason="value"
+            )
+        for name in ("margin", "first_margin"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, check_float(value, name))
+        if not isinstance(self.reason, str):
+            raise ProtocolError("link reason must be a string", reason="schema")
+        if len(self.reason) > MAX_REASON_LENGTH:
+            raise ProtocolError(
+                f"link reason of {len(self.reason)} characters exceeds {MAX_REASON_LENGTH}",
+                reason="limit",
+            )
+        if not self.reason.isprintable():
+            raise ProtocolError("link reason has unprintable characters", reason="value")
+        check_version(self.first_version_a, "first_version_a")
+        check_version(self.first_version_b, "first_version_b")
+        for name in ("holds", "revision"):
+            value = check_version(getattr(self, name), name)
+            if value > MAX_REVISION:
+                why = f"{name} must be <= {MAX_REVISION}, got {value}"
+                raise ProtocolError(why, reason="value")
+
+
 @dataclass(frozen=True)
 class Link:
     """A pairwise transform between two robots' map versions, accepted or rejected.
@@ -343,6 +405,8 @@ class Link:
     matrix : 3x3 homogeneous rigid transform, eqs. (1)-(2).
     covariance : 3x3 covariance of (x px, y px, psi rad), eqs. (4)-(8).
     score : agreement / (agreement + disagreement) of the overlaid maps.
+    trust : its lifecycle (:class:`LinkTrust`); None for a link of the older format, which
+        carried no lifecycle: read as ``accepted`` or ``rejected`` by its outcome.
     """
 
     fleet: str
@@ -355,6 +419,7 @@ class Link:
     matrix: tuple[tuple[float, float, float], ...]
     covariance: tuple[tuple[float, float, float], ...]
     score: float
+    trust: LinkTrust | None = None
 
     def __post_init__(self) -> None:
         check_id(self.fleet, "fleet")
@@ -372,6 +437,18 @@ class Link:
         object.__setattr__(self, "matrix", check_matrix(self.matrix, "matrix"))
         object.__setattr__(self, "covariance", check_matrix(self.covariance, "covariance"))
         object.__setattr__(self, "score", check_float(self.score, "score"))
+        if self.trust is not None:
+            self._check_trust(self.trust)
+
+    def _check_trust(self, trust: LinkTrust) -> None:
+        if not isinstance(trust, LinkTrust):
+            raise ProtocolError("trust must be a LinkTrust", reason="schema")
+        if self.accepted != (trust.state in LINK_IN_MAP):
+            raise ProtocolError(
+                f"a {trust.state} link cannot have accepted={self.accepted}", reason="value"
+            )
+        if trust.first_version_a > self.version_a or trust.first_version_b > self.version_b:
+            raise ProtocolError("a link's first versions are newer than its own", reason="value")
 
     @property
     def robot(self) -> str:

@@ -258,3 +258,43 @@ def test_one_robots_two_decisions_on_the_same_versions_are_chosen_alike_everywhe
     assert used is not None and used.to_json() == reference.get(candidates[0].key).to_json()
     # the two copies of one decision that differ only in the sign of a zero are one
     assert len(cache.candidates()) == 3
+
+
+def candidate(minor_b: int, revision: int, by: str = "r1", holds: int = 0) -> LinkRecord:
+    """A grey-zone candidate of epochs (1, 1) decided on ``V(1, 0)`` / ``V(1, minor_b)``."""
+    return LinkRecord(
+        "r1", V(1), "r2", V(1, minor_b), False, rigid_matrix(0.1, 2.0, 3.0), np.eye(3), 0.7, by,
+        state="candidate", margin=0.4, reason="grey zone", holds=holds, revision=revision,
+    )  # fmt: skip
+
+
+def test_a_candidate_of_older_versions_is_needed_again_and_its_recheck_supersedes_it() -> None:
+    cache = LinkCache([candidate(0, 0)])
+    assert needed_keys({"r1": V(1), "r2": V(1)}, cache) == []
+    assert needed_keys({"r1": V(1), "r2": V(1, 1)}, cache) == [("r1", 1, "r2", 1)]
+    # a later revision wins whoever decided it, so every agent ends on the re-check
+    assert cache.add(candidate(1, 1, by="r2", holds=1))
+    assert cache.get(("r1", 1, "r2", 1)).holds == 1
+    assert needed_keys({"r1": V(1), "r2": V(1, 1)}, cache) == []
+    assert not cache.add(candidate(0, 0, by="r0"))  # an older revision does not come back
+    # and only the latest revision is held: a candidate's history does not pile up
+    assert [r.revision for r in cache.candidates()] == [1]
+
+
+def test_a_links_file_of_before_the_lifecycle_reads_as_its_outcome() -> None:
+    old = rec("r1", 1, "r2", 1, accepted=False).to_json()
+    for name in ("state", "margin", "first_margin", "reason", "first_a", "first_b", "holds",
+                 "revision"):  # fmt: skip
+        del old[name]
+    (back,) = loads(json.dumps([old]))
+    assert (back.state, back.revision, back.first_b) == ("rejected", 0, V(1))
+    kept = candidate(1, 1)
+    (again,) = loads(dumps([kept]))
+    assert again.to_json() == kept.to_json()
+
+
+def test_a_record_whose_state_contradicts_its_outcome_is_refused() -> None:
+    with pytest.raises(ValueError, match="a candidate link cannot have accepted=True"):
+        LinkRecord("r1", 1, "r2", 1, True, np.eye(3), np.eye(3), 0.9, "r1", state="candidate")
+    with pytest.raises(ValueError, match="first_b is newer"):
+        LinkRecord("r1", 1, "r2", 1, False, np.eye(3), np.eye(3), 0.9, "r1", first_b=2)

@@ -68,9 +68,10 @@ def crops(shared: Path) -> tuple[Grid, Grid]:
     )
 
 
-def publish(peer: FleetNode, grid: Grid, t: float) -> list[Publish]:
-    """``peer``'s next version of ``grid``: gated, persisted, then published."""
-    (persist,) = peer.on_source(grid, at(t), final=True)
+def publish(peer: FleetNode, grid: Grid, t: float, final: bool = True) -> list[Publish]:
+    """``peer``'s next version of ``grid``: gated (``final`` passes the gate, and starts an
+    epoch), persisted, then published."""
+    (persist,) = peer.on_source(grid, at(t), final=final)
     assert isinstance(persist, PersistMap) and persist.robot == peer.me
     return [
         a
@@ -385,16 +386,27 @@ def test_the_change_gate_holds_a_map_until_its_interval_passed(crops) -> None:
     assert any(isinstance(a, PersistMap) for a in r1.tick(at(1.0)))
 
 
+def ungated(robot: str) -> FleetNode:
+    """A node whose change gate lets every changed map through, final or not."""
+    return FleetNode(NodeOptions(robot, "lab", KEY, min_change=0.0, min_interval=0.0), at(0.0))
+
+
 def test_versions_start_a_new_epoch_only_when_the_map_changed_enough(crops) -> None:
-    r1 = node("r1")
-    v1 = _version(publish(r1, crops[0], 0.0))
+    r1 = ungated("r1")
+    v1 = _version(publish(r1, crops[0], 0.0, final=False))
     assert epoch_of(v1) == int(T0) and v1 & MINOR_MASK == 0
     lo = crops[0].logodds.copy()
     lo[:3, :3] = np.where(lo[:3, :3] > 0, -2.0, 2.0)  # 9 cells change: well under 15 %
-    v2 = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 2.0))
+    v2 = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 2.0, final=False))
     assert v2 == v1 + 1
-    v3 = _version(publish(r1, crops[1], 4.0))  # another part of the building
+    v3 = _version(publish(r1, crops[1], 4.0, final=False))  # another part of the building
     assert epoch_of(v3) == int(T0 + 4.0) and v3 & MINOR_MASK == 0
+    # the source's last map starts an epoch however little it changed: peers decide every
+    # pair of this robot once more on it
+    lo = crops[1].logodds.copy()
+    lo[:3, :3] = np.where(lo[:3, :3] > 0, -2.0, 2.0)
+    v4 = _version(publish(r1, Grid(lo, crops[1].resolution, crops[1].origin), 6.0))
+    assert epoch_of(v4) == int(T0 + 6.0) and v4 & MINOR_MASK == 0
 
 
 def _version(sent: list[Publish]) -> int:
@@ -403,7 +415,7 @@ def _version(sent: list[Publish]) -> int:
 
 def test_after_a_restart_the_own_map_is_served_and_versions_move_on(crops) -> None:
     old = (int(T0) + 100) << 31 | 5  # persisted by a run whose clock was ahead
-    r1 = node("r1")
+    r1 = ungated("r1")
     r1.restore({"r1": StoredMap(old, crops[0]), "r2": StoredMap(3 << 31, crops[1])}, [], at(0.0))
     assert r1.book.versions() == {"r1": old, "r2": 3 << 31}
     assert r1.answer_latest(None, None)[-1].key == f"pgvd/lab/latest/r1/{old}/m"
@@ -414,9 +426,9 @@ def test_after_a_restart_the_own_map_is_served_and_versions_move_on(crops) -> No
     # link of this robot be registered again.
     lo = crops[0].logodds.copy()
     lo[:3, :3] = np.where(lo[:3, :3] > 0, -2.0, 2.0)
-    minor = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 6.0))
+    minor = _version(publish(r1, Grid(lo, crops[0].resolution, crops[0].origin), 6.0, False))
     assert minor == old + 1
-    new = _version(publish(r1, crops[1], 8.0))  # another part of the building
+    new = _version(publish(r1, crops[1], 8.0, final=False))  # another part of the building
     assert epoch_of(new) == epoch_of(old) + 1  # a new epoch, and newer
 
 
@@ -573,3 +585,30 @@ def test_the_status_shows_the_fleet_as_the_core_holds_it(crops) -> None:
     assert (shown["used"], shown["rejected"], shown["shape"]) == ([["r1", "r2"]], [], [256, 256])
     assert status["settled"] and status["settled_at"] == T0 + 1.0
     assert status["counts"]["maps_received"] == 1 and status["counts"]["links_received"] == 1
+
+
+def test_a_candidate_received_is_held_apart_in_the_status_and_served_with_its_state(
+    crops, caplog
+) -> None:
+    caplog.set_level("INFO", logger="pgvd.agent")
+    r1, r2 = node("r1"), node("r2")
+    publish(r1, crops[0], 0.0)
+    deliver(r1, publish(r2, crops[1], 0.0), 0.1)
+    versions = r1.book.versions()
+    grey = LinkRecord(
+        "r1", versions["r1"], "r2", versions["r2"], False, rigid_matrix(0.3, 5.0, -2.0),
+        np.diag([4.0, 4.0, 1e-4]), 0.8, "r2", state="candidate", margin=0.41,
+        reason="grey zone: margin 0.41 below 0.57",
+    )  # fmt: skip
+    assert r1.on_message("pgvd/lab/link/r1/r2", wire.encode_link("lab", grey, KEY), at(0.2))
+    status = r1.status(at(1.0), HOST)
+    assert status["link_states"]["candidate"] == ["r1/r2"]
+    assert status["link_states"]["accepted"] == [] == status["link_states"]["withdrawn"]
+    (shown,) = status["links"]
+    assert (shown["state"], shown["margin"], shown["accepted"]) == ("candidate", 0.41, False)
+    (served,) = wire_links(r1)
+    assert (served.state, served.margin, served.reason) == ("candidate", 0.41, grey.reason)
+    # a global map that changes is one line of the log
+    comp = component(versions, crops[0], "cd" * 32)
+    r1.on_global(GlobalState([comp], True, T0 + 1.0), at(1.0))
+    assert any(r.getMessage().startswith("globalmap anchor=r1 robots=") for r in caplog.records)

@@ -145,3 +145,18 @@ def test_whatever_is_accepted_can_be_printed(obj: dict) -> None:
     except ValueError:
         return
     assert format_table({"r1": status}).startswith("r1: own v")
+
+
+def test_table_shows_each_links_state_margin_and_reason_and_counts_them() -> None:
+    candidate = {
+        **STATUS["links"][0], "accepted": False, "state": "candidate", "margin": 0.41,
+        "reason": "grey zone: margin 0.41 below 0.57", "holds": 1,
+    }  # fmt: skip
+    text = format_table({"r1": {**STATUS, "links": [STATUS["links"][0], candidate]}})
+    assert "  links   1 accepted, 1 candidate\n" in text, text
+    assert (
+        "r2 v41.3: candidate score 0.987 rot -91.5 deg (by r2) margin 0.41: "
+        "grey zone: margin 0.41 below 0.57"
+    ) in text, text
+    with pytest.raises(ValueError, match=r"links\[0\].margin has the wrong type"):
+        check_status({"links": [{**candidate, "margin": "high"}]})

@@ -109,8 +109,9 @@ def test_a_failing_registration_becomes_a_rejected_link(caplog) -> None:
     h.worker.step(now=0.0)
     assert [ln.accepted for ln in h.links] == [False]
     # the log says why the robots were not linked
-    (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("link r1")]
-    assert line.endswith("): registration failed: map without occupied cells"), line
+    (line,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("link ")]
+    assert "pair=r1/r2 versions=1.0/1.0 outcome=rejected" in line, line
+    assert 'reason="registration failed: map without occupied cells"' in line, line
     h.worker.step(now=0.1)
     assert [c.members for c in h.globals[-1].components] == [("r1",), ("r2",)]
 

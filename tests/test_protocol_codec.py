@@ -21,6 +21,7 @@ from protocol import (
     Heartbeat,
     Limits,
     Link,
+    LinkTrust,
     Manifest,
     MapTiles,
     ProtocolError,
@@ -105,6 +106,19 @@ def sample_messages() -> list:
         Manifest("fleet", "r1", 3, g, {0: checksum(cells), 3: 7}),
         Manifest("fleet", "r1", 4, g, {1: 9}, base_version=3, digest=2**64 - 1),
         Link("fleet", "r1", "r1", "r2", 3, 4, True, np.eye(3), np.eye(3) * 0.5, 0.93),
+        Link(
+            "fleet",
+            "r1",
+            "r1",
+            "r2",
+            3,
+            4,
+            False,
+            np.eye(3),
+            np.eye(3) * 0.5,
+            0.61,
+            LinkTrust("candidate", 0.41, 0.3, "grey zone: margin 0.41 below 0.57", 2, 4, 1, 1),
+        ),
         Heartbeat("fleet", "r1", 17, 3),
         Status("fleet", "r1", 18, {"dropped": 2, "merge_ms": 12.5}),
     ]
@@ -154,6 +168,59 @@ def test_link_round_trips(fleet, a, b, va, vb, ok, m, cov, score):
         b = a + "x"
     msg = Link(fleet, a, a, b, va, vb, ok, m, cov, score)
     assert decode(encode(msg)) == msg
+
+
+states = st.sampled_from(("accepted", "candidate", "confirmed", "rejected", "withdrawn"))
+# printable: no control characters, and no separator but the space
+reasons = st.text(
+    st.characters(blacklist_categories=("C", "Z"), max_codepoint=0x2FF) | st.just(" "),
+    max_size=400,
+)
+
+
+@given(
+    va=versions, vb=versions, state=states, margin=st.none() | finite,
+    first=st.none() | finite, reason=reasons,
+    back=st.tuples(st.integers(0, 2**40), st.integers(0, 2**40)),
+    counts=st.tuples(st.integers(0, 2**32 - 1), st.integers(0, 2**32 - 1)),
+)  # fmt: skip
+def test_link_with_its_lifecycle_round_trips(va, vb, state, margin, first, reason, back, counts):
+    firsts = (max(va - back[0], 0), max(vb - back[1], 0))
+    trust = LinkTrust(state, margin, first, reason, *firsts, *counts)
+    accepted = state in ("accepted", "confirmed")
+    msg = Link("f", "r1", "r1", "r2", va, vb, accepted, np.eye(3), np.eye(3), 0.5, trust)
+    assert decode(encode(msg, KEY), KEY) == msg
+
+
+def test_a_link_of_the_older_format_is_read_without_a_lifecycle():
+    old = [KIND_LINK, "f", "r1", "r1", "r2", 3, 4, False, [1, 0, 0, 0, 1, 0, 0, 0, 1],
+           [0] * 9, 0.5]  # fmt: skip
+    msg = decode(raw(old))
+    assert isinstance(msg, Link) and msg.trust is None and not msg.accepted
+
+
+@pytest.mark.parametrize(
+    ("trust", "reason", "why"),
+    [
+        (["maybe", 0.4, None, "", 3, 4, 0, 0], "value", "link state must be one of"),
+        (["candidate", 0.4, None, "", 3, 4, 0], "schema", "lacks field 'revision'"),
+        (["candidate", 0.4, None, "", 3, 4, 0, 0, 9], "schema", "1 unknown trailing fields"),
+        (["candidate", float("nan"), None, "", 3, 4, 0, 0], "value", "margin must be finite"),
+        (["candidate", 0.4, float("inf"), "", 3, 4, 0, 0], "value", "first_margin must be"),
+        (["candidate", 0.4, None, "x" * 401, 3, 4, 0, 0], "limit", "reason of 401 characters"),
+        (["candidate", 0.4, None, "a\nb", 3, 4, 0, 0], "value", "unprintable"),
+        (["candidate", 0.4, None, "", 5, 4, 0, 0], "value", "first versions are newer"),
+        (["candidate", 0.4, None, "", 3, 4, -1, 0], "value", "holds must be in"),
+        (["candidate", 0.4, None, "", 3, 4, 0, 2**32], "value", "revision must be <="),
+        (["accepted", 0.4, None, "", 3, 4, 0, 0], "value", "accepted link cannot have"),
+        ("candidate", "schema", "field 'trust' has the wrong type str"),
+    ],
+)
+def test_a_links_lifecycle_is_checked_strictly(trust, reason, why):
+    body = [KIND_LINK, "f", "r1", "r1", "r2", 3, 4, False, [1, 0, 0, 0, 1, 0, 0, 0, 1],
+            [0] * 9, 0.5, trust]  # fmt: skip
+    with refused(reason, why):
+        decode(raw(body))
 
 
 @given(

@@ -166,7 +166,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--foxglove", metavar="HOST:PORT", help="serve a live view to Foxglove or Lichtblick"
     )
-    p.add_argument("-v", "--verbose", action="store_true", help="log every event")
+    p.add_argument("-v", "--verbose", action="store_true", help="log timings too")
     p.set_defaults(func=run)
 
 
@@ -293,10 +293,13 @@ def _output_options(args: argparse.Namespace) -> OutputOptions:
 def run(args: argparse.Namespace) -> int:
     opts = options_from_args(args)
     logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
+        level=logging.WARNING,
         format=f"%(asctime)s {opts.robot} %(levelname)s %(message)s",
         stream=sys.stderr,
     )
+    # The agent's decisions (links, global maps, robots joining) are INFO and always logged:
+    # journald and a launcher's agent.log read stderr. Its timings are DEBUG, on -v.
+    logging.getLogger("pgvd.agent").setLevel(logging.DEBUG if args.verbose else logging.INFO)
     from agent.daemon import Agent
 
     try:

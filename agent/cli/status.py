@@ -92,6 +92,26 @@ def _v(version: int | None) -> str:
     return f"{epoch_of(version)}.{version - (epoch_of(version) << EPOCH_SHIFT)}"
 
 
+def _state(link: dict) -> str:
+    """A link's lifecycle state; an older agent's status has only ``accepted``."""
+    return link.get("state") or ("accepted" if link["accepted"] else "rejected")
+
+
+def _states(links: list[dict]) -> str:
+    """How many links of the current epochs are in each state, those in the map first."""
+    order = ("accepted", "confirmed", "candidate", "withdrawn", "rejected")
+    current = [ln for ln in links if ln.get("current", True)]
+    counts = {state: sum(_state(ln) == state for ln in current) for state in order}
+    return ", ".join(f"{n} {state}" for state, n in counts.items() if n) or "none"
+
+
+def _why(link: dict) -> str:
+    """The margin and the reason of a link, when its agent says them."""
+    margin = link.get("margin")
+    out = "" if margin is None else f" margin {margin:.2f}"
+    return out + (f": {link['reason']}" if link.get("reason") else "")
+
+
 def format_table(statuses: dict[str, dict]) -> str:
     """Human-readable summary: one block per agent."""
     if not statuses:
@@ -111,11 +131,13 @@ def format_table(statuses: dict[str, dict]) -> str:
             for r, v in sorted(robots.items())
         )
         lines.append(f"  robots  {seen}")
-        for ln in s.get("links", []):
+        links = s.get("links", [])
+        lines.append("  links   " + _states(links))
+        for ln in links:
             lines.append(
                 f"  link    {ln['a']} v{_v(ln['version_a'])} - {ln['b']} v{_v(ln['version_b'])}: "
-                f"{'accepted' if ln['accepted'] else 'rejected'} score {ln['score']:.3f} "
-                f"rot {ln['rotation_deg']:.1f} deg (by {ln['decided_by']})"
+                f"{_state(ln)} score {ln['score']:.3f} "
+                f"rot {ln['rotation_deg']:.1f} deg (by {ln['decided_by']}){_why(ln)}"
             )
         lines.append(
             f"  traffic sent {s.get('bytes_sent', 0)} B, received {s.get('bytes_received', 0)} B"

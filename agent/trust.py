@@ -1,0 +1,192 @@
+"""A link's lifecycle: accepted, candidate, confirmed, rejected, withdrawn.
+
+The merge decides one pair at one moment; a fleet sees more.  Its maps grow version by
+version, a right pose stays put and gains agreeing walls while a mirror or look-alike pose is
+contradicted as more of the building appears, and links close cycles.  So a pair is not
+simply accepted or rejected on its first decision:
+
+- **accepted**: the first decision clears the high bar, the merge's acceptance statistic
+  ``margin >= min_margin`` (:mod:`pgvd.decision`).  On the development bench no negative or
+  wrong winner reaches it (``python -m bench.studies.greyzone``).
+- **candidate**: the best pose sits in the *grey zone*, ``GREY_FLOOR <= margin < min_margin``:
+  right poses and mirror or look-alike ones both land there, and no threshold on one decision
+  separates them.  A candidate does not enter the global map.  It is checked again at its own
+  pose (:func:`pgvd.verify.verify`, ~0.05 s) at each new version of either map.
+- **confirmed**: a candidate that earned its place, and enters the global map, when
+
+  1. a re-check clears the high bar, or
+  2. its pose holds (:data:`HOLD_M`, :data:`HOLD_DEG`) with a margin that does not fall by
+     more than :data:`MARGIN_SLACK` on :data:`HOLDS_TO_CONFIRM` newer versions, and its
+     margin grew by :data:`MARGIN_GAIN` since its first decision (a right pose gains
+     agreeing walls; a look-alike or mirror pose that holds stays flat), or
+  3. it lies on a consistent cycle: the accepted links of the current epochs already place
+     its robots where its pose does, within the hold.
+
+  An accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the
+  same pose stays confirmed.
+- **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
+  contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold or out
+  of the check's basin).
+- **withdrawn**: an accepted or confirmed link whose next epoch contradicts it (no pose, or a
+  margin below the grey zone): the global map is rebuilt without it.  A new epoch's pose in
+  the grey zone elsewhere is a candidate again.
+
+The state travels in the link record (:class:`agent.links.LinkRecord`) and on the wire, so the
+global map stays a function of the maps and the link records (fleet invariant 2): whoever
+decided a state, every agent reads the same one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pgvd.grid import Grid
+from pgvd.params import DecisionParams
+
+ACCEPTED = "accepted"
+CANDIDATE = "candidate"
+CONFIRMED = "confirmed"
+REJECTED = "rejected"
+WITHDRAWN = "withdrawn"
+#: Every state a link record may have.
+STATES = (ACCEPTED, CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN)
+#: The states whose links enter the global map.
+IN_MAP = frozenset({ACCEPTED, CONFIRMED})
+
+#: Lowest margin of the grey zone, the merge's own (:class:`pgvd.params.DecisionParams`):
+#: below it, on the development bench, almost no right pose is worth keeping
+#: (``python3 -m bench greyzone`` prints the counts).
+GREY_FLOOR = DecisionParams.GREY_MARGIN
+#: A re-checked pose holds when it moved at most this far (3 cells of 5 cm) ...
+HOLD_M = 0.15
+#: ... and turned at most this much.
+HOLD_DEG = 2.0
+#: Newer versions on which a candidate's pose must hold before it is confirmed.
+HOLDS_TO_CONFIRM = 2
+#: How far a margin may fall from the last check's and still count as holding: a re-check
+#: refines the pose anew, and its margin wobbles by a few hundredths at a right pose.
+MARGIN_SLACK = 0.02
+#: How much a candidate's margin must have grown since its first decision to be confirmed on
+#: holds alone, midway between what the development logs show (``python3 -m
+#: bench.studies.holds``, 7 grey-zone pairs grown over 4 versions): the right poses that
+#: held grew by 0.11 to 0.49 by their second hold (one, at 0.55, by 0.01: it waited for the
+#: high bar, which it cleared), a look-alike's by at most 0.05 and a mirror's by 0.02.  All
+#: 5 right poses were confirmed, neither bad one: the look-alike stayed a candidate, the
+#: mirror was dropped.  Without the gain, both bad ones were confirmed on their second hold.
+MARGIN_GAIN = 0.08
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A decision on a link: its ``state``, why, and how many re-checks its pose held."""
+
+    state: str
+    reason: str
+    holds: int = 0
+
+
+def clean_reason(text: str, limit: int = 400) -> str:
+    """``text`` as a link's reason travels (:class:`protocol.messages.LinkTrust`): printable
+    characters only, at most ``limit`` of them (an exception's text may hold newlines)."""
+    flat = "".join(c if c.isprintable() else " " for c in text)
+    return flat if len(flat) <= limit else flat[: limit - 3] + "..."
+
+
+def in_grey_zone(margin: float | None, min_margin: float) -> bool:
+    """Whether ``margin`` lies in ``[GREY_FLOOR, min_margin)``."""
+    return margin is not None and bool(np.isfinite(margin)) and GREY_FLOOR <= margin < min_margin
+
+
+def pose_change(before: np.ndarray, after: np.ndarray, b: Grid) -> tuple[float, float]:
+    """How far map ``b`` moved between two B-pixel -> A-pixel matrices: metres at the centre
+    of ``b`` (a turn about a far pixel origin would read as a shift) and degrees."""
+    centre = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0, 1.0])
+    before, after = np.asarray(before, np.float64), np.asarray(after, np.float64)
+    shift = float(np.hypot(*(after @ centre - before @ centre)[:2])) * b.resolution
+    step = np.linalg.inv(before) @ after
+    turn = abs(float(np.degrees(np.arctan2(step[1, 0], step[0, 0]))))
+    return shift, turn
+
+
+def holds(before: np.ndarray, after: np.ndarray, b: Grid) -> bool:
+    """Whether the pose ``after`` of map ``b`` is ``before`` within :data:`HOLD_M` and
+    :data:`HOLD_DEG`."""
+    shift, turn = pose_change(before, after, b)
+    return shift <= HOLD_M and turn <= HOLD_DEG
+
+
+def _margin_text(margin: float | None) -> str:
+    return "none" if margin is None or not np.isfinite(margin) else f"{margin:.2f}"
+
+
+def first_verdict(
+    accepted: bool,
+    margin: float | None,
+    has_pose: bool,
+    reason: str,
+    min_margin: float,
+    previous: str | None = None,
+    held: bool = False,
+) -> Verdict:
+    """The state of a pair's first decision in its epochs.
+
+    Parameters
+    ----------
+    accepted : the merge or check accepted the pose (its margin cleared ``min_margin``).
+    margin : the acceptance statistic at the best pose, None or NaN when none was scored.
+    has_pose : the decision holds a finite rigid pose.
+    reason : the merge's or check's words.
+    min_margin : the high bar.
+    previous : the state of the pair's link of an earlier epoch, if any.
+    held : the pose is that earlier link's, within the hold (:func:`holds`).
+    """
+    was_in = previous in IN_MAP
+    m = _margin_text(margin)
+    if accepted:
+        return Verdict(ACCEPTED, f"margin {m} clears {min_margin}")
+    if has_pose and in_grey_zone(margin, min_margin):
+        if was_in and held:
+            return Verdict(CONFIRMED, f"held over a new epoch: margin {m} at the same pose")
+        # elsewhere than an earlier link: a canvas that moved shifts every pixel pose, so
+        # the new pose earns its place as any candidate does, re-checked at each version
+        moved = "; the earlier epoch's link moved" if was_in else ""
+        return Verdict(CANDIDATE, f"grey zone: margin {m} below {min_margin}{moved}")
+    if was_in:
+        return Verdict(WITHDRAWN, f"contradicted by a new epoch: {reason or f'margin {m}'}")
+    return Verdict(REJECTED, reason or f"margin {m} below the grey zone")
+
+
+def recheck_verdict(
+    held_holds: int,
+    held_margin: float | None,
+    first_margin: float | None,
+    accepted: bool,
+    margin: float | None,
+    held: bool,
+    reason: str,
+    min_margin: float,
+) -> Verdict:
+    """A candidate re-checked at its pose on newer versions of its maps.
+
+    ``held_holds``, ``held_margin``, ``first_margin``: the candidate's count of holds, its
+    last margin and its first decision's; ``accepted``, ``margin``, ``held``: the re-check's
+    outcome, its margin and whether the refined pose stayed within the hold of the
+    candidate's.
+    """
+    m = _margin_text(margin)
+    if accepted:  # the refined pose stands out on its own, held or not
+        return Verdict(CONFIRMED, f"re-check clears the bar: margin {m}", held_holds + 1)
+    if margin is None or not np.isfinite(margin) or margin < GREY_FLOOR:
+        return Verdict(REJECTED, f"contradicted: {reason or f'margin {m}'}", held_holds)
+    if not held:
+        return Verdict(REJECTED, f"contradicted: the pose moved (margin {m})", held_holds)
+    floor = -np.inf if held_margin is None else held_margin - MARGIN_SLACK
+    if margin < floor:
+        return Verdict(CANDIDATE, f"margin fell: {m} < {_margin_text(held_margin)}", held_holds)
+    n = held_holds + 1
+    gain = margin - (margin if first_margin is None else first_margin)
+    if n >= HOLDS_TO_CONFIRM and gain >= MARGIN_GAIN:
+        return Verdict(CONFIRMED, f"pose held on {n} newer versions: margin {m}, +{gain:.2f}", n)
+    return Verdict(CANDIDATE, f"pose held {n}/{HOLDS_TO_CONFIRM}: margin {m}, {gain:+.2f}", n)

@@ -1,0 +1,234 @@
+"""A link's lifecycle (agent.trust): candidates re-checked as maps grow, confirmed or dropped,
+and links a later epoch contradicts withdrawn on every agent.
+
+The real cases replay laser logs of the development buildings version by version, each
+robot's map on a canvas fixed for its epoch, as a SLAM front end grows it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent import trust
+from agent.book import FleetBook
+from agent.links import EPOCH_SHIFT, LinkRecord
+from agent.wire import Inbound, encode_link, link_record
+from agent.worker import FusionWorker, GlobalState, merge_registration, verify_check
+from pgvd.grid import Grid, rigid_matrix
+
+
+def V(epoch: int, minor: int = 0) -> int:
+    return epoch << EPOCH_SHIFT | minor
+
+
+# ----------------------------------------------------------------- the rules alone
+
+
+def test_the_first_decision_is_accepted_candidate_or_rejected_by_its_margin() -> None:
+    bar = 0.57
+    assert trust.first_verdict(True, 0.8, True, "accepted", bar).state == trust.ACCEPTED
+    grey = trust.first_verdict(False, 0.41, True, "does not stand out", bar)
+    assert grey.state == trust.CANDIDATE and grey.reason == "grey zone: margin 0.41 below 0.57"
+    assert trust.first_verdict(False, -0.2, True, "no", bar).state == trust.REJECTED
+    # a margin in the grey zone without a pose (none reached the last stage) is no candidate
+    assert trust.first_verdict(False, 0.3, False, "no pose", bar).state == trust.REJECTED
+
+
+def test_a_new_epoch_confirms_a_held_link_and_withdraws_a_contradicted_one() -> None:
+    bar = 0.57
+    held = trust.first_verdict(False, 0.3, True, "", bar, trust.ACCEPTED, held=True)
+    assert held.state == trust.CONFIRMED
+    moved = trust.first_verdict(False, 0.3, True, "", bar, trust.CONFIRMED, held=False)
+    assert moved.state == trust.CANDIDATE and moved.reason.endswith("link moved"), moved
+    gone = trust.first_verdict(False, -0.4, True, "disagree", bar, trust.ACCEPTED)
+    assert gone.state == trust.WITHDRAWN and "disagree" in gone.reason
+    # a rejected pair stays a candidate, not a withdrawal
+    assert trust.first_verdict(False, 0.3, True, "", bar, trust.REJECTED).state == trust.CANDIDATE
+
+
+def test_a_candidate_needs_its_pose_to_hold_twice_and_its_margin_to_grow() -> None:
+    bar = 0.57
+    one = trust.recheck_verdict(0, 0.37, 0.37, False, 0.365, True, "", bar)
+    assert (one.state, one.holds) == (trust.CANDIDATE, 1)
+    two = trust.recheck_verdict(1, 0.365, 0.37, False, 0.53, True, "", bar)
+    assert (two.state, two.holds) == (trust.CONFIRMED, 2)
+    # a look-alike's pose that holds with a flat margin stays a candidate
+    flat = trust.recheck_verdict(1, 0.24, 0.21, False, 0.24, True, "", bar)
+    assert (flat.state, flat.holds) == (trust.CANDIDATE, 2), flat
+    fell = trust.recheck_verdict(1, 0.5, 0.3, False, 0.3, True, "", bar)
+    assert (fell.state, fell.holds) == (trust.CANDIDATE, 1)
+    assert trust.recheck_verdict(1, 0.3, 0.3, False, 0.2, False, "", bar).state == trust.REJECTED
+    dropped = trust.recheck_verdict(1, 0.3, 0.3, False, -0.05, True, "x", bar)
+    assert dropped.state == trust.REJECTED and dropped.reason == "contradicted: x"
+    assert trust.recheck_verdict(0, 0.3, 0.3, False, None, True, "", bar).state == trust.REJECTED
+    assert trust.recheck_verdict(0, 0.3, 0.3, True, 0.6, False, "", bar).state == trust.CONFIRMED
+
+
+def test_a_pose_holds_within_3_cells_and_2_degrees_at_the_maps_centre() -> None:
+    b = Grid(np.zeros((200, 200), np.float32), 0.05)
+    m = rigid_matrix(0.3, 40.0, -12.0)
+    assert trust.holds(m, m @ rigid_matrix(0.0, 2.0, 2.0), b)  # 0.14 m
+    assert not trust.holds(m, m @ rigid_matrix(0.0, 3.0, 2.0), b)  # 0.18 m
+    turned = rigid_matrix(np.radians(1.5), 0.0, 0.0)
+    centre = np.array([99.5, 99.5])
+    about_centre = turned.copy()
+    about_centre[:2, 2] = centre - turned[:2, :2] @ centre
+    assert trust.holds(m, m @ about_centre, b)
+    assert not trust.holds(m, m @ rigid_matrix(np.radians(2.5), 0.0, 0.0), b)
+
+
+def test_a_reason_is_made_fit_for_the_wire() -> None:
+    assert trust.clean_reason("a\nb") == "a b"
+    assert len(trust.clean_reason("x" * 1000)) == 400
+
+
+# ------------------------------------------------------------ real replays
+
+
+@pytest.fixture(scope="module")
+def logs(shared: Path) -> dict[str, list]:
+    from pgvd.carmen import read_carmen
+
+    return {
+        name: read_carmen(shared / "logs" / f"{name}-corrected.log.gz")
+        for name in ("intel", "freiburg-079")
+    }
+
+
+def growing(scans: list, transform: np.ndarray, canvas: list, parts: list[list]) -> list[Grid]:
+    """``parts`` (scan lists, each extending the last) integrated on one canvas: the one
+    :func:`pgvd.integrate.frame_for` gives ``canvas`` in the frame ``transform``."""
+    from pgvd.integrate import frame_for, integrate
+
+    frame = frame_for(canvas, 0.05, transform)
+    return [integrate(part, frame) for part in parts]
+
+
+class Agent:
+    """One robot's book and fusion worker, with the merge and the check of a real agent."""
+
+    def __init__(self, me: str) -> None:
+        self.book = FleetBook()
+        self.links: list[LinkRecord] = []
+        self.globals: list[GlobalState] = []
+        self.worker = FusionWorker(
+            me, self.book, merge_registration(), self.links.append, self.globals.append,
+            check=verify_check(),
+        )  # fmt: skip
+
+    def step(self, now: float) -> None:
+        while self.worker.step(now=now):
+            pass
+
+    def record(self, a: str, b: str) -> LinkRecord:
+        return next(ln for ln in self.book.snapshot().links if ln.pair == (a, b))
+
+    def joined(self, a: str, b: str) -> bool:
+        return any(a in c.members and b in c.members for c in self.globals[-1].components)
+
+
+def test_a_mirror_pair_in_the_grey_zone_never_enters_and_is_dropped_as_it_grows(
+    logs, caplog
+) -> None:
+    from bench.data.negatives import mirror_scans
+    from bench.data.pairs import random_frame
+
+    caplog.set_level("INFO", logger="pgvd.agent")
+    scans = logs["intel"]
+    rng = np.random.default_rng(100)
+    ends = (766, 800, 840)
+    parts = [scans[445:e] for e in ends]
+    maps_a = growing(scans, random_frame(rng), parts[0], parts)
+    mirrored = [mirror_scans(p) for p in parts]
+    maps_b = growing(scans, random_frame(rng), mirrored[0], mirrored)
+    r1 = Agent("r1")
+    states = []
+    for minor, (a, b) in enumerate(zip(maps_a, maps_b, strict=True)):
+        r1.book.put_map("r1", V(1, minor), a)
+        r1.book.put_map("r2", V(1, minor), b)
+        r1.step(now=float(minor))
+        states.append(r1.record("r1", "r2").state)
+        assert not r1.joined("r1", "r2"), states
+    assert states == [trust.CANDIDATE, trust.CANDIDATE, trust.REJECTED], states
+    final = r1.record("r1", "r2")
+    assert final.reason.startswith("contradicted"), final.reason
+    assert final.revision == 2 and final.first_a == V(1, 0)
+    assert not np.allclose(final.matrix, np.eye(3))  # the pose it was dropped at, kept
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("link ")]
+    assert [ln.split("outcome=")[1].split()[0] for ln in lines] == states
+    assert 'reason="grey zone: margin 0.02 below 0.57"' in lines[0], lines[0]
+
+
+def test_a_right_pair_in_the_grey_zone_is_confirmed_once_its_maps_grow(logs) -> None:
+    from bench.data.pairs import random_frame, true_matrix
+    from pgvd.integrate import select_segment
+
+    scans = logs["freiburg-079"]
+    rng = np.random.default_rng(101031)
+    frame_a, frame_b = random_frame(rng), random_frame(rng)
+    part_a = select_segment(scans, (0.3051, 0.4765))
+    (map_a,) = growing(scans, frame_a, part_a, [part_a])
+    parts = [select_segment(scans, (0.5643, e)) for e in (0.7527, 0.78, 0.81)]
+    maps_b = growing(scans, frame_b, select_segment(scans, (0.5643, 0.84)), parts)
+    r1 = Agent("r1")
+    r1.book.put_map("r1", V(1), map_a)
+    states = []
+    for minor, b in enumerate(maps_b):
+        r1.book.put_map("r2", V(1, minor), b)
+        r1.step(now=float(minor))
+        states.append(r1.record("r1", "r2").state)
+    assert states == [trust.CANDIDATE, trust.CANDIDATE, trust.CONFIRMED], states
+    assert r1.joined("r1", "r2") and r1.globals[-1].settled
+    (comp,) = r1.globals[-1].components
+    truth = true_matrix(map_a, frame_a, maps_b[-1], frame_b)
+    shift, turn = trust.pose_change(truth, comp.transforms["r2"], maps_b[-1])
+    assert shift < 0.3 and turn < 1.0, (shift, turn)
+
+
+def test_a_link_a_later_epoch_contradicts_is_withdrawn_on_every_agent(logs, caplog) -> None:
+    """A wrong accepted link (a liar's) joins two maps of parts of intel that share no
+    place; r2's next epoch re-decides the pair, the search contradicts it, and both agents
+    drop it from their global maps, which agree bit for bit."""
+    from bench.data.pairs import random_frame
+    from pgvd.integrate import select_segment
+
+    caplog.set_level("INFO", logger="pgvd.agent")
+    scans = logs["intel"]
+    rng = np.random.default_rng(1561)
+    part_a = select_segment(scans, (0.3456, 0.3863))
+    (map_a,) = growing(scans, random_frame(rng), part_a, [part_a])
+    parts = [select_segment(scans, (0.5765, e)) for e in (0.6149, 0.63)]
+    map_b, map_b2 = growing(scans, random_frame(rng), parts[-1], parts)
+    lie = LinkRecord(
+        "r1", V(1), "r2", V(1), True, rigid_matrix(0.4, 30.0, 20.0), np.eye(3), 0.9, "r1"
+    )
+    agents = {me: Agent(me) for me in ("r1", "r2")}
+    inbound = Inbound("default", None)
+
+    def deliver(rec: LinkRecord, to: Agent) -> None:
+        """Over the wire, as a peer hears it: the lifecycle travels in the Link message."""
+        to.book.add_link(link_record(inbound.decode(encode_link("default", rec, None))))
+
+    for agent in agents.values():
+        agent.book.put_map("r1", V(1), map_a)
+        agent.book.put_map("r2", V(1), map_b)
+        deliver(lie, agent)
+        agent.step(now=0.0)
+        assert agent.joined("r1", "r2")
+    for agent in agents.values():
+        agent.book.put_map("r2", V(2), map_b2)
+        agent.step(now=1.0)  # r1 decides (its turn); r2 waits for it
+    (decided,) = agents["r1"].links
+    assert decided.state == trust.WITHDRAWN and not decided.accepted, decided
+    assert agents["r2"].links == []
+    deliver(decided, agents["r2"])
+    agents["r2"].step(now=1.5)
+    for agent in agents.values():
+        assert agent.record("r1", "r2").state == trust.WITHDRAWN
+        assert not agent.joined("r1", "r2")
+    digests = {me: [c.digest for c in a.globals[-1].components] for me, a in agents.items()}
+    assert digests["r1"] == digests["r2"], digests
+    assert any("outcome=withdrawn" in r.getMessage() for r in caplog.records)
