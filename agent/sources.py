@@ -42,7 +42,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pgvd.grid import Grid, world_pose_to_pixel_matrix
-from pgvd.io import MapFormatError, map_image_path, read_map
+from pgvd.io import MapFormatError, read_map
+from pgvd.map_yaml import map_image_path
 from protocol.ros2.occupancy import robot_map_frame
 
 if TYPE_CHECKING:

@@ -29,8 +29,9 @@ import numpy as np
 from agent.failpoints import failpoint
 from agent.keys import check_name
 from agent.links import LinkRecord, dumps, loads
+from pgvd.atomic import atomic_write
 from pgvd.grid import Grid, check_cell_size
-from pgvd.io import NPY_HEADER_ERRORS, atomic_write
+from pgvd.npy_map import NPY_HEADER_ERRORS
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,7 @@ class StoredMap:
 def atomic_write_bytes(
     path: Path, data: bytes, point: str | None = None, durable: bool = False
 ) -> None:
-    """Write ``data`` to ``path`` with :func:`pgvd.io.atomic_write`: old or new file, whole;
+    """Write ``data`` to ``path`` with :func:`pgvd.atomic.atomic_write`: old or new file, whole;
     fsynced if ``durable``.
 
     ``point`` names the failpoint (:mod:`agent.failpoints`) reached with half of the bytes

@@ -12,7 +12,7 @@ import numpy as np
 from scipy import ndimage
 
 from pgvd.grid import Grid
-from pgvd.io import FREE_THRESH, OCCUPIED_THRESH
+from pgvd.map_shades import FREE_THRESH, OCCUPIED_THRESH
 from pgvd.transform import union_canvas, warp
 
 #: Colours (RGB) of the overlay classes.

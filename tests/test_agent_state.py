@@ -71,7 +71,7 @@ def test_a_crash_during_a_write_leaves_the_old_file_whole(
     def crash(*_: object) -> None:
         raise OSError("disk gone")
 
-    monkeypatch.setattr(os, "replace", crash)  # the writer is pgvd.io.atomic_write
+    monkeypatch.setattr(os, "replace", crash)  # the writer is pgvd.atomic.atomic_write
     with pytest.raises(OSError):
         sd.save_map("r1", StoredMap(2, grid(2)))
     monkeypatch.undo()

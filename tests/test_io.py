@@ -12,16 +12,9 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from pgvd.grid import Grid
-from pgvd.io import (
-    P_FREE,
-    P_OCCUPIED,
-    MapFormatError,
-    parse_map_yaml,
-    read_map,
-    shade_to_probability,
-    write_map,
-    write_png,
-)
+from pgvd.io import MapFormatError, read_map, write_map, write_png
+from pgvd.map_shades import P_FREE, P_OCCUPIED, shade_to_probability
+from pgvd.map_yaml import parse_map_yaml
 
 YAML_TAIL = (
     "resolution: 0.05\norigin: [1.0, 2.0, 0.0]\nnegate: 0\n"

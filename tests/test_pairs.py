@@ -191,7 +191,7 @@ def test_gmapping_runs_meet_at_their_common_origin(shared):
 
 
 def test_painted_pair_reads_free_where_a_saved_map_draws_unknown(split):
-    from pgvd.io import FREE_THRESH, OCCUPIED_THRESH, P_FREE
+    from pgvd.map_shades import FREE_THRESH, OCCUPIED_THRESH, P_FREE
 
     painted = painted_pair(split)
     for before, after in ((split.a, painted.a), (split.b, painted.b)):

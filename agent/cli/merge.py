@@ -24,17 +24,9 @@ import numpy as np
 from agent.cli.common import EXIT_NO_OVERLAP, EXIT_OK, CliError, check_resolution_option
 from agent.pose import Pose, parse_pose
 from pgvd.grid import Grid, map_frame_covariance, map_frame_pose, matrix_to_pose
-from pgvd.io import (
-    MAX_CELLS,
-    NPY_RESOLUTION,
-    YAML_SUFFIXES,
-    MapFormatError,
-    map_image_path,
-    read_map,
-    write_map,
-    write_png,
-    written_files,
-)
+from pgvd.io import MAX_CELLS, MapFormatError, read_map, write_map, write_png, written_files
+from pgvd.map_yaml import YAML_SUFFIXES, map_image_path
+from pgvd.npy_map import NPY_RESOLUTION
 
 if TYPE_CHECKING:
     from agent.multimerge import ManyMerge
@@ -266,7 +258,7 @@ def _rejected_pose(result: MergeResult, doc: dict) -> str:
 def _check_output(what: str, path: Path | None) -> None:
     """Refuse an output that cannot be written before the merge runs rather than after it.
 
-    Missing parent directories are created when writing (:func:`pgvd.io.atomic_write`), so
+    Missing parent directories are created when writing (:func:`pgvd.atomic.atomic_write`), so
     the nearest existing ancestor is the one that must be a writable directory.
     """
     if path is None:

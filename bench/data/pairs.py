@@ -35,7 +35,8 @@ from pgvd.integrate import (
     se2,
     select_segment,
 )
-from pgvd.io import FREE_THRESH, OCCUPIED_THRESH, P_FREE, P_OCCUPIED, write_map
+from pgvd.io import write_map
+from pgvd.map_shades import FREE_THRESH, OCCUPIED_THRESH, P_FREE, P_OCCUPIED
 
 #: Segment lengths (fractions of the log) drawn for overlapping pairs.
 OVERLAP_LENGTHS = (0.05, 0.5)
@@ -73,8 +74,8 @@ class MapPair:
 
 def painted_free(grid: Grid) -> Grid:
     """``grid`` as a map image with no unknown cell: every cell a saved map draws unknown
-    (between map_saver's thresholds, :data:`pgvd.io.FREE_THRESH` and
-    :data:`pgvd.io.OCCUPIED_THRESH`) reads free (:data:`pgvd.io.P_FREE`), as when an
+    (between map_saver's thresholds, :data:`pgvd.map_shades.FREE_THRESH` and
+    :data:`pgvd.map_shades.OCCUPIED_THRESH`) reads free (:data:`pgvd.map_shades.P_FREE`), as when an
     editor or an export paints the unexplored area white."""
     p = grid.probability()
     unknown = (p >= FREE_THRESH) & (p <= OCCUPIED_THRESH)
@@ -90,9 +91,9 @@ def painted_pair(pair: MapPair) -> MapPair:
 
 def speckled(grid: Grid, density: float, rng: np.random.Generator) -> Grid:
     """``grid`` as a raw, uncleaned map: ``density`` of its free cells (below map_saver's
-    :data:`pgvd.io.FREE_THRESH`), drawn at random, are walls (:data:`pgvd.io.P_OCCUPIED`):
-    spurious returns that a cleaned map would have lost (one drawn beside a wall thickens it
-    rather than standing alone)."""
+    :data:`pgvd.map_shades.FREE_THRESH`), drawn at random, are walls
+    (:data:`pgvd.map_shades.P_OCCUPIED`): spurious returns that a cleaned map would have lost
+    (one drawn beside a wall thickens it rather than standing alone)."""
     if not 0 <= density < 1:
         raise ValueError(f"speckle density must be in [0, 1), got {density}")
     p = grid.probability()
@@ -107,7 +108,7 @@ def cluttered(p: np.ndarray, density: float, resolution: float, seed: int) -> np
     """Probabilities ``p`` of a map image with furniture drawn in: filled discs of radius
     0.1-0.35 m, ``density`` of them per square metre of free space on average (a Poisson
     count), centred on free cells drawn at random.  Only free cells become walls
-    (:data:`pgvd.io.P_OCCUPIED`): nothing is drawn into the unexplored space.  Applied to a
+    (:data:`pgvd.map_shades.P_OCCUPIED`): nothing is drawn into the unexplored space.  Applied to a
     whole image before its parts are cut, both robots see the same furniture.
 
     Raises

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from pgvd.grid import Grid, probability_to_logodds
-from pgvd.io import FREE_THRESH, OCCUPIED_THRESH, shade_to_probability
+from pgvd.map_shades import FREE_THRESH, OCCUPIED_THRESH, shade_to_probability
 from protocol.errors import ProtocolError
 from protocol.limits import Limits
 from protocol.ros2.types import OCCUPANCY_GRID, TF_MESSAGE, typestore
