@@ -25,14 +25,20 @@ import numpy as np
 from pgvd.atomic import atomic_write
 from pgvd.grid import Grid
 from pgvd.map_errors import IS_DIRECTORY, MapFormatError, check_map_resolution
-from pgvd.map_image import IMAGE_SUFFIXES, decode_image, write_png
+from pgvd.map_image import IMAGE_SUFFIXES, decode_image, pgm_bytes, write_png
 from pgvd.map_shades import (
     FREE_THRESH,
     OCCUPIED_THRESH,
     check_has_occupied,
     shade_to_probability,
 )
-from pgvd.map_yaml import YAML_SUFFIXES, read_map_yaml, yaml_image_path, yaml_number
+from pgvd.map_yaml import (
+    YAML_SUFFIXES,
+    format_map_yaml,
+    read_map_yaml,
+    yaml_image_path,
+    yaml_number,
+)
 from pgvd.npy_map import NPY_RESOLUTION, read_npy_map
 
 __all__ = ["MAX_CELLS", "MapFormatError", "read_map", "write_map", "write_png", "written_files"]
@@ -176,16 +182,6 @@ def write_map(path: str | os.PathLike[str], grid: Grid) -> None:
     pixels[prob > OCCUPIED_THRESH] = 0
     pixels[prob < FREE_THRESH] = 254
     image = written_files(path)[1]
-    header = f"P5\n{pixels.shape[1]} {pixels.shape[0]}\n255\n".encode()
-    atomic_write(image, lambda f: f.write(header + pixels.tobytes()))
-    ox, oy, yaw = (float(v) for v in grid.origin)
-    text = (
-        f"image: {image.name}\n"
-        f"mode: trinary\n"
-        f"resolution: {float(grid.resolution)!r}\n"
-        f"origin: [{ox!r}, {oy!r}, {yaw!r}]\n"
-        f"negate: 0\n"
-        f"occupied_thresh: {OCCUPIED_THRESH}\n"
-        f"free_thresh: {FREE_THRESH}\n"
-    )
+    atomic_write(image, lambda f: f.write(pgm_bytes(pixels)))
+    text = format_map_yaml(image.name, grid.resolution, grid.origin)
     atomic_write(path, lambda f: f.write(text.encode()))

@@ -1,4 +1,4 @@
-"""Map images: PGM (P2/P5) and PNG decoded to gray shades, and a PNG encoder.
+"""Map images: PGM (P2/P5) and PNG decoded to gray shades; PGM and PNG encoders.
 
 Decoding gives ``(shade 0..255, alpha 0..255 or None)`` as float32, for
 :mod:`pgvd.map_shades` to read as occupancy.  A bare ``.pgm`` or ``.png`` (an image
@@ -137,6 +137,12 @@ def decode_image(path: Path, max_cells: int) -> tuple[np.ndarray, np.ndarray | N
     if data[:8] == _PNG_MAGIC:
         return _decode_png(data, path, max_cells)
     raise MapFormatError(path, "not a PGM (P2/P5) or PNG image")
+
+
+def pgm_bytes(pixels: np.ndarray) -> bytes:
+    """A binary (P5) 8-bit PGM of ``pixels``, an ``(H, W)`` uint8 array."""
+    header = f"P5\n{pixels.shape[1]} {pixels.shape[0]}\n255\n".encode()
+    return header + pixels.tobytes()
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:

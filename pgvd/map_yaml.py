@@ -13,7 +13,7 @@ import re
 from pathlib import Path
 
 from pgvd.map_errors import MapFormatError, check_map_resolution, read_map_bytes
-from pgvd.map_shades import MODES
+from pgvd.map_shades import FREE_THRESH, MODES, OCCUPIED_THRESH
 
 #: Suffixes of map_server YAML files.
 YAML_SUFFIXES = (".yaml", ".yml")
@@ -187,3 +187,33 @@ def yaml_image_path(yaml_path: Path, image: str) -> Path:
     if p.exists():
         return p
     return yaml_path.parent / p.name
+
+
+def format_map_yaml(image: str, resolution: float, origin: tuple[float, float, float]) -> str:
+    """The map_server YAML of a trinary image: what :func:`read_map_yaml` reads back.
+
+    Parameters
+    ----------
+    image : str
+        The image's file name, relative to the YAML.
+    resolution : float
+        Metres per cell.
+    origin : tuple of float
+        ``(x, y, yaw)`` of the lower-left cell (ROS).
+
+    Returns
+    -------
+    str
+        The file's text: ``mode: trinary``, ``negate: 0`` and map_server's default
+        thresholds; numbers written to round-trip exactly.
+    """
+    ox, oy, yaw = (float(v) for v in origin)
+    return (
+        f"image: {image}\n"
+        f"mode: trinary\n"
+        f"resolution: {float(resolution)!r}\n"
+        f"origin: [{ox!r}, {oy!r}, {yaw!r}]\n"
+        f"negate: 0\n"
+        f"occupied_thresh: {OCCUPIED_THRESH}\n"
+        f"free_thresh: {FREE_THRESH}\n"
+    )
