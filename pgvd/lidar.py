@@ -199,7 +199,7 @@ def scan_at(
     """One scan per pose (world ``x, y, theta``), with range noise and no-return markers.
 
     Beam ``i`` points at ``theta - fov / 2 + i * fov / (beams - 1)``, the
-    convention of :class:`pgvd.io.LaserScan`; ``odom`` is the true pose.
+    convention of :class:`pgvd.carmen.LaserScan`; ``odom`` is the true pose.
     """
     poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
     rel = (

@@ -1,4 +1,4 @@
-"""The CARMEN log reader of pgvd.io on the real intel and freiburg-079 logs, and fuzzed input."""
+"""pgvd.carmen, the CARMEN log reader, on the real intel and freiburg-079 logs and fuzzed input."""
 
 from __future__ import annotations
 
