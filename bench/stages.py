@@ -50,7 +50,7 @@ from pgvd.params import MergeParams  # noqa: E402
 from pgvd.transform import warp  # noqa: E402
 
 # the module of the merge's stage clock
-merge_module = importlib.import_module("pgvd.result")
+merge_module = importlib.import_module("pgvd.stage_clock")
 
 STAGES = ("rotation", "coarsen", "pgvd", "graph", "gamma", "verify", "refine", "covariance")
 

@@ -19,8 +19,8 @@ from pgvd.graph import EdgeGraph, build_graph
 from pgvd.gvd import pgvd
 from pgvd.heading_search import Rotated, translation
 from pgvd.params import MergeParams
-from pgvd.result import StageClock
 from pgvd.rotation import HeadingCandidate
+from pgvd.stage_clock import StageClock
 from pgvd.uncertainty import rotation_blur
 
 

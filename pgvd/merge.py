@@ -90,10 +90,11 @@ from pgvd.overlay import Agreement, MapView, OverlayScores
 from pgvd.parallel import both
 from pgvd.params import MergeParams
 from pgvd.pooling import block_scale, coarsen, covariance_from_pooled, decision_pool, from_pooled
-from pgvd.result import MergeResult, StageClock, merge_result, rejected
+from pgvd.result import MergeResult, merge_result, rejected
 from pgvd.retry import Progress, retried
 from pgvd.rotation import HeadingCandidate, estimate_headings
 from pgvd.scoring import decide_hypotheses, fine_maps, overlay_floors
+from pgvd.stage_clock import StageClock
 from pgvd.walls import WallMap
 
 

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from pgvd.diagnostics import MergeDiagnostics
 from pgvd.grid import matrix_to_pose
+from pgvd.stage_clock import StageClock
 
 
 @dataclass
@@ -78,30 +77,6 @@ class MergeResult:
             "distortion_px": float(self.distortion_px) if np.isfinite(self.distortion_px) else None,
             "candidate": bool(self.candidate),
         }
-
-
-class StageClock:
-    """Milliseconds per stage of one merge (``timings_ms``), told to ``progress`` as they end."""
-
-    def __init__(self, progress: Callable[[str], None] | None) -> None:
-        self.timings: dict[str, float] = {}
-        self.progress = progress
-        self.t0 = self.last = time.perf_counter()
-
-    def lap(self, stage: str) -> None:
-        """Add the time since the last lap to ``stage``; progress shows both (a stage such as
-        gamma runs once per searched heading, so its running total alone reads as steps)."""
-        now = time.perf_counter()
-        step = 1e3 * (now - self.last)
-        self.timings[stage] = self.timings.get(stage, 0.0) + step
-        self.last = now
-        if self.progress is not None:
-            self.progress(f"{stage}: {step:.1f} ms ({self.timings[stage]:.1f} ms so far)")
-
-    def total(self) -> dict[str, float]:
-        """The timings so far, with ``"total"`` the time since the clock started."""
-        self.timings["total"] = 1e3 * (time.perf_counter() - self.t0)
-        return self.timings
 
 
 def merge_result(

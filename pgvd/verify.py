@@ -51,8 +51,9 @@ from pgvd.inputs import check_extent, check_resolutions, registration_probabilit
 from pgvd.parallel import both
 from pgvd.params import MergeParams
 from pgvd.pooling import covariance_from_pooled, decision_pool, from_pooled, to_pooled
-from pgvd.result import MergeResult, StageClock, merge_result, rejected
+from pgvd.result import MergeResult, merge_result, rejected
 from pgvd.scoring import decide_finalists, decision_map, overlay_floors
+from pgvd.stage_clock import StageClock
 from pgvd.walls import WallMap
 
 #: Largest move (m) of B's wall centroid by the refinement for the prediction to count.
