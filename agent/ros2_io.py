@@ -4,8 +4,9 @@ A ROS 2 robot on rmw_zenoh already publishes every topic as a Zenoh key, so join
 fleet needs no ROS code: :class:`RosMapSubscription` subscribes to its map topic the way a
 ROS 2 subscriber on rmw_zenoh does, :class:`RosMapPublisher` publishes the global map and
 TF and :class:`RosLinksPublisher` the links between robots' maps as RViz markers, the way a
-ROS 2 publisher does (keys, attachment and liveliness tokens from :mod:`protocol.ros2`). Robots still on DDS reach Zenoh through zenoh-bridge-ros2dds, whose keys
-are bare topic names with no attachment and no tokens (``form="bridge"``).
+ROS 2 publisher does (keys, attachment and liveliness tokens from :mod:`protocol.ros2`).
+Robots still on DDS reach Zenoh through zenoh-bridge-ros2dds, whose keys are bare topic names
+with no attachment and no tokens (``form="bridge"``).
 
 Transient local: a map topic is latched in ROS 2 (slam_toolbox, map_server). rmw_zenoh keeps a
 latched topic's last sample in a Zenoh advanced publisher's cache, which an advanced
