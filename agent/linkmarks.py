@@ -23,9 +23,10 @@ from protocol.ros2.markers import LineList, Point2
 #: The states drawn, each in its own colour (RGB, 0..255); rejected links are not drawn.
 COLOURS: dict[str, tuple[int, int, int]] = {
     trust.ACCEPTED: (0, 150, 0),
-    trust.CONFIRMED: (30, 100, 230),
+    trust.CONFIRMED: (150, 60, 200),
     trust.CANDIDATE: (230, 130, 0),
-    trust.WITHDRAWN: (140, 140, 140),
+    # dark: a light grey vanishes on the unknown cells of a rendered map
+    trust.WITHDRAWN: (70, 70, 70),
 }
 
 
