@@ -97,7 +97,7 @@ def map_placements(
 
 
 class Outputs:
-    """Sends the global map to ROS 2 and Foxglove, as :class:`OutputOptions` asks.
+    """Sends the global map and its links to ROS 2 and Foxglove, as :class:`OutputOptions` asks.
 
     Parameters
     ----------
@@ -132,7 +132,8 @@ class Outputs:
             self._view = FoxgloveView(*opts.foxglove, frame=opts.frame)
 
     def tick(self, now: float, comp: Component | None, book: FleetBook) -> None:
-        """At the rate: publish ``comp``'s map and placements if they changed, send the view.
+        """At the rate: publish ``comp``'s map and placements if they changed, send the links'
+        markers and the view.
 
         ``now`` is monotonic seconds; ``book`` holds the maps and links of now.
         """
