@@ -86,7 +86,7 @@ class AgentOptions:
 
     def session_options(self) -> ZenohOptions:
         """The main session's; ROS 2's advanced publishers and subscribers need timestamps."""
-        if self.source.kind != "ros2" and self.outputs.publish is None:
+        if self.source.kind != "ros2" and not self.outputs.to_ros:
             return self.zenoh
         return replace(self.zenoh, extra={**self.zenoh.extra, "timestamping/enabled": True})
 
@@ -312,7 +312,7 @@ class Agent:
     def _declare_ros_node(self, session: zenoh.Session, stack: contextlib.ExitStack) -> None:
         """The ROS 2 node token, when the agent reads or publishes a ROS topic; declared on
         the stack before the subscription and publishers, so that it is undeclared after."""
-        if not (isinstance(self.source, RosTopicSource) or self.opts.outputs.publish):
+        if not (isinstance(self.source, RosTopicSource) or self.opts.outputs.to_ros):
             return
         token = declare_node(session, self.opts.outputs.ros)
         if token is not None:

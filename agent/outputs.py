@@ -1,4 +1,5 @@
-"""The global map out of the agent: to ROS 2 (OccupancyGrid and TF) and to a Foxglove view.
+"""The global map out of the agent: to ROS 2 (OccupancyGrid, TF, link markers) and to a Foxglove
+view.
 
 What leaves is the component holding this agent's robot (:mod:`agent.globalmap`). Its merged
 frame (``--ros-frame``, ROS: ``world``) is the metric frame of the component's anchor map, in
@@ -7,7 +8,8 @@ placed in it from the component's pixel matrices and the maps' origins
 (:func:`map_placements`). The map and the placements are published when they change, both
 latched (nav2, a late RViz and tf2 listeners get them; the placements go on ``/tf_static``,
 :meth:`agent.ros2_io.RosMapPublisher.publish_tf`); the view is sent again at the rate (a
-viewer that connects late sees the fleet on the next send).
+viewer that connects late sees the fleet on the next send), and so are the links' markers
+(:mod:`agent.linkmarks`), for RViz's MarkerArray display, volatile by default.
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ import zenoh
 from agent.book import FleetBook
 from agent.counters import Counters
 from agent.globalmap import Component
-from agent.ros2_io import RosMapPublisher, RosOptions
+from agent.linkmarks import link_line_lists, map_centres
+from agent.ros2_io import RosLinksPublisher, RosMapPublisher, RosOptions
 from agent.status import link_json
 from pgvd.grid import Grid, map_frame_pose
 from protocol.ros2.occupancy import Placement, robot_map_frame
@@ -40,6 +43,7 @@ class OutputOptions:
     rate : Hz at which a new global map is looked for and the view sent (``--ros-rate``;
         m-explore's ``merging_rate``).
     foxglove : ``(host, port)`` of the Foxglove WebSocket server, or None.
+    links : the link markers' topic (``--ros-links``, e.g. ``/map_merged_links``), or None.
     """
 
     ros: RosOptions = field(default_factory=RosOptions)
@@ -47,10 +51,16 @@ class OutputOptions:
     frame: str = "world"
     rate: float = 1.0
     foxglove: tuple[str, int] | None = None
+    links: str | None = None
+
+    @property
+    def to_ros(self) -> bool:
+        """True if anything is published on a ROS 2 topic."""
+        return self.publish is not None or self.links is not None
 
     @property
     def active(self) -> bool:
-        return self.publish is not None or self.foxglove is not None
+        return self.to_ros or self.foxglove is not None
 
 
 def map_placements(
@@ -87,13 +97,14 @@ def map_placements(
 
 
 class Outputs:
-    """Sends the global map to ROS 2 and Foxglove, as :class:`OutputOptions` asks.
+    """Sends the global map and its links to ROS 2 and Foxglove, as :class:`OutputOptions` asks.
 
     Parameters
     ----------
     opts : what to serve.
     session : the agent's open Zenoh session (timestamping enabled) when publishing to ROS.
-    counters : where the bytes sent to ROS are counted (``ros_map_bytes``, ``ros_tf_bytes``).
+    counters : where the bytes sent to ROS are counted (``ros_map_bytes``, ``ros_tf_bytes``,
+        ``ros_links_bytes``).
     """
 
     def __init__(
@@ -104,19 +115,25 @@ class Outputs:
         self._digest: str | None = None
         self._placed = False
         self._placements: list[Placement] = []
+        self._centres: dict[str, tuple[float, float]] = {}
         self._next = -math.inf
         self._ros: RosMapPublisher | None = None
+        self._links: RosLinksPublisher | None = None
         self._view = None
         if opts.publish is not None:
             assert session is not None
             self._ros = RosMapPublisher(session, opts.publish, opts.frame, opts.ros)
+        if opts.links is not None:
+            assert session is not None
+            self._links = RosLinksPublisher(session, opts.links, opts.frame, opts.ros)
         if opts.foxglove is not None:
             from agent.view import FoxgloveView
 
             self._view = FoxgloveView(*opts.foxglove, frame=opts.frame)
 
     def tick(self, now: float, comp: Component | None, book: FleetBook) -> None:
-        """At the rate: publish ``comp``'s map and placements if they changed, send the view.
+        """At the rate: publish ``comp``'s map and placements if they changed, send the links'
+        markers and the view.
 
         ``now`` is monotonic seconds; ``book`` holds the maps and links of now.
         """
@@ -139,6 +156,12 @@ class Outputs:
                 self._placements = placements
                 if self._ros is not None:
                     self.counters.add("ros_tf_bytes", self._ros.publish_tf(placements, stamp))
+            if self._links is not None and (self._placed or not self._centres):
+                self._centres = map_centres(comp, maps)
+        if self._links is not None:
+            # sent at every tick: RViz's marker display is volatile by default
+            lines = link_line_lists(book.links(), book.versions(), self._centres)
+            self.counters.add("ros_links_bytes", self._links.publish(lines, stamp))
         if self._view is not None:
             versions = book.versions()
             links = [link_json(rec, versions) for rec in book.links()]
@@ -147,5 +170,7 @@ class Outputs:
     def close(self) -> None:
         if self._ros is not None:
             self._ros.close()
+        if self._links is not None:
+            self._links.close()
         if self._view is not None:
             self._view.close()

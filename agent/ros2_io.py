@@ -2,10 +2,11 @@
 
 A ROS 2 robot on rmw_zenoh already publishes every topic as a Zenoh key, so joining it to the
 fleet needs no ROS code: :class:`RosMapSubscription` subscribes to its map topic the way a
-ROS 2 subscriber on rmw_zenoh does, and :class:`RosMapPublisher` publishes the global map and
-TF the way a ROS 2 publisher does (keys, attachment and liveliness tokens from
-:mod:`protocol.ros2`). Robots still on DDS reach Zenoh through zenoh-bridge-ros2dds, whose keys
-are bare topic names with no attachment and no tokens (``form="bridge"``).
+ROS 2 subscriber on rmw_zenoh does, :class:`RosMapPublisher` publishes the global map and
+TF and :class:`RosLinksPublisher` the links between robots' maps as RViz markers, the way a
+ROS 2 publisher does (keys, attachment and liveliness tokens from :mod:`protocol.ros2`).
+Robots still on DDS reach Zenoh through zenoh-bridge-ros2dds, whose keys are bare topic names
+with no attachment and no tokens (``form="bridge"``).
 
 Transient local: a map topic is latched in ROS 2 (slam_toolbox, map_server). rmw_zenoh keeps a
 latched topic's last sample in a Zenoh advanced publisher's cache, which an advanced
@@ -20,7 +21,7 @@ import itertools
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import zenoh
@@ -30,6 +31,7 @@ from pgvd.grid import Grid
 from protocol.errors import ProtocolError
 from protocol.ros2.attachment import Attachment, decode_attachment, encode_attachment
 from protocol.ros2.keys import RosNode, data_key
+from protocol.ros2.markers import LineList, encode_line_lists
 from protocol.ros2.occupancy import (
     GridRefused,
     Placement,
@@ -38,7 +40,7 @@ from protocol.ros2.occupancy import (
     encode_occupancy_grid,
     encode_tf,
 )
-from protocol.ros2.types import OCCUPANCY_GRID, TF_MESSAGE
+from protocol.ros2.types import MARKER_ARRAY, OCCUPANCY_GRID, TF_MESSAGE
 
 #: Where the robots' placements go: latched, as tf2's StaticTransformBroadcaster sends.
 TF_STATIC = "/tf_static"
@@ -187,6 +189,46 @@ class RosMapSubscription:
         self._sub.undeclare()
 
 
+class _LatchedTopic:
+    """One latched (transient local, depth 1) publisher of rmw_zenoh: key, token, attachment.
+
+    rmw_zenoh numbers each publisher's messages on its own, from 1, under a GID of its own: a
+    restarted agent is a new publisher, whose numbering from 1 again must not read as
+    thousands of messages lost under the old one's GID.
+    """
+
+    def __init__(
+        self, session: zenoh.Session, topic: str, msgtype: str, opts: RosOptions, entity_id: int
+    ) -> None:
+        self._form = opts.form
+        self._seq, self._gid = itertools.count(1), secrets.token_bytes(16)
+        key = data_key(topic, msgtype, domain=opts.domain, distro=opts.distro, form=opts.form)
+        # a late subscriber's history query gets the last sample
+        self._pub = zenoh.ext.declare_advanced_publisher(
+            session, key, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
+        )
+        self._token = None
+        if opts.form == "rmw_zenoh":
+            token = opts.ros_node(session).entity_token(
+                "MP", entity_id, topic, msgtype, distro=opts.distro
+            )
+            self._token = session.liveliness().declare_token(token)
+
+    def put(self, cdr: bytes, stamp_ns: int) -> int:
+        """Send ``cdr``, with rmw_zenoh's attachment; returns its size."""
+        attachment = None
+        if self._form == "rmw_zenoh":
+            attachment = encode_attachment(Attachment(next(self._seq), stamp_ns, self._gid))
+        self._pub.put(cdr, attachment=attachment)
+        return len(cdr)
+
+    def close(self) -> None:
+        """Undeclare the token, then the publisher."""
+        if self._token is not None:
+            self._token.undeclare()
+        self._pub.undeclare()
+
+
 class RosMapPublisher:
     """Publishes a map as ``nav_msgs/msg/OccupancyGrid`` and placements on ``/tf_static``,
     both latched (transient local, depth 1).
@@ -204,40 +246,9 @@ class RosMapPublisher:
     def __init__(self, session: zenoh.Session, topic: str, frame: str, opts: RosOptions) -> None:
         self.frame = frame
         self.opts = opts
-        # rmw_zenoh numbers each publisher's messages on its own, from 1, under a GID of its
-        # own: a restarted agent is a new publisher, whose numbering from 1 again must not
-        # read as thousands of messages lost under the old one's GID.
-        self._map_seq, self._map_gid = itertools.count(1), secrets.token_bytes(16)
-        self._tf_seq, self._tf_gid = itertools.count(1), secrets.token_bytes(16)
-        key = data_key(
-            topic, OCCUPANCY_GRID, domain=opts.domain, distro=opts.distro, form=opts.form
-        )
-        tf_key = data_key(
-            TF_STATIC, TF_MESSAGE, domain=opts.domain, distro=opts.distro, form=opts.form
-        )
-        # Transient local, depth 1: a late subscriber's history query gets the last map, and
-        # a late tf2 listener the last placements.
-        self._map, self._tf = (
-            zenoh.ext.declare_advanced_publisher(
-                session, k, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
-            )
-            for k in (key, tf_key)
-        )
-        self._tokens = []
-        if opts.form == "rmw_zenoh":
-            node = opts.ros_node(session)
-            self._tokens = [
-                session.liveliness().declare_token(t)
-                for t in (
-                    node.entity_token("MP", 10, topic, OCCUPANCY_GRID, distro=opts.distro),
-                    node.entity_token("MP", 11, TF_STATIC, TF_MESSAGE, distro=opts.distro),
-                )
-            ]
-
-    def _attachment(self, sequence: itertools.count, gid: bytes, stamp_ns: int) -> bytes | None:
-        if self.opts.form != "rmw_zenoh":
-            return None
-        return encode_attachment(Attachment(next(sequence), stamp_ns, gid))
+        # a late tf2 listener gets the last placements, as a late map subscriber the last map
+        self._map = _LatchedTopic(session, topic, OCCUPANCY_GRID, opts, 10)
+        self._tf = _LatchedTopic(session, TF_STATIC, TF_MESSAGE, opts, 11)
 
     def publish(self, grid: Grid, placements: list[Placement], stamp_ns: int | None = None) -> int:
         """Publish ``grid`` and the TF of ``placements``; returns the map's bytes."""
@@ -248,9 +259,7 @@ class RosMapPublisher:
 
     def publish_map(self, grid: Grid, stamp_ns: int) -> int:
         """Publish ``grid`` on the latched map topic; returns its CDR bytes."""
-        cdr = encode_occupancy_grid(grid, self.frame, stamp_ns)
-        self._map.put(cdr, attachment=self._attachment(self._map_seq, self._map_gid, stamp_ns))
-        return len(cdr)
+        return self._map.put(encode_occupancy_grid(grid, self.frame, stamp_ns), stamp_ns)
 
     def publish_tf(self, placements: list[Placement], stamp_ns: int) -> int:
         """Publish ``placements`` on ``/tf_static`` (nothing if empty); returns the bytes sent.
@@ -264,12 +273,34 @@ class RosMapPublisher:
         """
         if not placements:
             return 0
-        cdr = encode_tf(placements, stamp_ns)
-        self._tf.put(cdr, attachment=self._attachment(self._tf_seq, self._tf_gid, stamp_ns))
-        return len(cdr)
+        return self._tf.put(encode_tf(placements, stamp_ns), stamp_ns)
 
     def close(self) -> None:
-        for token in self._tokens:
-            token.undeclare()
-        self._tf.undeclare()
-        self._map.undeclare()
+        self._map.close()
+        self._tf.close()
+
+
+class RosLinksPublisher:
+    """Publishes line lists as a latched ``visualization_msgs/msg/MarkerArray``.
+
+    RViz's MarkerArray display draws them with no code; the agent sends one line list per
+    link state (:mod:`agent.linkmarks`).
+
+    Parameters
+    ----------
+    session : an open Zenoh session with timestamping enabled.
+    topic : e.g. ``/map_merged_links``.
+    frame : the frame of the lines' points, e.g. ``world``.
+    opts : key form, domain, distro and node name.
+    """
+
+    def __init__(self, session: zenoh.Session, topic: str, frame: str, opts: RosOptions) -> None:
+        self.frame = frame
+        self._links = _LatchedTopic(session, topic, MARKER_ARRAY, opts, 12)
+
+    def publish(self, lists: Sequence[LineList], stamp_ns: int) -> int:
+        """Publish ``lists``, each list's markers replacing the last; returns the bytes sent."""
+        return self._links.put(encode_line_lists(lists, self.frame, stamp_ns), stamp_ns)
+
+    def close(self) -> None:
+        self._links.close()

@@ -1,10 +1,14 @@
 """The picture ``pgvd demo`` writes: every robot's local map over every agent's global map.
 
 Each panel says whose map it is and what it shows.  On an agent's global map the robots it
-placed are dots at the centres of their maps' known cells, joined by the links between them
-that the agent holds: solid green where a link was accepted and used, red where the pose
-graph rejected an accepted link as inconsistent around a cycle, dashed orange where a link
-is only a candidate (tried, not accepted).  The title carries the demo's verdict and why.
+placed are dots at the centres of their maps' known cells, joined by the links of the current
+epochs between them that the agent holds, drawn by their lifecycle state (:mod:`agent.trust`)
+in the colours of the RViz markers (:mod:`agent.linkmarks`): solid green where a link was
+accepted, the same with a purple diamond where a candidate was confirmed, red where the pose
+graph dropped an accepted or confirmed link as inconsistent around a cycle, dashed orange
+for a candidate (kept out of the map), dotted grey for a withdrawn link; a rejected link is
+not drawn.  A status of before the lifecycle (no ``state``) is drawn by ``accepted``: true as
+accepted, false as a candidate.  The title carries the demo's verdict and why.
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from agent import trust
+from agent.linkmarks import COLOURS, known_centre
 from pgvd.grid import Grid, relative_matrix
 from pgvd.render import grid_image
 
@@ -23,12 +29,13 @@ from pgvd.render import grid_image
 PANEL = 360
 GAP = 8
 LABEL = 22
-USED = (0, 150, 0)
-REJECTED = (210, 0, 0)
-CANDIDATE = (230, 130, 0)
+#: A link of the map that the pose graph dropped around a cycle.
+CYCLE_DROPPED = (210, 0, 0)
+#: The lines under the title that say what the drawing means.
 LEGEND = (
-    "green: accepted link, red: accepted but rejected around a cycle, "
-    "dashed orange: candidate; dots: the centres of the robots' maps"
+    "links: green accepted, green with a purple diamond confirmed, red dropped around a cycle,",
+    "dashed orange candidate, dotted grey withdrawn (rejected: not drawn); "
+    "dots: the robots' map centres",
 )
 
 
@@ -74,7 +81,7 @@ def write_side_by_side(
     rows = [_hstack(top), _hstack(bottom)]
     # the verdict in a larger type than what explains it
     lines = [(title[0], ImageFont.load_default(size=24), 2 * LABEL)]
-    lines += [(t, font, LABEL) for t in [*title[1:], LEGEND]]
+    lines += [(t, font, LABEL) for t in [*title[1:], *LEGEND]]
     width = max([r.width for r in rows] + [round(f.getlength(t)) + 2 * GAP for t, f, _ in lines])
     head = sum(h for _, _, h in lines) + GAP
     canvas = Image.new("RGB", (width, head + sum(r.height for r in rows) + GAP), "white")
@@ -165,39 +172,65 @@ def _centres(
     to_global = relative_matrix(glob, locals_[own])
     out = {}
     for robot, matrix in comp["transforms"].items():
-        if robot in locals_ and (known := np.argwhere(locals_[robot].logodds != 0)).size:
-            row, col = known.mean(axis=0)
-            x, y, _ = to_global @ np.asarray(matrix) @ np.array([col, row, 1.0])
+        centre = known_centre(locals_[robot]) if robot in locals_ else None
+        if centre is not None:
+            x, y, _ = to_global @ np.asarray(matrix) @ np.append(centre, 1.0)
             out[robot] = (float(x), float(y))
     return out
 
 
+def link_state(link: dict) -> str:
+    """A status link's lifecycle state; by ``accepted`` for an agent of before the lifecycle."""
+    return link.get("state") or (trust.ACCEPTED if link["accepted"] else trust.CANDIDATE)
+
+
 def _link_styles(status: dict) -> list[tuple[str, str, str]]:
-    """``(a, b, style)`` per pair of the agent's current links; an accepted link wins."""
-    rejected = {tuple(p) for c in status.get("components", []) for p in c.get("rejected", [])}
+    """``(a, b, style)`` per pair of the agent's current links, ``style`` a drawn state or
+    ``cycle`` (in the map's links, dropped around a cycle); a link in the map wins."""
+    dropped = {tuple(p) for c in status.get("components", []) for p in c.get("rejected", [])}
     styles: dict[tuple[str, str], str] = {}
     for ln in status.get("links", []):
-        if not ln.get("current"):
+        state = link_state(ln)
+        if not ln.get("current") or state not in COLOURS:
             continue
         pair = (ln["a"], ln["b"])
-        if ln["accepted"]:
-            styles[pair] = "rejected" if pair in rejected else "used"
+        if state in trust.IN_MAP:
+            styles[pair] = "cycle" if pair in dropped else state
         else:
-            styles.setdefault(pair, "candidate")
+            styles.setdefault(pair, state)
     return [(a, b, s) for (a, b), s in sorted(styles.items())]
 
 
 def _line(draw: ImageDraw.ImageDraw, p: tuple[float, float], q: tuple[float, float], style: str):
-    if style != "candidate":
-        draw.line([p, q], fill=USED if style == "used" else REJECTED, width=3)
-        return
-    n = max(1, int(np.hypot(q[0] - p[0], q[1] - p[1]) // 8))
-    for i in range(0, n, 2):
-        a, b = i / n, min(1.0, (i + 1) / n)
+    if style == trust.CANDIDATE:
+        _broken(draw, p, q, COLOURS[style], dash=8.0, gap=8.0)
+    elif style == trust.WITHDRAWN:
+        _broken(draw, p, q, COLOURS[style], dash=3.0, gap=5.0, width=3)
+    else:
+        solid = CYCLE_DROPPED if style == "cycle" else COLOURS[trust.ACCEPTED]
+        draw.line([p, q], fill=solid, width=3)
+    if style == trust.CONFIRMED:
+        x, y = (p[0] + q[0]) / 2, (p[1] + q[1]) / 2
+        draw.polygon([(x, y - 7), (x + 7, y), (x, y + 7), (x - 7, y)], fill=COLOURS[style])
+
+
+def _broken(
+    draw: ImageDraw.ImageDraw,
+    p: tuple[float, float],
+    q: tuple[float, float],
+    fill: tuple[int, int, int],
+    dash: float,
+    gap: float,
+    width: int = 2,
+) -> None:
+    """A line from ``p`` to ``q`` drawn as dashes of ``dash`` pixels ``gap`` apart."""
+    length = float(np.hypot(q[0] - p[0], q[1] - p[1]))
+    for start in np.arange(0.0, length, dash + gap):
+        a, b = start / length, min(length, start + dash) / length
         draw.line(
             [(p[0] + a * (q[0] - p[0]), p[1] + a * (q[1] - p[1])),
              (p[0] + b * (q[0] - p[0]), p[1] + b * (q[1] - p[1]))],
-            fill=CANDIDATE, width=2,
+            fill=fill, width=width,
         )  # fmt: skip
 
 

@@ -41,6 +41,8 @@ def agent(tmp_path: Path, *extra: str) -> list[str]:
         (["--source", "ros2:robot1/map"], "not an absolute ROS 2 topic"),
         (["--source", "rosbag:/nonexistent_bag"], "source file not found"),
         (["--ros-publish", "map merged"], "not an absolute ROS 2 topic"),
+        (["--ros-links", "links"], "not an absolute ROS 2 topic"),
+        (["--ros-publish", "/m", "--ros-links", "/m"], "--ros-links /m is the map's topic"),
         (["--ros-frame", "/world"], "--ros-frame"),
         (["--ros-frame", "r1/map"], "is a robot's map frame"),
         (["--resolution", "5"], "--resolution 5: a cell size of 5 m is outside"),
@@ -87,6 +89,7 @@ def test_known_poses_reach_the_agent_options(tmp_path: Path) -> None:
         ),
         (["--source", "rosbag:/some/bag"], "rosbags", "--source rosbag: needs rosbags"),
         (["--ros-publish", "/map_merged"], "rosbags", "--ros-publish needs rosbags"),
+        (["--ros-links", "/map_merged_links"], "rosbags", "--ros-links needs rosbags"),
         (
             ["--foxglove", "127.0.0.1:8765"],
             "foxglove",

@@ -4,7 +4,8 @@ The ROS side is tests/ros2_peer.py, written from rmw_zenoh's documentation (no p
 on the wire). It publishes two segments of the Intel log, each mapped in a random frame of
 its own (agent/scenario.py), as latched ``nav_msgs/msg/OccupancyGrid`` on ``/r1/map`` and
 ``/r2/map`` before any agent runs; agents r1 and r2 follow those topics (``--source ros2:``)
-and r1 publishes the merged map on ``/map_merged`` with ``/tf_static``. Then every kind of bad ROS
+and r1 publishes the merged map on ``/map_merged`` with ``/tf_static``, and the link between the
+two maps as RViz markers on ``/map_merged_links``. Then every kind of bad ROS
 message is sent to r2's topic. A second fleet replays a rosbag2 written from the Intel log
 beside a CARMEN-source peer.
 A DDS robot's map reaches an agent through zenoh-bridge-ros2dds's key form (``--ros-keys
@@ -33,12 +34,14 @@ from agent.launcher import ROOT, LocalFleet, free_port, wait_for
 from agent.scenario import LOG, random_frames, segments
 from agent.state import StateDir
 from pgvd.carmen import read_carmen
-from pgvd.integrate import select_segment
+from pgvd.integrate import se2, select_segment
 from pgvd.io import read_map
 
 pytestmark = [pytest.mark.fleet, pytest.mark.slow]
 
 TF = "tf2_msgs/msg/TFMessage"
+MARKERS = "visualization_msgs/msg/MarkerArray"
+LINKS_ARGS = ("--ros-links", "/map_merged_links")
 ROBOTS = ("r1", "r2")
 
 
@@ -140,7 +143,7 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot = ros2_peer.session(listen=endpoint)
     publishers = [ros2_peer.LatchedPublisher(robot, f"/{r}/map") for r in ROBOTS]
-    merged, tf = _Collector(ros2_peer.GRID), _Collector(TF)
+    merged, tf, links = _Collector(ros2_peer.GRID), _Collector(TF), _Collector(MARKERS)
     subs = []
     try:
         # Published before any agent runs: only the publishers' caches hold the maps.
@@ -148,8 +151,14 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
             pub.put(maps[r]["cdr"])
         subs.append(ros2_peer.latched_subscriber(robot, ros2_peer.key("/tf_static", TF), tf))
         subs.append(ros2_peer.latched_subscriber(robot, ros2_peer.key("/map_merged"), merged))
+        links_key = ros2_peer.key("/map_merged_links", MARKERS)
+        subs.append(ros2_peer.latched_subscriber(robot, links_key, links))
         with LocalFleet("ros", work, ["--connect", endpoint, "--link-timeout", "3"]) as fleet:
-            fleet.add("r1", "ros2:/r1/map", ["--ros-publish", "/map_merged", "--ros-rate", "4"])
+            fleet.add(
+                "r1",
+                "ros2:/r1/map",
+                ["--ros-publish", "/map_merged", "--ros-rate", "4", *LINKS_ARGS],
+            )
             fleet.add("r2", "ros2:/r2/map")
             out["merged"] = wait_for(
                 lambda: ros2_truth.one_global_map(fleet.statuses(), ROBOTS), 120
@@ -157,7 +166,7 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
             out["statuses"] = fleet.statuses()
             digest = out["statuses"]["r1"]["global"]["digest"]
             time.sleep(1.0)  # the next tick at 4 Hz sends the placements of a new global map
-            out["tf"], out["merged_map"] = tf.last(), merged.last()
+            out["tf"], out["merged_map"], out["links"] = tf.last(), merged.last(), links.last()
             out["global"] = read_map(fleet.agents["r1"].out_dir / "global.yaml")
             # A subscriber that comes after the publication still gets the map (transient local).
             late = _Collector(ros2_peer.GRID)
@@ -196,6 +205,34 @@ def test_two_ros_robots_merge_and_the_merged_map_reaches_ros(ros_fleet: dict) ->
     assert len(att) == 33  # rmw_zenoh's attachment: an unmodified ROS 2 subscriber takes it
     counts = ros_fleet["status_cli"]["r1"]["counts"]  # after the last publication
     assert counts["ros_maps_published"] >= 1 and counts["ros_map_bytes"] >= size
+
+
+def test_the_link_between_the_maps_reaches_rviz_as_a_line_between_their_centres(
+    ros_fleet: dict,
+) -> None:
+    """The MarkerArray r1 sends: the pair's line in the namespace of its state, in ``world``,
+    ending at each map's centre as r1's own TF places it; the other states' lines deleted."""
+    msg, _, att = ros_fleet["links"]
+    state = ros_fleet["statuses"]["r1"]["link_states"]
+    drawn = {s: pairs for s, pairs in state.items() if s != "rejected"}
+    assert [p for pairs in drawn.values() for p in pairs] == ["r1/r2"], state
+    by_ns = {m.ns: m for m in msg.markers}
+    assert sorted(by_ns) == sorted(drawn)
+    (ns,) = [s for s, pairs in drawn.items() if pairs]
+    line = by_ns[ns]
+    assert (line.type, line.action, line.header.frame_id, len(line.points)) == (5, 0, "world", 2)
+    assert all(by_ns[s].action == 2 for s in drawn if s != ns)  # DELETE: no line of that state
+    # r2's end: the centre of r2's known cells in its own frame, placed by r1's TF
+    placed = {t.child_frame_id: t.transform for t in ros_fleet["tf"][0].transforms}["r2/map"]
+    r2 = ros_fleet["maps"]["r2"]
+    rows, cols = np.nonzero(r2["cells"].reshape(r2["shape"]) != -1)  # ROS rows: lowest first
+    ox, oy = r2["origin"][:2]  # an unrotated OccupancyGrid origin
+    res = ros2_truth.RESOLUTION
+    own = (ox + (cols.mean() + 0.5) * res, oy + (rows.mean() + 0.5) * res)
+    yaw = 2 * math.atan2(placed.rotation.z, placed.rotation.w)
+    end = se2(placed.translation.x, placed.translation.y, yaw) @ np.append(own, 1.0)
+    assert (line.points[1].x, line.points[1].y) == pytest.approx(tuple(end[:2]), abs=1e-3)
+    assert len(att) == 33
 
 
 def test_tf_places_each_robot_map_within_2_cells_and_half_a_degree(ros_fleet: dict) -> None:

@@ -23,6 +23,7 @@ from pgvd.io import read_map
 from protocol import ProtocolError
 from protocol.ros2.attachment import Attachment, decode_attachment, encode_attachment
 from protocol.ros2.keys import RosNode, data_key
+from protocol.ros2.markers import LIFT, LineList, encode_line_lists
 from protocol.ros2.occupancy import (
     Placement,
     decode_occupancy_grid,
@@ -30,7 +31,7 @@ from protocol.ros2.occupancy import (
     encode_tf,
     transform_stamped,
 )
-from protocol.ros2.types import OCCUPANCY_GRID, TF_MESSAGE, typestore
+from protocol.ros2.types import MARKER_ARRAY, OCCUPANCY_GRID, TF_MESSAGE, typestore
 
 rosbags = pytest.importorskip("rosbags")
 GOLDEN = Path(__file__).resolve().parent / "golden" / "ros2"  # made by real rclpy
@@ -288,3 +289,65 @@ def test_transform_bytes_equal_rclpys() -> None:
     assert len(ours) == len(golden)
     assert ours[: padding.start] == golden[: padding.start]
     assert ours[padding.stop :] == golden[padding.stop :]
+
+
+# MarkerArray's key on Jazzy: the same RIHS01 hash is listed by two ROS 2 client libraries
+# the project did not write (a C type table and an Elixir message module).
+JAZZY_LINKS_KEY = (
+    "0/map_merged_links/visualization_msgs::msg::dds_::MarkerArray_/"
+    "RIHS01_86cb8800b6fb05b5eff1abd7a56f62a5641d3ae9a1c29e78e67e704f1d067dcf"
+)
+
+
+def test_marker_array_keys_carry_its_type_hash_per_distro() -> None:
+    assert data_key("/map_merged_links", MARKER_ARRAY) == JAZZY_LINKS_KEY
+    assert data_key("/map_merged_links", MARKER_ARRAY, distro="kilted") == JAZZY_LINKS_KEY
+    assert data_key("/map_merged_links", MARKER_ARRAY, distro="humble").endswith(
+        "/visualization_msgs::msg::dds_::MarkerArray_/TypeHashNotSupported"
+    )
+
+
+@pytest.mark.parametrize("store", ["ROS2_HUMBLE", "ROS2_JAZZY", "ROS2_KILTED"])
+def test_line_lists_decode_as_each_distros_marker_array(store: str) -> None:
+    """rosbags' own store of each distro reads the bytes: one LINE_LIST per list, added with
+    its segments' points or deleted when it has none."""
+    from rosbags.typesys import Stores, get_typestore
+
+    lists = [
+        LineList("confirmed", (0.1, 0.4, 0.9, 1.0), (((0.0, 0.0), (3.0, -2.0)), ((1, 1), (2, 5)))),
+        LineList("candidate", (0.9, 0.5, 0.0, 1.0)),
+    ]
+    cdr = encode_line_lists(lists, "world", 7 * 10**9 + 5, width=0.3)
+    assert cdr[:4] == b"\x00\x01\x00\x00"
+    msg = get_typestore(getattr(Stores, store)).deserialize_cdr(cdr, MARKER_ARRAY)
+    first, second = msg.markers
+    assert (first.ns, first.id, first.type, first.action) == ("confirmed", 0, 5, 0)
+    assert (second.ns, second.action, len(second.points)) == ("candidate", 2, 0)
+    assert [(p.x, p.y) for p in first.points] == [(0.0, 0.0), (3.0, -2.0), (1.0, 1.0), (2.0, 5.0)]
+    assert {p.z for p in first.points} == {LIFT}
+    assert first.header.frame_id == "world"
+    assert (first.header.stamp.sec, first.header.stamp.nanosec) == (7, 5)
+    assert first.scale.x == 0.3 and first.pose.orientation.w == 1.0
+    assert (first.color.r, first.color.a) == (pytest.approx(0.1), 1.0)
+    assert (first.lifetime.sec, first.lifetime.nanosec) == (0, 0)
+    empty = get_typestore(getattr(Stores, store)).deserialize_cdr(
+        encode_line_lists([], "world", 0), MARKER_ARRAY
+    )
+    assert empty.markers == []
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: LineList("", (0, 0, 0, 1)), "namespace must not be empty"),
+        (lambda: LineList("a", (0, 0, 2, 1)), "rgba"),
+        (lambda: LineList("a", (0, 0, 0)), "rgba"),
+        (lambda: LineList("a", (0, 0, 0, 1), (((0, math.nan), (1, 1)),)), "finite"),
+        (lambda: LineList("a", (0, 0, 0, 1), (((0, 0),),)), "two finite"),
+        (lambda: encode_line_lists([LineList("a", (0, 0, 0, 1))] * 2, "w", 0), "differ"),
+        (lambda: encode_line_lists([], "w", 0, width=0.0), "width"),
+    ],
+)
+def test_bad_line_lists_are_refused_precisely(make, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        make()

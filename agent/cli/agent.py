@@ -156,12 +156,19 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="publish the global map as a latched nav_msgs/OccupancyGrid here "
         "(e.g. /map_merged), with /tf_static from --ros-frame to each <robot>/map",
     )
+    ros.add_argument(
+        "--ros-links",
+        metavar="TOPIC",
+        help="publish the links between robots' maps as a latched visualization_msgs/MarkerArray "
+        "here (e.g. /map_merged_links), one LINE_LIST per state, in --ros-frame, for RViz",
+    )
     ros.add_argument("--ros-frame", default="world", help="the merged map's frame (default world)")
     ros.add_argument(
         "--ros-rate",
         type=float,
         default=1.0,
-        help="Hz at which a new global map is looked for and Foxglove sent (default 1)",
+        help="Hz at which a new global map is looked for, Foxglove and the link markers sent "
+        "(default 1)",
     )
     p.add_argument(
         "--foxglove", metavar="HOST:PORT", help="serve a live view to Foxglove or Lichtblick"
@@ -261,8 +268,9 @@ def _require_extras(source_kind: str, outputs: OutputOptions) -> None:
     """The optional dependencies the source and outputs use are installed (else CliError)."""
     if source_kind in ("ros2", "rosbag"):
         require_extra("rosbags", "ros2", f"--source {source_kind}:")
-    if outputs.publish is not None:
-        require_extra("rosbags", "ros2", "--ros-publish")
+    for option, topic in (("--ros-publish", outputs.publish), ("--ros-links", outputs.links)):
+        if topic is not None:
+            require_extra("rosbags", "ros2", option)
     if outputs.foxglove is not None:
         require_extra("foxglove", "view", "--foxglove")
 
@@ -275,8 +283,11 @@ def _output_options(args: argparse.Namespace) -> OutputOptions:
         form=args.ros_keys,
         node=agent_node_name(args.robot),
     )
-    if args.ros_publish is not None:
-        check_topic(args.ros_publish)
+    for topic in (args.ros_publish, args.ros_links):
+        if topic is not None:
+            check_topic(topic)
+    if args.ros_links is not None and args.ros_links == args.ros_publish:
+        raise ValueError(f"--ros-links {args.ros_links} is the map's topic: give it one of its own")
     if not _FRAME_ID.fullmatch(args.ros_frame):
         raise ValueError(f"--ros-frame must be a TF frame id like world, got {args.ros_frame!r}")
     if args.ros_frame == robot_map_frame(args.ros_frame.partition("/")[0]):
@@ -287,7 +298,9 @@ def _output_options(args: argparse.Namespace) -> OutputOptions:
             "frame needs a name of its own, such as world"
         )
     foxglove = parse_endpoint(args.foxglove) if args.foxglove else None
-    return OutputOptions(ros, args.ros_publish, args.ros_frame, args.ros_rate, foxglove)
+    return OutputOptions(
+        ros, args.ros_publish, args.ros_frame, args.ros_rate, foxglove, args.ros_links
+    )
 
 
 def run(args: argparse.Namespace) -> int:

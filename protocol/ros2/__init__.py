@@ -9,5 +9,7 @@ implementation of ROS 2's type system and serialisation) rather than from code o
   of zenoh-bridge-ros2dds;
 - :mod:`protocol.ros2.attachment`: the 33-byte attachment rmw_zenoh puts on every sample;
 - :mod:`protocol.ros2.occupancy`: ``nav_msgs/msg/OccupancyGrid`` <-> :class:`pgvd.grid.Grid`,
-  and the ``tf2_msgs/msg/TFMessage`` that places each robot's map in the merged frame.
+  and the ``tf2_msgs/msg/TFMessage`` that places each robot's map in the merged frame;
+- :mod:`protocol.ros2.markers`: ``visualization_msgs/msg/MarkerArray`` of line lists, which
+  RViz draws with no code (the links between robots' maps).
 """

@@ -157,7 +157,8 @@ def _time(stamp_ns: int) -> Any:
     return Time(sec=int(stamp_ns // 10**9), nanosec=int(stamp_ns % 10**9))
 
 
-def _header(frame_id: str, stamp_ns: int) -> Any:
+def header(frame_id: str, stamp_ns: int) -> Any:
+    """A ``std_msgs/msg/Header`` (a ``rosbags`` message) of ``frame_id`` at ``stamp_ns``."""
     return typestore().types["std_msgs/msg/Header"](stamp=_time(stamp_ns), frame_id=frame_id)
 
 
@@ -197,7 +198,7 @@ def encode_occupancy_grid(grid: Grid, frame_id: str, stamp_ns: int) -> bytes:
         ),
     )
     msg = ts.types[OCCUPANCY_GRID](
-        header=_header(frame_id, stamp_ns), info=info, data=occupancy_values(grid)
+        header=header(frame_id, stamp_ns), info=info, data=occupancy_values(grid)
     )
     return bytes(ts.serialize_cdr(msg, OCCUPANCY_GRID))
 
@@ -222,7 +223,7 @@ def transform_stamped(placement: Placement, stamp_ns: int) -> Any:
     """``placement`` as a ``geometry_msgs/msg/TransformStamped`` (a ``rosbags`` message)."""
     types = typestore().types
     return types["geometry_msgs/msg/TransformStamped"](
-        header=_header(placement.parent, stamp_ns),
+        header=header(placement.parent, stamp_ns),
         child_frame_id=placement.child,
         transform=types["geometry_msgs/msg/Transform"](
             translation=types["geometry_msgs/msg/Vector3"](

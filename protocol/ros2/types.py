@@ -21,6 +21,9 @@ OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 ODOMETRY = "nav_msgs/msg/Odometry"
+#: Humble's definition differs from Jazzy's only by a constant (``ARROW_STRIP``), which
+#: neither the CDR layout nor the type hash holds: one type store serves every distro.
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 
 
 @cache
