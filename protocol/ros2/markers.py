@@ -76,9 +76,7 @@ def _marker(lines: LineList, frame_id: str, stamp_ns: int, width: float) -> Any:
         color=types["std_msgs/msg/ColorRGBA"](r=red, g=green, b=blue, a=alpha),
         lifetime=types["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
         frame_locked=False,
-        points=[
-            point(x=float(x), y=float(y), z=LIFT) for seg in lines.segments for (x, y) in seg
-        ],
+        points=[point(x=float(x), y=float(y), z=LIFT) for seg in lines.segments for (x, y) in seg],
         colors=[],
         texture_resource="",
         texture=types["sensor_msgs/msg/CompressedImage"](
