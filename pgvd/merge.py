@@ -52,7 +52,7 @@ Stages (``timings_ms`` keys):
 ``covariance``
     covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
     curvature, inflated by the misfit and its heading widened, calibrated on real
-    pairs (:func:`pgvd.matching.pose_covariance`).
+    pairs, widened where the evidence is thin (:func:`pgvd.inflation.inflated_covariance`).
 ``speckle_share``, ``as_drawn``
     after a rejection, the lone wall cells of both maps counted (``speckle_retry``);
     when that retries the merge, the stages are the retry's and ``as_drawn`` is the
@@ -71,6 +71,7 @@ from pgvd.decision import Decision, Scored, decide, describe_rival, restate, shi
 from pgvd.graph import EdgeGraph, build_graph
 from pgvd.grid import Grid, check_cell_size, matrix_to_pose, rigid_matrix
 from pgvd.gvd import pgvd
+from pgvd.inflation import inflated_covariance
 from pgvd.matching import (
     EdgeCorrelator,
     MapView,
@@ -82,7 +83,6 @@ from pgvd.matching import (
     local_agreement,
     map_agreement,
     pair_support,
-    pose_covariance,
     refine,
     refine_point_to_line,
     residual_distortion,
@@ -1349,7 +1349,7 @@ def _merge_pass(
             agreement.ratio,
             **extra,
         )
-    cov = covariance_from_pooled(pose_covariance(fine_a, fine_b, winner, res), winner, pool)
+    cov = covariance_from_pooled(inflated_covariance(fine_a, fine_b, winner, res), winner, pool)
     clock.lap("covariance")
     diag = (
         _diagnostics(best, graph_a, sp_a, off_a, k, (a.shape, b.shape))
