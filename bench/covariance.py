@@ -337,7 +337,7 @@ def markdown(summary: dict) -> str:
         f"{summary['seed']}), {summary['accepted']} accepted, {summary['gross']} of them gross "
         f"errors (left out). Constants fitted (maximum likelihood) on {summary['fit_half']} "
         f"pairs; every row without '(fit half)' is on the other {summary['test_half']} pairs, "
-        f"which the fit never saw. '{IN_USE}' is the covariance the merge reports, on the "
+        f"which the fit never saw. '{IN_USE}' is the calibrated covariance the merge uses, on the "
         f"same held-out pairs: the same as the '{CHOSEN}' row when its constants are this "
         "run's fit, and otherwise whether they still hold for the pairs the merge accepts now. "
         f"'{REPORTED}' is what the merge reports: the same, widened where the overlap's "
