@@ -19,7 +19,8 @@ matched to A's nearest wall within 2 cells (the fit's radius):
   (the variance of a mean of ``L`` cells of wall is ``ell sigma^2 / L``).
 
 Writes ``covariance-evidence.md`` (per pair, and pooled over the pairs: the
-constants :data:`pgvd.inflation.MEASURED` holds) to ``bench/results/``.
+constants :data:`pgvd.inflation.MEASURED` holds) and the sums they come from,
+``covariance-evidence.json``, to ``--out`` (default ``bench/results/``).
 """
 
 from __future__ import annotations
