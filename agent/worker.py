@@ -179,15 +179,15 @@ def _grey_covariance(
     a: Grid, b: Grid, matrix: np.ndarray, params: MergeParams, maps: PooledMaps | None = None
 ) -> np.ndarray:
     """The covariance (3) a grey-zone pose would have had, were it accepted
-    (:func:`pgvd.covariance.pose_covariance`, as the merge reports it): a candidate that is
-    confirmed later enters the pose graph with it."""
-    from pgvd.covariance import pose_covariance
+    (:func:`pgvd.inflation.inflated_covariance`, as the merge reports it): a candidate that
+    is confirmed later enters the pose graph with it."""
+    from pgvd.inflation import inflated_covariance
     from pgvd.pooling import covariance_from_pooled, to_pooled
     from pgvd.verify import pooled_maps
 
     maps = maps or pooled_maps(a, b, params)
     pooled = to_pooled(matrix, maps.pool)
-    cov = pose_covariance(maps.a, maps.b, pooled, maps.cell)
+    cov = inflated_covariance(maps.a, maps.b, pooled, maps.cell)
     return covariance_from_pooled(cov, pooled, maps.pool)
 
 

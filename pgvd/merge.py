@@ -52,7 +52,7 @@ Stages (``timings_ms`` keys):
 ``covariance``
     covariance of ``(x, y, psi)`` at the optimum: the Gauss-Newton (point-to-line)
     curvature, inflated by the misfit and its heading widened, calibrated on real
-    pairs (:func:`pgvd.covariance.pose_covariance`).
+    pairs, widened where the evidence is thin (:func:`pgvd.inflation.inflated_covariance`).
 ``speckle_share``, ``as_drawn``
     after a rejection, the lone wall cells of both maps counted (``speckle_retry``);
     when that retries the merge, the stages are the retry's and ``as_drawn`` is the
@@ -68,7 +68,6 @@ import numpy as np
 
 from pgvd.agreement import map_agreement
 from pgvd.alignment import residual_distortion
-from pgvd.covariance import pose_covariance
 from pgvd.decision import Decision, describe_rival
 from pgvd.diagnostics import diagnostics_of
 from pgvd.edge_matching import EdgeCorrelator
@@ -85,6 +84,7 @@ from pgvd.heading_search import (
     with_refined,
 )
 from pgvd.hypotheses import Hypothesis, keep_edges, search_heading, skeleton
+from pgvd.inflation import inflated_covariance
 from pgvd.inputs import check_inputs, registration_probability
 from pgvd.overlay import Agreement, MapView, OverlayScores
 from pgvd.parallel import both
@@ -405,7 +405,7 @@ def _verdict(
         limits = params.decision
         grey = limits.GREY_MARGIN <= o.decision.margin < limits.min_margin
         return rejected(why, clock, matrix, o.agreement.ratio, candidate=grey, **extra)
-    cov = pose_covariance(o.fine_a, o.fine_b, o.winner, o.res)
+    cov = inflated_covariance(o.fine_a, o.fine_b, o.winner, o.res)
     cov = covariance_from_pooled(cov, o.winner, o.pool)
     clock.lap("covariance")
     diag = (

@@ -23,8 +23,8 @@ the cost:
    confirm a wrong pose (three mirror images, checked where a map and its mirror image
    look most alike, and a drifted pair).  Fixed floors on the overlay were tried instead
    (``docs/studies-merge-history.md``);
-4. ``covariance``: the merge's own, calibrated on real pairs
-   (:func:`pgvd.covariance.pose_covariance`).
+4. ``covariance``: the merge's own, calibrated on real pairs and
+   widened where the evidence is thin (:func:`pgvd.inflation.inflated_covariance`).
 
 Maps finer than 3.4 cm are checked pooled to about 5 cm cells, as the merge decides
 (:mod:`pgvd.pooling`); the result is in the full maps' pixels.
@@ -45,8 +45,8 @@ import numpy as np
 
 from pgvd.agreement import map_agreement
 from pgvd.alignment import refine
-from pgvd.covariance import pose_covariance
 from pgvd.grid import Grid, finite_3x3, matrix_to_pose
+from pgvd.inflation import inflated_covariance
 from pgvd.inputs import check_extent, check_resolutions, registration_probability
 from pgvd.parallel import both
 from pgvd.params import MergeParams
@@ -316,7 +316,7 @@ def verify(
         )
     if why is not None:
         return result(matrix, agreement.ratio, why, margin)
-    cov = covariance_from_pooled(pose_covariance(fine_a, fine_b, matrix, res), matrix, pool)
+    cov = covariance_from_pooled(inflated_covariance(fine_a, fine_b, matrix, res), matrix, pool)
     clock.lap("covariance")
     full = from_pooled(matrix, pool)
     return merge_result(True, "accepted", clock, full, agreement.ratio, cov, margin=margin)
