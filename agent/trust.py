@@ -22,6 +22,12 @@ simply accepted or rejected on its first decision:
   3. it lies on a consistent cycle: the accepted links of the current epochs already place
      its robots where its pose does, within the hold.
 
+  A re-check is :func:`pgvd.verify.verify`, whose margin weighs only rivals within its
+  basin: a mirror or look-alike pose far from the right one is no rival there, so a check
+  alone can clear the bar at a wrong pose.  So 1 and 2 only propose a confirmation; a full
+  search on the same versions, which weighs every rival as the first decision did, must
+  agree (:func:`promotion_verdict`).
+
   An accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the
   same pose stays confirmed.
 - **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
@@ -190,3 +196,34 @@ def recheck_verdict(
     if n >= HOLDS_TO_CONFIRM and gain >= MARGIN_GAIN:
         return Verdict(CONFIRMED, f"pose held on {n} newer versions: margin {m}, +{gain:.2f}", n)
     return Verdict(CANDIDATE, f"pose held {n}/{HOLDS_TO_CONFIRM}: margin {m}, {gain:+.2f}", n)
+
+
+def promotion_verdict(
+    proposed: Verdict,
+    accepted: bool,
+    margin: float | None,
+    held: bool,
+    first_margin: float | None,
+    reason: str,
+    min_margin: float,
+) -> Verdict:
+    """The state of a candidate whose re-check ``proposed`` a confirmation, once a full search
+    (:func:`pgvd.merge.merge`) on the same versions has decided the pair again.
+
+    ``accepted``, ``margin``, ``held``: the search's outcome, its margin (every rival weighed,
+    comparable with the first decision's ``first_margin``) and whether its pose is the
+    candidate's within the hold (:func:`holds`).
+    """
+    m = _margin_text(margin)
+    if accepted:
+        if held:
+            return Verdict(CONFIRMED, f"a search confirms the pose: margin {m}", proposed.holds)
+        return Verdict(ACCEPTED, f"a search found another pose: margin {m} clears {min_margin}")
+    if not held or not in_grey_zone(margin, min_margin):
+        return Verdict(REJECTED, f"contradicted by a search: {reason or f'margin {m}'}")
+    gain = margin - (margin if first_margin is None else first_margin)
+    if proposed.holds >= HOLDS_TO_CONFIRM and gain >= MARGIN_GAIN:
+        why = f"pose held on {proposed.holds} newer versions and a search agrees: margin {m}"
+        return Verdict(CONFIRMED, f"{why}, +{gain:.2f}", proposed.holds)
+    why = f"a search keeps it in the grey zone: margin {m}, {gain:+.2f}"
+    return Verdict(CANDIDATE, why, proposed.holds)

@@ -69,6 +69,7 @@ from agent.trust import (
     first_verdict,
     holds,
     in_grey_zone,
+    promotion_verdict,
     recheck_verdict,
 )
 from pgvd.grid import Grid
@@ -674,12 +675,38 @@ class FusionWorker:
             res.reason,
             self.min_margin,
         )
+        if verdict.state == CONFIRMED:
+            res, verdict = self._promotion(held, grid_a, grid_b, verdict)
         if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
             why = f"on a cycle of accepted links: {verdict.reason}"
             verdict = Verdict(CONFIRMED, why, verdict.holds)
         revision = held.revision + 1
         base = replace(held, version_a=va, version_b=vb, decided_by=self.me, revision=revision)
         self._record(base, res, verdict, "rechecked", clock)
+
+    def _promotion(
+        self, held: LinkRecord, grid_a: Grid, grid_b: Grid, proposed: Verdict
+    ) -> tuple[Registration, Verdict]:
+        """The search that a re-check's proposed confirmation needs
+        (:func:`agent.trust.promotion_verdict`), and the state it gives."""
+        self.counters.add("searches")
+        try:
+            res = self.register(grid_a, grid_b)
+        except Exception as exc:  # bad maps: the candidate cannot be promoted
+            log.warning("search of candidate %s / %s failed: %s", *held.pair, exc)
+            return Registration(False, held.matrix, _REJECTED[1], 0.0, str(exc)), Verdict(
+                CANDIDATE, f"a search failed: {exc}", held.holds
+            )
+        verdict = promotion_verdict(
+            proposed,
+            res.accepted,
+            res.margin,
+            holds(held.matrix, res.matrix, grid_b),
+            held.first_margin,
+            res.reason,
+            self.min_margin,
+        )
+        return res, verdict
 
     def _record(
         self, base: LinkRecord, res: Registration, verdict: Verdict, how: str, clock: _Clock

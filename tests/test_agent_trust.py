@@ -67,6 +67,27 @@ def test_a_candidate_needs_its_pose_to_hold_twice_and_its_margin_to_grow() -> No
     assert trust.recheck_verdict(0, 0.3, 0.3, True, 0.6, False, "", bar).state == trust.CONFIRMED
 
 
+def test_a_proposed_confirmation_stands_only_where_a_search_agrees() -> None:
+    bar = 0.57
+    proposed = trust.Verdict(trust.CONFIRMED, "re-check clears the bar", 1)
+    agrees = trust.promotion_verdict(proposed, True, 0.7, True, 0.2, "", bar)
+    assert (agrees.state, agrees.holds) == (trust.CONFIRMED, 1)
+    # the search accepts another pose: a link of its own, the candidate's pose dropped
+    assert trust.promotion_verdict(proposed, True, 0.7, False, 0.2, "", bar).state == (
+        trust.ACCEPTED
+    )
+    # a far rival the check could not see keeps the search in the grey zone
+    grey = trust.promotion_verdict(proposed, False, 0.22, True, 0.19, "rival", bar)
+    assert grey.state == trust.CANDIDATE and "+0.03" in grey.reason, grey
+    elsewhere = trust.promotion_verdict(proposed, False, 0.4, False, 0.19, "rival", bar)
+    assert elsewhere.state == trust.REJECTED and elsewhere.reason.endswith("rival")
+    held_twice = trust.Verdict(trust.CONFIRMED, "pose held", 2)
+    grown = trust.promotion_verdict(held_twice, False, 0.35, True, 0.2, "", bar)
+    assert grown.state == trust.CONFIRMED and "+0.15" in grown.reason, grown
+    flat = trust.promotion_verdict(held_twice, False, 0.24, True, 0.2, "", bar)
+    assert flat.state == trust.CANDIDATE
+
+
 def test_a_pose_holds_within_3_cells_and_2_degrees_at_the_maps_centre() -> None:
     b = Grid(np.zeros((200, 200), np.float32), 0.05)
     m = rigid_matrix(0.3, 40.0, -12.0)
@@ -232,3 +253,33 @@ def test_a_link_a_later_epoch_contradicts_is_withdrawn_on_every_agent(logs, capl
     digests = {me: [c.digest for c in a.globals[-1].components] for me, a in agents.items()}
     assert digests["r1"] == digests["r2"], digests
     assert any("outcome=withdrawn" in r.getMessage() for r in caplog.records)
+
+
+def test_a_check_blind_to_far_rivals_cannot_confirm_a_mirror_candidate(logs) -> None:
+    """The re-check (pgvd.verify) weighs rivals within its basin only: a mirror pose's far
+    rival is invisible to it.  A check that accepts whatever it is shown stands for that
+    blindness; the search that a confirmation needs still keeps the mirror out."""
+    from agent.worker import Registration
+    from bench.data.negatives import mirror_scans
+    from bench.data.pairs import random_frame
+
+    scans = logs["intel"]
+    rng = np.random.default_rng(100)
+    parts = [scans[445:e] for e in (766, 800, 840)]
+    maps_a = growing(scans, random_frame(rng), parts[0], parts)
+    mirrored = [mirror_scans(p) for p in parts]
+    maps_b = growing(scans, random_frame(rng), mirrored[0], mirrored)
+
+    def blind(a: Grid, b: Grid, predicted: np.ndarray) -> Registration:
+        return Registration(True, predicted, np.eye(3), 0.9, "clears the bar", 0.9)
+
+    r1 = Agent("r1")
+    r1.worker.check = blind
+    states = []
+    for minor, (a, b) in enumerate(zip(maps_a, maps_b, strict=True)):
+        r1.book.put_map("r1", V(1, minor), a)
+        r1.book.put_map("r2", V(1, minor), b)
+        r1.step(now=float(minor))
+        states.append(r1.record("r1", "r2").state)
+        assert not r1.joined("r1", "r2"), states
+    assert trust.CONFIRMED not in states and trust.ACCEPTED not in states, states
