@@ -60,7 +60,6 @@ from agent.sources import CarmenSource, parse_frame, parse_source
 from bench import fleet_history as fh
 from bench.data.sources import SHARED, SOURCES, held_out_maps
 
-ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).resolve().parent / "results"
 SHARED_LOGS = SHARED / "logs"
 #: The development logs: the bundled Intel log and freiburg-079; every other log in the
