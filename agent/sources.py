@@ -354,7 +354,8 @@ class CarmenSource:
         return {"cursor": self.cursor}
 
     def describe(self) -> dict[str, object]:
-        """Status entry; ``world_to_pixel`` (log world metres -> map pixels) gives the truth."""
+        """Status entry; ``world_to_pixel`` (log world metres -> map pixels) and
+        ``canvas_shape`` (the map's rows, columns) give the truth."""
         to_pixel = world_pose_to_pixel_matrix(self.map_frame.grid(self.logodds))
         return {
             "kind": self.kind,
@@ -362,6 +363,7 @@ class CarmenSource:
             "segment": list(self.spec.segment),
             "frame": list(self.frame),
             "world_to_pixel": (to_pixel @ self.map_frame.world_to_map).tolist(),
+            "canvas_shape": list(self.map_frame.shape),
             "progress": [self.cursor, len(self.scans)],
             "done": self.done,
         }

@@ -1,15 +1,15 @@
 """Fleet accuracy: what a running fleet shows its users, judged against the truth over time.
 
 For each building and each fleet size N (default 2, 3, 4, 6), N real agents replay
-overlapping, growing segments of the building's log in random frames of their own, peer to
-peer on localhost, exactly as ``pgvd demo`` runs them (:class:`agent.launcher.LocalFleet`,
-:mod:`agent.scenario`).  While they run, every agent's ``status.json`` (rewritten at once
-on every new global map) is polled every 0.1 s and each distinct global map of each agent
-(components, members, transforms, links used) is recorded with the agent's time of writing,
-with each robot's replay cursor and registration epochs.  Afterwards the bench replays the
-same segments itself, up to each recorded cursor, for the true overlap of every pair as the
-maps grew (:func:`agent.evaluate.true_overlap`), and reports per building and N
-(:mod:`bench.fleet_history`):
+overlapping, growing segments of the building's log or simulated drive in random frames of
+their own, peer to peer on localhost, exactly as ``pgvd demo`` runs them
+(:class:`agent.launcher.LocalFleet`, :mod:`agent.scenario`).  While they run, every agent's
+``status.json`` (rewritten at once on every new global map) is polled every 0.1 s and each
+distinct global map of each agent (components, members, transforms, links used) is recorded
+with the agent's time of writing, with each robot's replay cursor and registration epochs.
+Afterwards the bench replays the same segments itself, up to each recorded cursor, for the
+true overlap of every pair as the maps grew (:func:`agent.evaluate.true_overlap`), and
+reports per building and N (:mod:`bench.fleet_history`):
 
 - wrong placements ever shown: spells during which any agent's global map placed a robot
   beyond ``--max-deg`` / ``--max-cells`` of the truth, and how long each stayed;
@@ -25,13 +25,16 @@ durations are exact only to about 0.1 s; the replay cursors come with the status
 agent writes about once a second when no new map forces it, so the true overlap's crossing
 time is late by up to a second.
 
-A building is ``log:PATH`` (a CARMEN log) or ``map:PATH.yaml`` (simulated lidar robots in a
-map image; not available yet: it needs a simulated-lidar agent source).
+A building is ``log:PATH`` (a CARMEN log, replayed as the agents' ``carmen:`` source) or
+``map:PATH.yaml`` (a map_server image that simulated-lidar robots drive through, the agents'
+``sim:`` source: the one seeded tour of the image, split into segments as a log is).  By
+default the buildings are every development log and the main image of every development map.
 
 Run: ``python3 -m bench.fleet_accuracy [--quick] [--robots 2 3 4 6] [--out DIR]``; writes
 ``fleet-accuracy.md``, ``.json`` and ``.png`` to ``--out`` (default ``bench/results``).
-``--held-out`` runs every other log of the shared data instead, once, reported apart
-(``fleet-accuracy-held-out.*``); nothing is set from it.
+``--held-out`` runs every other log and map image of the shared data instead, once, reported
+apart (``fleet-accuracy-held-out.*``); nothing is set from it.  The results are rewritten
+after every case, so an interrupted run leaves the cases it finished.
 """
 
 from __future__ import annotations
@@ -52,16 +55,20 @@ import numpy as np
 
 from agent.evaluate import true_matrix, true_overlap
 from agent.launcher import LocalFleet, agreement, sources_done
-from agent.scenario import LOG, random_frames, segments
+from agent.scenario import LOG, check_run, random_frames, segments
 from agent.sources import CarmenSource, parse_frame, parse_source
 from bench import fleet_history as fh
+from bench.data.sources import SHARED, SOURCES, held_out_maps
 
-ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).resolve().parent / "results"
-SHARED_LOGS = ROOT.parent / "shared" / "logs"
+SHARED_LOGS = SHARED / "logs"
 #: The development logs: the bundled Intel log and freiburg-079; every other log in the
 #: shared data is held out.
 DEV_LOGS = (LOG, SHARED_LOGS / "freiburg-079-corrected.log.gz")
+#: The main image of every development map, as the simulated runs of the merge bench use.
+DEV_MAPS = tuple(SHARED / s.path for s in SOURCES if s.simulated)
+#: The agents' ``--source`` kind of each kind of building.
+SOURCE_KIND = {"log": "carmen", "map": "sim"}
 #: The agents' default cell size (``pgvd agent --resolution``), which the truth replays too.
 RESOLUTION = 0.1
 POLL_S = 0.1
@@ -80,22 +87,32 @@ class Building:
 
     @property
     def name(self) -> str:
+        """Row label: the log's name, or the map's directory with "-sim" (a simulated drive)."""
+        if self.kind == "map":
+            return f"{self.path.parent.name}-sim"
         return self.path.name.removesuffix(".gz").removesuffix(".log").removesuffix("-corrected")
+
+    def source(self, segment: tuple[float, float]) -> str:
+        """The agents' ``--source`` replaying ``segment`` (fractions) of this building's run."""
+        return f"{SOURCE_KIND[self.kind]}:{self.path}@{segment[0]}-{segment[1]}"
 
 
 def parse_building(spec: str) -> Building:
-    """``log:PATH`` or ``map:PATH.yaml``; :class:`BenchError` (one line) if unusable."""
+    """``log:PATH`` or ``map:PATH.yaml``; :class:`BenchError` (one line) if malformed."""
     kind, sep, rest = spec.partition(":")
-    if not sep or kind not in ("log", "map") or not rest:
+    if not sep or kind not in SOURCE_KIND or not rest:
         raise BenchError(f"a building is log:PATH or map:PATH.yaml, got {spec!r}")
-    if kind == "map":
-        raise BenchError(
-            f"{spec}: map buildings are not available yet: they need a simulated-lidar agent source"
-        )
-    path = Path(rest)
-    if not path.is_file():
-        raise BenchError(f"log not found: {path}")
-    return Building(kind, path)
+    return Building(kind, Path(rest))
+
+
+def check_building(building: Building, robots: int) -> None:
+    """:class:`BenchError` (one line) unless the building's run gives ``robots`` robots a map
+    each (:func:`agent.scenario.check_run`: a missing file, a log with no scans, a map with no
+    room to drive)."""
+    try:
+        check_run(SOURCE_KIND[building.kind], building.path, robots)
+    except ValueError as exc:
+        raise BenchError(str(exc)) from None  # it names the file
 
 
 def held_out_logs(logs: Path = SHARED_LOGS) -> list[Path]:
@@ -110,6 +127,10 @@ def held_out_logs(logs: Path = SHARED_LOGS) -> list[Path]:
 class GrowingMaps:
     """The robots' maps as their segments grow, replayed here with the agents' own source.
 
+    A ``carmen:`` log and a ``sim:`` drive through a map image replay alike
+    (:class:`agent.sources.CarmenSource`): the same scans, cast into the same canvas, give
+    the maps the agents had at each cursor.
+
     Parameters
     ----------
     specs : ``{robot: (--source, --frame)}`` as the agents were given them.
@@ -122,10 +143,12 @@ class GrowingMaps:
         }
 
     def truth(self) -> fh.Truth:
-        """The robots' true frames, as their agents report them (``world_to_pixel``)."""
+        """The robots' true frames, as their agents report them (``world_to_pixel``, the run's
+        world metres -> map pixels, and ``canvas_shape``)."""
+        described = {r: s.describe() for r, s in self.sources.items()}
         return fh.Truth(
-            {r: np.array(s.describe()["world_to_pixel"]) for r, s in self.sources.items()},
-            {r: s.map_frame.shape for r, s in self.sources.items()},
+            {r: np.array(d["world_to_pixel"]) for r, d in described.items()},
+            {r: tuple(d["canvas_shape"]) for r, d in described.items()},
         )
 
     def advance(self, robot: str, cursor: int) -> None:
@@ -224,11 +247,11 @@ def run_case(building: Building, n: int, seed: int, settings: Settings, workdir:
     robots = [f"r{i + 1}" for i in range(n)]
     frames = random_frames(n, seed)
     specs = {
-        r: (f"carmen:{building.path}@{seg[0]}-{seg[1]}", ",".join(f"{v:.4f}" for v in frame))
+        r: (building.source(seg), ",".join(f"{v:.4f}" for v in frame))
         for r, seg, frame in zip(robots, segments(n), frames, strict=True)
     }
     growing = GrowingMaps(specs)
-    duration = _log_duration(growing)
+    duration = _run_duration(growing)
     speed = max(duration / settings.log_seconds, 1.0)
     t0 = time.time()
     rec = Recorder(t0)
@@ -274,8 +297,8 @@ def run_case(building: Building, n: int, seed: int, settings: Settings, workdir:
     return case
 
 
-def _log_duration(growing: GrowingMaps) -> float:
-    """Seconds of the whole log, from the segments' scans (they cover it together)."""
+def _run_duration(growing: GrowingMaps) -> float:
+    """Seconds of the whole log or drive, from the segments' scans (they cover it together)."""
     scans = growing.sources.values()
     return max(s.scans[-1].timestamp for s in scans) - min(s.scans[0].timestamp for s in scans)
 
@@ -380,8 +403,9 @@ def markdown(cases: Sequence[Mapping], argv: Sequence[str], settings: Settings, 
         "# Fleet accuracy\n\n"
         f"`{' '.join(['python3 -m bench.fleet_accuracy', *argv])}` on {os.cpu_count()} cores "
         f"(shared with other jobs), {stamp}; wall time {wall / 60:.1f} min.\n"
-        "Real agents replay overlapping, growing segments of each log in random frames "
-        f"(seeds {', '.join(map(str, settings.seeds))}; the whole log lasts "
+        "Real agents replay overlapping, growing segments of each log, or of a simulated "
+        "drive through each map image (`-sim`), in random frames "
+        f"(seeds {', '.join(map(str, settings.seeds))}; the whole log or drive lasts "
         f"{settings.log_seconds:g} s of replay), "
         "peer to peer on localhost, as `pgvd demo` runs them.  Every agent's status.json "
         f"was polled every {POLL_S:g} s and each distinct global map recorded.\n\n"
@@ -496,7 +520,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     ap.add_argument("--buildings", nargs="+", default=None, help="log:PATH or map:PATH.yaml")
     ap.add_argument("--robots", type=int, nargs="+", default=[2, 3, 4, 6])
     ap.add_argument("--quick", action="store_true", help="the bundled Intel log, N=2,3 only")
-    ap.add_argument("--held-out", action="store_true", help="every held-out log, reported apart")
+    ap.add_argument("--held-out", action="store_true",
+                    help="every held-out log and map image, reported apart")  # fmt: skip
     ap.add_argument("--seeds", type=int, nargs="+", default=list(Settings.seeds),
                     help="one fleet run per seed of the random frames")  # fmt: skip
     ap.add_argument("--log-seconds", type=float, default=Settings.log_seconds,
@@ -523,15 +548,21 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
 
 
 def buildings_of(args: argparse.Namespace) -> list[Building]:
+    """The buildings asked for, each checked to hold a map for the largest fleet."""
     if args.held_out:
-        logs = held_out_logs()
-        if not logs:
-            raise BenchError(f"no held-out logs in {SHARED_LOGS}")
-        return [Building("log", p) for p in logs]
-    if args.quick:
-        return [Building("log", LOG)]
-    specs = args.buildings or [f"log:{p}" for p in DEV_LOGS]
-    return [parse_building(s) for s in specs]
+        found = [Building("log", p) for p in held_out_logs()]
+        found += [Building("map", p) for p in held_out_maps()]
+        if not found:
+            raise BenchError(f"no held-out logs or maps in {SHARED}")
+    elif args.quick:
+        found = [Building("log", LOG)]
+    elif args.buildings:
+        found = [parse_building(s) for s in args.buildings]
+    else:
+        found = [Building("log", p) for p in DEV_LOGS] + [Building("map", p) for p in DEV_MAPS]
+    for building in found:
+        check_building(building, max(args.robots))
+    return found
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -555,6 +586,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with tempfile.TemporaryDirectory(prefix=f"pgvd-accuracy{n}-") as tmp:
             case = run_case(building, n, seed, settings, Path(tmp))
         cases.append(case)
+        write_results(cases, argv, settings, time.time() - t_start, args.out, args.held_out)
         s = case["summary"]
         print(
             f"fleet_accuracy: {name}: agreed {case['agreed_s']} s, "
@@ -563,7 +595,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
             flush=True,
         )
-    write_results(cases, argv, settings, time.time() - t_start, args.out, args.held_out)
+    print((args.out / f"{stem(args.held_out)}.md").read_text())
     return 0
 
 
@@ -583,13 +615,18 @@ def write_results(
     out: Path,
     held_out: bool,
 ) -> None:
-    stem = "fleet-accuracy-held-out" if held_out else "fleet-accuracy"
+    """Write ``<stem>.md``, ``.json`` and ``.png`` of the cases so far to ``out``."""
+    name = stem(held_out)
     out.mkdir(parents=True, exist_ok=True)
-    md = markdown(cases, argv, settings, wall).replace("fleet-accuracy.png", f"{stem}.png")
-    (out / f"{stem}.md").write_text(md)
-    (out / f"{stem}.json").write_text(json.dumps({"argv": list(argv), "cases": cases}, indent=1))
-    picture(cases, settings.tolerance, out / f"{stem}.png")
-    print(md)
+    md = markdown(cases, argv, settings, wall).replace("fleet-accuracy.png", f"{name}.png")
+    (out / f"{name}.md").write_text(md)
+    (out / f"{name}.json").write_text(json.dumps({"argv": list(argv), "cases": cases}, indent=1))
+    picture(cases, settings.tolerance, out / f"{name}.png")
+
+
+def stem(held_out: bool) -> str:
+    """File name of the results, without suffix: held-out results are kept apart."""
+    return "fleet-accuracy-held-out" if held_out else "fleet-accuracy"
 
 
 if __name__ == "__main__":

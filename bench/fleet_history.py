@@ -30,7 +30,8 @@ UNPLACED, RIGHT, WRONG = "unplaced", "right", "wrong"
 
 @dataclass(frozen=True)
 class Truth:
-    """Each robot's true frame: log world metres -> its map's pixels, and its canvas shape."""
+    """Each robot's true frame: the run's world metres (log or map image) -> its map's pixels,
+    and its canvas shape."""
 
     world_to_pixel: Mapping[str, np.ndarray]
     shapes: Mapping[str, tuple[int, int]]

@@ -13,7 +13,9 @@ import pytest
 from agent.evaluate import true_matrix
 from agent.launcher import ROOT
 from bench import fleet_history as fh
+from pgvd.grid import Grid
 from pgvd.integrate import se2
+from pgvd.io import write_map
 
 TOL = fh.Tolerance(2.0, 3.0)
 #: r1's frame is the world's (10 px per metre); r2's is turned 30 degrees and shifted.
@@ -139,6 +141,24 @@ def test_held_out_logs_are_every_log_but_the_development_ones(tmp_path: Path) ->
     assert held_out_logs(tmp_path) == [tmp_path / "other-corrected.log.gz"]
 
 
+def test_default_buildings_are_the_development_logs_and_map_images() -> None:
+    from bench.data.sources import DEVELOPMENT_MAPS
+    from bench.fleet_accuracy import DEV_LOGS, DEV_MAPS, buildings_of, parse_args
+
+    found = buildings_of(parse_args([]))
+    assert [b.path for b in found] == [*DEV_LOGS, *DEV_MAPS]
+    maps = [b for b in found if b.kind == "map"]
+    # one image of every development building, none held out
+    assert len({b.path.parent.name for b in maps}) == len(maps) == 6
+    assert all(b.path.parent.name in DEVELOPMENT_MAPS for b in maps)
+
+
+def walls_only(path: Path) -> Path:
+    """A 5 m square map image with no free space in it."""
+    write_map(path, Grid(np.full((100, 100), 4.0, np.float32), 0.05))
+    return path
+
+
 def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "bench.fleet_accuracy", *args]
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
@@ -149,8 +169,9 @@ def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     ("args", "why"),
     [
         (["--robots", "1"], "--robots must be between 2 and 12"),
-        (["--buildings", "map:some.yaml"], "not available"),
+        (["--buildings", "map:some.yaml"], "map not found: some.yaml"),
         (["--buildings", "log:no-such.log.gz"], "log not found: no-such.log.gz"),
+        (["--buildings", "map:walls.yaml"], "walls.yaml: the map has no free space"),
         (["--buildings", "intel"], "a building is log:PATH or map:PATH.yaml"),
         (["--quick", "--held-out"], "exclude each other"),
         (["--min-overlap", "0"], "--min-overlap must be in (0, 1]"),
@@ -158,6 +179,7 @@ def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     ],
 )
 def test_bad_arguments_are_one_line_and_exit_2(tmp_path: Path, args: list[str], why: str) -> None:
+    walls_only(tmp_path / "walls.yaml")
     res = bench(*args, "--out", str(tmp_path / "out"), cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     assert res.stderr.strip().count("\n") == 0 and why in res.stderr
@@ -166,12 +188,16 @@ def test_bad_arguments_are_one_line_and_exit_2(tmp_path: Path, args: list[str], 
 
 @pytest.mark.fleet
 @pytest.mark.slow
-def test_two_agents_on_the_intel_log_report_what_their_status_files_say(tmp_path: Path) -> None:
+@pytest.mark.parametrize("kind", ["log", "map"])
+def test_two_agents_report_what_their_status_files_say(tmp_path: Path, kind: str) -> None:
+    """The bundled Intel log, or the simulated drive through the first development map
+    image (the Intel lab's, the smallest), replayed by two real agents."""
     from agent.scenario import LOG
     from bench import fleet_accuracy as fa
 
+    building = fa.Building(kind, LOG if kind == "log" else fa.DEV_MAPS[0])
     settings = fa.Settings(log_seconds=30.0, timeout=180.0)
-    case = fa.run_case(fa.Building("log", LOG), 2, 7, settings, tmp_path / "fleet")
+    case = fa.run_case(building, 2, 7, settings, tmp_path / "fleet")
     assert case["agreed_s"] is not None and case["dead_agents"] == []
     status = {
         r: json.loads((tmp_path / "fleet" / r / "state" / "status.json").read_text())
@@ -181,7 +207,9 @@ def test_two_agents_on_the_intel_log_report_what_their_status_files_say(tmp_path
     summary, hist = case["summary"], case["history"]
     for robot, s in status.items():
         # the bench's truth is the agents' own
+        assert s["source"]["kind"] == fa.SOURCE_KIND[kind]
         assert np.allclose(truth.world_to_pixel[robot], s["source"]["world_to_pixel"])
+        assert list(truth.shapes[robot]) == s["source"]["canvas_shape"]
         # the last map recorded of each agent is the one its status file holds
         last = [m for m in hist["maps"] if m["agent"] == robot][-1]
         assert [(c["anchor"], c["members"], c["digest"]) for c in last["components"]] == [
@@ -200,7 +228,7 @@ def test_two_agents_on_the_intel_log_report_what_their_status_files_say(tmp_path
     assert summary["global_maps_seen"] == len(hist["maps"]) >= 2
     fa.write_results([case], ["--test"], settings, case["wall_s"], tmp_path / "out", False)
     md = (tmp_path / "out" / "fleet-accuracy.md").read_text()
-    assert "| intel | 2 | 7 |" in md
+    assert f"| {building.name} | 2 | 7 |" in md
     assert (tmp_path / "out" / "fleet-accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     saved = json.loads((tmp_path / "out" / "fleet-accuracy.json").read_text())
     assert saved["cases"][0]["summary"] == json.loads(json.dumps(summary))
