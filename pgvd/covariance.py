@@ -12,8 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pgvd.alignment import AlignmentFit, alignment_fit
-from pgvd.walls import WallMap
+from pgvd.alignment import AlignmentFit
 
 
 @dataclass(frozen=True)
@@ -129,30 +128,3 @@ def calibrated_covariance(
     at_centroid += np.diag([floor**2, floor**2, model.floor_rad**2])
     cov = a_inv @ at_centroid @ a_inv.T
     return 0.5 * (cov + cov.T)
-
-
-def pose_covariance(
-    fine_a: WallMap, fine_b: WallMap, matrix: np.ndarray, resolution: float
-) -> np.ndarray:
-    """The covariance reported for the pose ``matrix`` of B on A, eq. (3).
-
-    :func:`calibrated_covariance` of the point-to-line fit of all B's walls on A's
-    at ``matrix`` (:func:`alignment_fit`).  The merge and :mod:`pgvd.verify` both
-    report this one, so that a link verified later carries the covariance its merge
-    would have.
-
-    Parameters
-    ----------
-    fine_a, fine_b : WallMap
-        The two maps at full resolution.
-    matrix : numpy.ndarray
-        3x3 B pixel -> A pixel.
-    resolution : float
-        Metres per cell.
-
-    Returns
-    -------
-    numpy.ndarray
-        3x3 covariance over ``(tx px, ty px, psi rad)`` about B's pixel origin.
-    """
-    return calibrated_covariance(alignment_fit(fine_a.tree, fine_b.walls, matrix), resolution)

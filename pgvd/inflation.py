@@ -255,7 +255,9 @@ def inflated_covariance(
 
     :func:`pgvd.covariance.calibrated_covariance` of the point-to-line fit of B's
     walls on A's at ``matrix`` (:func:`pgvd.alignment.alignment_fit`), inflated
-    where that fit's evidence is thin (:func:`inflate`).
+    where that fit's evidence is thin (:func:`inflate`).  The merge, :mod:`pgvd.verify`
+    and an agent's candidate link all report this one, so that a link verified later
+    carries the covariance its merge would have.
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
 """The grey zone of the merge's margin, derived from a merge bench run (development only).
 
 A fleet does not reject a pair outright when its best pose's margin (:mod:`pgvd.decision`)
-falls short of ``MergeParams.min_margin``: within the *grey zone* it becomes a candidate that
+falls short of ``DecisionParams.min_margin``: within the *grey zone* it becomes a candidate that
 later versions of the maps confirm or contradict (:mod:`agent.trust`).  This prints, from the
 pgvd records of ``bench/results/merge.json`` (development buildings only; the held-out runs
 live under ``bench/results/held-out`` and are not read):
@@ -62,7 +62,7 @@ def report(records: list[dict], floor: float, bar: float) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from pgvd.params import MergeParams
+    from pgvd.params import DecisionParams
 
     results = Path(__file__).resolve().parents[1] / "results"
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"greyzone: cannot read records from {args.merge}: {exc}", file=sys.stderr)
         return 2
-    print("\n".join(report(records, args.floor, MergeParams.min_margin)))
+    print("\n".join(report(records, args.floor, DecisionParams.min_margin)))
     return 0
 
 

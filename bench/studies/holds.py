@@ -95,7 +95,7 @@ def replay(record: dict, scans: list, bar: float) -> tuple[list[float | None], l
 
 
 def main(argv: list[str] | None = None) -> int:
-    from pgvd.params import MergeParams
+    from pgvd.params import DecisionParams
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     here = Path(__file__).resolve()
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"holds: cannot read records from {args.merge}: {exc}", file=sys.stderr)
         return 2
-    bar = MergeParams.min_margin
+    bar = DecisionParams.min_margin
     chosen = [
         r for r in records
         if r["method"] == "pgvd" and r["source"] in LOGS and r["set"] != "drifted"
