@@ -7,11 +7,11 @@ import threading
 
 import numpy as np
 import pytest
+from components import component
 
 from agent import trust
 from agent.book import FleetBook
 from agent.counters import Counters
-from agent.globalmap import Component
 from agent.launcher import wait_for
 from agent.linkmarks import COLOURS, known_centre, link_line_lists, map_centres
 from agent.links import LinkRecord
@@ -32,21 +32,6 @@ def _maps() -> tuple[Grid, Grid, np.ndarray]:
     return a, b, relative_matrix(a, placed)
 
 
-def _component(maps: dict[str, tuple[int, Grid]], transforms: dict[str, np.ndarray]) -> Component:
-    members = tuple(sorted(maps))
-    return Component(
-        anchor=members[0],
-        members=members,
-        versions={r: v for r, (v, _) in maps.items()},
-        transforms=transforms,
-        covariances={r: np.zeros((3, 3)) for r in members},
-        used=(),
-        rejected=(),
-        grid=maps[members[0]][1],
-        digest="d",
-    )
-
-
 def _link(a: str, b: str, state: str, versions: tuple[int, int] = (1, 1)) -> LinkRecord:
     return LinkRecord(
         a, versions[0], b, versions[1], state in trust.IN_MAP, np.eye(3), np.eye(3), 0.5, a,
@@ -56,7 +41,7 @@ def _link(a: str, b: str, state: str, versions: tuple[int, int] = (1, 1)) -> Lin
 
 def test_centres_are_the_known_cells_mean_placed_in_the_merged_frame() -> None:
     a, b, b_to_a = _maps()
-    comp = _component({"a": (1, a), "b": (1, b)}, {"a": np.eye(3), "b": b_to_a})
+    comp = component({"a": (1, a), "b": (1, b)}, {"a": np.eye(3), "b": b_to_a})
     centres = map_centres(comp, {"a": (1, a), "b": (1, b)})
     # B's centre in its own frame, moved by B's true pose in A's frame
     own = pixel_to_world(b, known_centre(b))[0]
@@ -107,7 +92,7 @@ def test_an_agents_link_markers_reach_a_ros_subscriber_and_a_late_one() -> None:
     book = FleetBook()
     book.put_map("a", 1, a)
     book.put_map("b", 1, b)
-    comp = _component({"a": (1, a), "b": (1, b)}, {"a": np.eye(3), "b": b_to_a})
+    comp = component({"a": (1, a), "b": (1, b)}, {"a": np.eye(3), "b": b_to_a})
     session = ros2_peer.session()
     key = ros2_peer.key("/map_merged_links", MARKERS)
     lock, got, late = threading.Lock(), [], []

@@ -8,10 +8,10 @@ import threading
 
 import numpy as np
 import pytest
+from components import component
 
 from agent.book import FleetBook
 from agent.counters import Counters
-from agent.globalmap import Component
 from agent.launcher import wait_for
 from agent.outputs import OutputOptions, Outputs, map_placements
 from pgvd.grid import Grid, relative_matrix
@@ -19,23 +19,6 @@ from pgvd.integrate import se2
 from pgvd.io import read_map
 
 TF = "tf2_msgs/msg/TFMessage"
-
-
-def _component(
-    maps: dict[str, tuple[int, Grid]], transforms: dict[str, np.ndarray], digest: str = "d"
-) -> Component:
-    members = tuple(sorted(maps))
-    return Component(
-        anchor=members[0],
-        members=members,
-        versions={r: v for r, (v, _) in maps.items()},
-        transforms=transforms,
-        covariances={r: np.zeros((3, 3)) for r in members},
-        used=(),
-        rejected=(),
-        grid=maps[members[0]][1],
-        digest=digest,
-    )
 
 
 def _b_in_a(a: Grid, x: float, y: float, yaw: float) -> np.ndarray:
@@ -53,7 +36,7 @@ def test_placements_are_the_true_frames_of_each_map(yaw_b: float) -> None:
     b_to_a = se2(3.0, -2.0, yaw_b)
     b_own = Grid(a.logodds[::-1, :].copy(), a.resolution, (0.0, 0.0, 0.0))
     px = _b_in_a(a, 3.0, -2.0, yaw_b)  # b_own and B placed in A's frame share pixels
-    comp = _component({"a": (1, a), "b": (4, b_own)}, {"a": np.eye(3), "b": px})
+    comp = component({"a": (1, a), "b": (4, b_own)}, {"a": np.eye(3), "b": px})
     placed = {p.child: p for p in map_placements(comp, {"a": (1, a), "b": (4, b_own)}, "world")}
     assert placed["a/map"].x == pytest.approx(0.0, abs=1e-9)
     assert placed["a/map"].yaw == pytest.approx(0.0, abs=1e-9)
@@ -65,7 +48,7 @@ def test_placements_are_the_true_frames_of_each_map(yaw_b: float) -> None:
 
 def test_a_map_newer_than_the_component_is_not_placed() -> None:
     a = read_map("examples/intel_a.yaml")
-    comp = _component({"a": (1, a), "b": (4, a)}, {"a": np.eye(3), "b": np.eye(3)})
+    comp = component({"a": (1, a), "b": (4, a)}, {"a": np.eye(3), "b": np.eye(3)})
     placed = map_placements(comp, {"a": (1, a), "b": (5, a)}, "world")
     assert [p.child for p in placed] == ["a/map"]
     assert map_placements(comp, {"a": (2, a), "b": (4, a)}, "world") == []
@@ -107,7 +90,7 @@ def test_tf_follows_the_global_map_as_it_changes() -> None:
     sub = session.declare_subscriber(key, on_tf(got))
     out = Outputs(OutputOptions(publish="/map_merged", rate=1.0), session, Counters())
     try:
-        first = _component(
+        first = component(
             {"a": (1, a), "b": (4, b)}, {"a": np.eye(3), "b": _b_in_a(a, 3.0, -2.0, 0.7)}
         )
         tf = sent_after(lambda: out.tick(0.0, first, book))
@@ -117,7 +100,7 @@ def test_tf_follows_the_global_map_as_it_changes() -> None:
         # the same global map again: static transforms are not sent again
         assert sent_after(lambda: out.tick(1.0, first, book)) is None
         # The merge refines B's link: a new global map, and B's transform moves with it.
-        refined = _component(
+        refined = component(
             {"a": (1, a), "b": (4, b)},
             {"a": np.eye(3), "b": _b_in_a(a, 3.5, -1.0, 0.7)},
             digest="d2",
@@ -131,7 +114,7 @@ def test_tf_follows_the_global_map_as_it_changes() -> None:
         # B's map moves on before the next rebuild: its placement cannot be computed from
         # this global map, so the refined placements stand in, not sent again.
         book.put_map("b", 5, b)
-        stale = _component(
+        stale = component(
             {"a": (1, a), "b": (4, b)},
             {"a": np.eye(3), "b": _b_in_a(a, 9.0, 9.0, 0.0)},
             digest="d3",

@@ -151,21 +151,17 @@ class Agent:
         return any(a in c.members and b in c.members for c in self.globals[-1].components)
 
 
-def test_a_mirror_pair_in_the_grey_zone_never_enters_and_is_dropped_as_it_grows(
-    logs, caplog
-) -> None:
+def mirror_replay(scans: list, r1: Agent) -> list[str]:
+    """Robot r2's map is r1's mirror image, both grown over three versions of a part of the
+    intel log: the pair's state after each version, asserting the two are never joined."""
     from bench.data.negatives import mirror_scans
     from bench.data.pairs import random_frame
 
-    caplog.set_level("INFO", logger="pgvd.agent")
-    scans = logs["intel"]
     rng = np.random.default_rng(100)
-    ends = (766, 800, 840)
-    parts = [scans[445:e] for e in ends]
+    parts = [scans[445:e] for e in (766, 800, 840)]
     maps_a = growing(scans, random_frame(rng), parts[0], parts)
     mirrored = [mirror_scans(p) for p in parts]
     maps_b = growing(scans, random_frame(rng), mirrored[0], mirrored)
-    r1 = Agent("r1")
     states = []
     for minor, (a, b) in enumerate(zip(maps_a, maps_b, strict=True)):
         r1.book.put_map("r1", V(1, minor), a)
@@ -173,6 +169,15 @@ def test_a_mirror_pair_in_the_grey_zone_never_enters_and_is_dropped_as_it_grows(
         r1.step(now=float(minor))
         states.append(r1.record("r1", "r2").state)
         assert not r1.joined("r1", "r2"), states
+    return states
+
+
+def test_a_mirror_pair_in_the_grey_zone_never_enters_and_is_dropped_as_it_grows(
+    logs, caplog
+) -> None:
+    caplog.set_level("INFO", logger="pgvd.agent")
+    r1 = Agent("r1")
+    states = mirror_replay(logs["intel"], r1)
     assert states == [trust.CANDIDATE, trust.CANDIDATE, trust.REJECTED], states
     final = r1.record("r1", "r2")
     assert final.reason.startswith("contradicted"), final.reason
@@ -260,26 +265,11 @@ def test_a_check_blind_to_far_rivals_cannot_confirm_a_mirror_candidate(logs) -> 
     rival is invisible to it.  A check that accepts whatever it is shown stands for that
     blindness; the search that a confirmation needs still keeps the mirror out."""
     from agent.worker import Registration
-    from bench.data.negatives import mirror_scans
-    from bench.data.pairs import random_frame
-
-    scans = logs["intel"]
-    rng = np.random.default_rng(100)
-    parts = [scans[445:e] for e in (766, 800, 840)]
-    maps_a = growing(scans, random_frame(rng), parts[0], parts)
-    mirrored = [mirror_scans(p) for p in parts]
-    maps_b = growing(scans, random_frame(rng), mirrored[0], mirrored)
 
     def blind(a: Grid, b: Grid, predicted: np.ndarray) -> Registration:
         return Registration(True, predicted, np.eye(3), 0.9, "clears the bar", 0.9)
 
     r1 = Agent("r1")
     r1.worker.check = blind
-    states = []
-    for minor, (a, b) in enumerate(zip(maps_a, maps_b, strict=True)):
-        r1.book.put_map("r1", V(1, minor), a)
-        r1.book.put_map("r2", V(1, minor), b)
-        r1.step(now=float(minor))
-        states.append(r1.record("r1", "r2").state)
-        assert not r1.joined("r1", "r2"), states
+    states = mirror_replay(logs["intel"], r1)
     assert trust.CONFIRMED not in states and trust.ACCEPTED not in states, states
