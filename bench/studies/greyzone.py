@@ -22,11 +22,11 @@ Run from the project root::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from bench.studies.acceptance import margins
+from bench.studies.ceiling import read_run
 from bench.tables import OVERLAP_SETS
 
 
@@ -70,9 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--floor", type=float, default=0.0, help="lowest margin of the grey zone")
     args = parser.parse_args(argv)
     try:
-        records = json.loads(args.merge.read_text())["records"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        print(f"greyzone: cannot read records from {args.merge}: {exc}", file=sys.stderr)
+        records = read_run(args.merge, fields=())["records"]
+    except ValueError as exc:
+        print(f"greyzone: cannot read records: {exc}", file=sys.stderr)
         return 2
     print("\n".join(report(records, args.floor, DecisionParams.min_margin)))
     return 0

@@ -19,7 +19,6 @@ map images (nothing to grow).  Run from the project root::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from agent import trust
 from agent.worker import Registration, verify_check
 from bench.data.negatives import mirror_scans
 from bench.data.pairs import random_frame
+from bench.studies.ceiling import read_run
 from bench.tables import NEGATIVE, pose_right
 from pgvd.carmen import read_carmen
 from pgvd.grid import Grid
@@ -103,9 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--logs", type=Path, default=here.parents[3] / "shared" / "logs")
     args = parser.parse_args(argv)
     try:
-        records = json.loads(args.merge.read_text())["records"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        print(f"holds: cannot read records from {args.merge}: {exc}", file=sys.stderr)
+        records = read_run(args.merge, fields=())["records"]
+    except ValueError as exc:
+        print(f"holds: cannot read records: {exc}", file=sys.stderr)
         return 2
     bar = DecisionParams.min_margin
     chosen = [
