@@ -29,6 +29,7 @@ map is refused in one line (exit 2) before any agent starts.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -136,13 +137,24 @@ def watch(
 
 
 def run_fleet(
-    building: Building, n: int, speed: float, timeout: float, workdir: Path, shm: str = "off"
+    building: Building,
+    n: int,
+    speed: float,
+    timeout: float,
+    workdir: Path,
+    shm: str = "off",
+    verbose: bool = False,
 ) -> dict:
-    """One fleet of ``n`` agents on ``building``'s log until agreement; one row of results."""
+    """One fleet of ``n`` agents on ``building``'s log until agreement; one row of results.
+
+    ``verbose`` runs the agents with ``--verbose``: their logs then tell every map received
+    and every registration's timings, for a fleet kept to be looked into (``--keep``).
+    """
     load_before = os.getloadavg()[0]
     t0, bench_cpu0 = time.time(), time.process_time()
     period = poll_period(n)
-    with LocalFleet(f"bench{n}", workdir, ["--speed", str(speed), "--shm", shm]) as fleet:
+    common = ["--speed", str(speed), "--shm", shm] + (["--verbose"] if verbose else [])
+    with LocalFleet(f"bench{n}", workdir, common) as fleet:
         launch(fleet, n, building)
         agreed_at, samples = watch(fleet, timeout, period, workdir)
         st = {r: s for r, s in fleet.statuses().items() if s}
@@ -362,11 +374,20 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     )
     ap.add_argument("--shm", choices=("on", "off"), default="off", help="Zenoh shared memory")
     ap.add_argument("--out", type=Path, default=RESULTS, help="directory of the results")
+    ap.add_argument(
+        "--keep",
+        type=Path,
+        help="keep each fleet's agent logs (verbose), state and status files in DIR/LOG-N "
+        "(default: a temporary directory, removed after the run)",
+    )
     args = ap.parse_args(argv)
     if min(args.robots) < 2:
         ap.error(f"--robots must be at least 2, got {args.robots}")
     if args.speed <= 0 or (args.timeout is not None and args.timeout <= 0):
         ap.error("--speed and --timeout must be > 0")
+    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
+        # a fleet's agents would restore the state an earlier run left there
+        ap.error(f"--keep must be a new or empty directory: {args.keep}")
     return args
 
 
@@ -383,10 +404,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     for building in buildings:
         rows = []
         for n in args.robots:
-            with tempfile.TemporaryDirectory(prefix=f"pgvd-fleet{n}-") as tmp:
-                print(f"fleet of {n} agents on {building.name} ...", flush=True)
+            with contextlib.ExitStack() as stack:
+                if args.keep is None:
+                    workdir = Path(stack.enter_context(tempfile.TemporaryDirectory()))
+                else:
+                    workdir = args.keep / f"{building.name}-{n}"
+                print(f"fleet of {n} agents on {building.name} in {workdir} ...", flush=True)
                 timeout = args.timeout or default_timeout(n)
-                row = run_fleet(building, n, args.speed, timeout, Path(tmp), args.shm)
+                keep = args.keep is not None
+                row = run_fleet(building, n, args.speed, timeout, workdir, args.shm, keep)
                 print(json.dumps(row), flush=True)
                 rows.append(row)
         command = " ".join(

@@ -29,6 +29,7 @@ def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
         (["--log", "notes.txt"], "notes.txt: no FLASER lines, not a CARMEN laser log"),
         (["--robots", "1"], "--robots must be at least 2"),
         (["--robots", "x"], "invalid int value: 'x'"),
+        (["--keep", "."], "--keep must be a new or empty directory: ."),
     ],
 )
 def test_bad_arguments_are_one_line_and_exit_2(tmp_path: Path, args: list[str], why: str) -> None:
