@@ -9,7 +9,8 @@ Reported:
 
 - RSS and CPU of every agent over time (``soak.png``);
 - memory growth after warm-up: mean RSS over the last minute against the mean over the
-  minute after warm-up (the first quarter of the run); the target is under 10 %. The maps
+  minute after warm-up (the first quarter of the run, or of the agent's time in it for a
+  late joiner, :func:`rss_growth`); the target is under 10 %. The maps
   themselves grow while the robots explore, so some growth is the data, not a leak;
 - messages dropped, by reason, summed over agents (a clean run drops none);
 - update-to-agreement lag: for each new version of a robot's map, the seconds from its
@@ -478,15 +479,21 @@ def lags(published: dict[tuple[str, int], float], agreed: list[tuple[float, dict
     return out
 
 
+def rss_growth(rows: list[tuple[float, float, float]]) -> float:
+    """Memory growth of one agent after its warm-up, in %: its mean RSS over its last minute
+    against the mean over the minute after the first quarter of its own samples' span (an
+    agent that joins late warms up after it started, not a quarter into the run)."""
+    t, _, rss = np.array(rows).T
+    warm = t[0] + (t[-1] - t[0]) / 4
+    after_warm = rss[(t >= warm) & (t < warm + 60)]
+    at_warm = after_warm.mean() if after_warm.size else rss[-1]
+    tail = rss[t >= t[-1] - 60].mean()
+    return float((tail - at_warm) / at_warm * 100)
+
+
 def summarise(run: dict, minutes: float, shape_of=lambda robot: (DEFAULT_SIDE,) * 2) -> dict:
     warm = minutes * 60 / 4
-    growth = {}
-    for robot, rows in run["series"].items():
-        t, _, rss = np.array(rows).T
-        after_warm = rss[(t >= warm) & (t < warm + 60)]
-        at_warm = after_warm.mean() if after_warm.size else rss[-1]
-        tail = rss[t >= t[-1] - 60].mean()
-        growth[robot] = float((tail - at_warm) / at_warm * 100)
+    growth = {robot: rss_growth(rows) for robot, rows in run["series"].items()}
     cpu = {
         robot: float((rows[-1][1] - rows[0][1]) / max(rows[-1][0] - rows[0][0], 1e-9) * 100)
         for robot, rows in run["series"].items()

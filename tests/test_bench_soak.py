@@ -17,6 +17,7 @@ from bench.soak import (
     jumps,
     placement_move,
     robot_ids,
+    rss_growth,
     unchanged_moves,
 )
 from pgvd.grid import Grid, rigid_matrix
@@ -135,3 +136,11 @@ def test_the_joiner_has_the_lowest_id_so_a_lowest_id_anchor_would_jump() -> None
         ("return", "r16"),
     ]
     assert [t for t, _, _ in plan] == [60.0, 120.0, 180.0]
+
+
+def test_a_late_joiners_memory_grows_from_its_own_warm_up() -> None:
+    """Sampled every 5 s: 100 MB at its start, 200 MB from its warm-up on, 210 MB at the end."""
+    joiner = [
+        (t, 0.0, 100.0 if t < 120 else 210.0 if t >= 300 else 200.0) for t in range(90, 365, 5)
+    ]
+    assert rss_growth(joiner) == pytest.approx(5.0)
