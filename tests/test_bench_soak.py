@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +26,7 @@ from bench.soak import (
 )
 from pgvd.grid import Grid, rigid_matrix
 
+ROOT = Path(__file__).resolve().parents[1]
 #: Each robot's canvas: the moves are measured over its corners.
 SHAPE = (10, 10)
 
@@ -144,3 +149,26 @@ def test_a_late_joiners_memory_grows_from_its_own_warm_up() -> None:
         (t, 0.0, 100.0 if t < 120 else 210.0 if t >= 300 else 200.0) for t in range(90, 365, 5)
     ]
     assert rss_growth(joiner) == pytest.approx(5.0)
+
+
+@pytest.mark.fleet
+@pytest.mark.slow
+def test_a_short_churn_soak_reports_the_merged_frame(tmp_path) -> None:
+    """Real agents for one minute: a robot leaves, r0 joins, the first returns; the report
+    carries the anchor changes and the moves of unchanged robots beside the rest."""
+    cmd = [sys.executable, "-m", "bench", "soak", "--robots", "2", "--churn", "--minutes", "1",
+           "--settle", "30", "--out", str(tmp_path)]  # fmt: skip
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads((tmp_path / "soak-cycle-churn.json").read_text())["summary"]
+    assert [(c["event"], c["robot"]) for c in summary["churn"]] == [
+        ("leave", "r2"),
+        ("join", JOINER),
+        ("return", "r2"),
+    ]
+    assert summary["dead"] == [] and set(summary["rss_end_mb"]) == {"r0", "r1", "r2"}
+    assert set(summary["anchor_changes"]) == {"jumps", "left", "merged", "jumped"}
+    assert set(summary["unchanged_moves"]) == {"all", "membership_changed"}
+    md = (tmp_path / "soak-cycle-churn.md").read_text()
+    assert "- anchor changes of an agent's merged map after warm-up:" in md
+    assert "- largest move of robots whose map did not change" in md
