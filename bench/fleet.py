@@ -161,6 +161,7 @@ def run_fleet(
     wall = time.time() - t0
     row = {"log": building.name, "robots": n, "agreed": agreed_at is not None}
     row |= agreement_numbers(st, agreed_at)
+    row |= disagreement_numbers(st)
     row |= traffic_numbers(st)
     row |= process_numbers(samples, wall)
     row |= work_numbers(st, n)
@@ -194,6 +195,24 @@ def agreement_numbers(st: dict[str, dict], agreed_at: float | None) -> dict:
         if after is None
         else round(after / max(merge_s, 1e-3), 1),
     }
+
+
+def disagreement_numbers(st: dict[str, dict]) -> dict:
+    """Why a fleet had not agreed when the bench stopped watching it (all agreed: 1 and 0).
+
+    ``distinct_global_maps``: how many different global maps the agents held;
+    ``final_maps_missing``: (agent, robot) pairs where the agent did not hold the robot's
+    final map (its own last version), a map that never reached it.
+    """
+    final = {r: s["own_version"] for r, s in st.items()}
+    missing = sum(
+        1
+        for s in st.values()
+        for robot, version in final.items()
+        if (s["robots"].get(robot, {}).get("version") or 0) < (version or 0)
+    )
+    digests = {(s.get("global") or {}).get("digest") for s in st.values()}
+    return {"distinct_global_maps": len(digests), "final_maps_missing": missing}
 
 
 def traffic_numbers(st: dict[str, dict]) -> dict:
@@ -243,6 +262,16 @@ def work_numbers(st: dict[str, dict], n: int) -> dict:
     }
 
 
+def agreed(row: dict) -> str:
+    """The agreed cell: yes, or NO with how many global maps and maps missing there were."""
+    if row["agreed"]:
+        return "yes"
+    return (
+        f"NO: {row['distinct_global_maps']} global maps, "
+        f"{row['final_maps_missing']} final maps missing"
+    )
+
+
 def table(rows: list[dict]) -> str:
     """The full table of one log's runs, one row per fleet size."""
     head = (
@@ -259,7 +288,7 @@ def table(rows: list[dict]) -> str:
     lines = [head, "|" + "---|" * 19]
     for r in rows:
         lines.append(
-            f"| {r['robots']} | {'yes' if r['agreed'] else 'NO'} | {r['agreement_s']} "
+            f"| {r['robots']} | {agreed(r)} | {r['agreement_s']} "
             f"| {r['bytes_sent_per_robot'] / 1000:.0f} "
             f"| {r['bytes_received_per_robot'] / 1000:.0f} | {r['messages_received_per_robot']} "
             f"| {r['cpu_s_per_agent']} / {r['cpu_s_max_agent']} | {r['cpu_pct_per_agent']} "
@@ -286,7 +315,7 @@ def combined_table(rows: list[dict]) -> str:
     lines = [head, "|" + "---|" * 9]
     for r in sorted(rows, key=lambda r: (r["log"], r["robots"])):
         lines.append(
-            f"| {r['log']} | {r['robots']} | {'yes' if r['agreed'] else 'NO'} "
+            f"| {r['log']} | {r['robots']} | {agreed(r)} "
             f"| {r['agreement_s']} "
             f"| {r['searches_per_epoch_per_robot']} / {r['checks_per_epoch_per_robot']} "
             f"| {r['messages_received_per_robot']} "

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.fleet import combined_table, write_results
+from bench.fleet import agreed, combined_table, disagreement_numbers, write_results
 from bench.fleet_accuracy import Building
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ def row(log: str, robots: int, agreement: float) -> dict:
         "epochs_per_robot": 4.0, "searches_per_epoch": 2.0, "checks_per_epoch": 1.0,
         "searches_per_epoch_per_robot": 0.5, "checks_per_epoch_per_robot": 0.25,
         "wall_s": 30.0, "largest_component": robots, "poll_s": 0.1, "bench_cpu_pct": 3.0,
-        "load_before_after": [0.5, 1.0],
+        "load_before_after": [0.5, 1.0], "distinct_global_maps": 1, "final_maps_missing": 0,
     }  # fmt: skip
 
 
@@ -96,3 +96,20 @@ def test_the_combined_table_has_a_row_per_log_and_fleet_size() -> None:
         [" intel ", " 8 "],
     ]
     assert all(r.count("|") == lines.splitlines()[0].count("|") for r in body)
+
+
+def test_a_fleet_that_did_not_agree_says_which_maps_never_arrived() -> None:
+    def status(held: dict[str, int | None], own: int, digest: str) -> dict:
+        robots = {r: {"version": v} for r, v in held.items()}
+        return {"own_version": own, "robots": robots, "global": {"digest": digest}}
+
+    st = {
+        "r1": status({"r1": 5, "r2": 7, "r3": 2}, 5, "a"),
+        "r2": status({"r1": None, "r2": 7, "r3": 2}, 7, "b"),  # r1's map never reached r2
+        "r3": status({"r1": 4, "r2": 7, "r3": 2}, 2, "b"),  # r3 holds an older r1
+    }
+    out = disagreement_numbers(st)
+    assert out == {"distinct_global_maps": 2, "final_maps_missing": 2}
+    assert agreed(row("intel", 3, 1.0) | {"agreed": False} | out) == (
+        "NO: 2 global maps, 2 final maps missing"
+    )
