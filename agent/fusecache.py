@@ -83,6 +83,11 @@ class LayerCache:
         """Forget the layers of every robot not in ``robots``."""
         self._held = {r: h for r, h in self._held.items() if r in robots}
 
+    @property
+    def robots(self) -> frozenset[str]:
+        """The robots whose layer is held."""
+        return frozenset(self._held)
+
     def held_bytes(self) -> int:
         """Bytes of the layers held."""
         return sum(h.layer.logodds.nbytes for h in self._held.values())
