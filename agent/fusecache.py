@@ -61,7 +61,8 @@ class LayerCache:
         """``robot``'s map ``grid`` (at ``version``) warped into the anchor's pixels by
         ``matrix`` with ``covariance``, eq. (8); also whether its blur had to be left out.
 
-        The key is the exact bytes of ``matrix`` and ``covariance`` as float64: a placement
+        ``(robot, version)`` must name one map, as it does in a fleet (invariant 2).  The
+        placement's key is the exact bytes of ``matrix`` and ``covariance`` as float64: one
         that moved by a rounding error is a new placement, since another agent holding it
         computes the layer from those bytes.
         """
@@ -75,6 +76,7 @@ class LayerCache:
             self.reuses += 1
             return held.layer, held.unblurred
         layer, unblurred = _warp(grid, matrix, covariance)
+        layer.logodds.setflags(write=False)  # shared by every rebuild until replaced
         self._held[robot] = _Held(key, layer, unblurred)
         self.warps += 1
         return layer, unblurred

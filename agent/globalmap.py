@@ -16,10 +16,11 @@ links build the same global maps, bit for bit.  Hence everything here is ordered
 
 The canvas of a global map is the smallest that holds every member's map whole, computed
 before anything is fused, and each layer is warped and blurred on its own map's footprint
-rather than on that canvas.  Fusing on a canvas grown map by map (:func:`pgvd.fusion.fuse_maps`
-in turn) made each map's blur depend on the maps fused before it, so a robot joining would
-have re-warped every robot after it; now a layer depends on its map and its placement alone,
-and a warm rebuild is bit for bit a cold one.
+rather than on that canvas.  Why: on a canvas grown map by map (:func:`pgvd.fusion.fuse_maps`
+in turn) each map's blur reaches to the edges of the canvas the maps before it made, so a
+robot joining would re-warp every robot after it; a layer that depends on its map and its
+placement alone is kept until one of them changes, and a warm rebuild is bit for bit a
+cold one.
 
 Only local maps are ever fused: a fused map is never an input (fleet invariant 1).
 """
