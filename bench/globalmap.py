@@ -22,7 +22,9 @@ process on one thread, median of ``--repeat``:
 * ``unchanged``: the cache warm, the same inputs (a preview rebuilt beside no new map).
 
 The ratios to ``cold`` in the same run are what to compare across machines.  Also
-reported: the bytes of layers the cache holds, and the fused map's cells.  Writes
+reported: the bytes of layers the cache holds, the peak memory Python and numpy allocate
+during one rebuild in turn and one cold (tracemalloc: scipy's FFT work buffers are not
+counted), and the fused map's cells.  Writes
 ``globalmap.md`` and ``globalmap.json`` in ``--out``.
 """
 
@@ -38,6 +40,7 @@ import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+import tracemalloc  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -105,6 +108,16 @@ def cpu_seconds(run: Callable[[], object]) -> float:
     return time.process_time() - t
 
 
+def peak_mb(run: Callable[[], object]) -> float:
+    """Peak of the memory Python and numpy allocate during ``run`` (tracemalloc), MB."""
+    tracemalloc.start()
+    try:
+        run()
+        return tracemalloc.get_traced_memory()[1] / 1e6
+    finally:
+        tracemalloc.stop()
+
+
 def bench_fleet(log: Path, n: int, repeat: int) -> dict:
     """The four rebuilds of the module's docstring on ``n`` robots of ``log``."""
     fleet = Fleet(log, n)
@@ -124,6 +137,10 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
         cpu_seconds(lambda: build_components(maps, links, layers=cache)) for _ in range(repeat)
     ]
     (comp,) = build_components(maps, links, layers=cache)
+    peaks = {
+        "in_turn": peak_mb(lambda: build_components(maps, links, fuse_maps)),
+        "cold": peak_mb(lambda: build_components(maps, links)),
+    }
     med = {
         name: float(np.median(v))
         for name, v in (
@@ -140,6 +157,7 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
         "map_cells": int(np.mean([g.logodds.size for _, g in maps.values()])),
         "fused_shape": list(comp.grid.shape),
         "layers_mb": cache.held_bytes() / 1e6,
+        "peak_mb": peaks,
         "cpu_s": med,
         "ratio_to_cold": {k: v / med["cold"] for k, v in med.items()},
     }
@@ -149,8 +167,8 @@ def table(rows: list[dict]) -> str:
     out = [
         "| log | robots | in turn (s) | cold (s) | new version (s) | unchanged (s) "
         "| new version / cold | unchanged / cold | cold / in turn | layers held (MB) "
-        "| fused map |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| peak in turn / cold (MB) | fused map |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         s, q = r["cpu_s"], r["ratio_to_cold"]
@@ -158,6 +176,7 @@ def table(rows: list[dict]) -> str:
             f"| {r['log']} | {r['robots']} | {s['in_turn']:.2f} | {s['cold']:.2f} "
             f"| {s['new_version']:.3f} | {s['unchanged']:.3f} | {q['new_version']:.3f} "
             f"| {q['unchanged']:.3f} | {s['cold'] / s['in_turn']:.2f} | {r['layers_mb']:.1f} "
+            f"| {r['peak_mb']['in_turn']:.0f} / {r['peak_mb']['cold']:.0f} "
             f"| {r['fused_shape'][0]} x {r['fused_shape'][1]} |"
         )
     return "\n".join(out)
