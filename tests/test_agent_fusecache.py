@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import logging
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import agent.fusecache
+from agent.book import FleetBook
 from agent.fusecache import LayerCache
 from agent.globalmap import Component, build_components
-from agent.links import LinkRecord
+from agent.links import EPOCH_SHIFT, LinkRecord
+from agent.worker import FusionWorker, Registration
 from pgvd.fusion import fuse_layers, warp_layer
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
@@ -105,3 +109,44 @@ def test_a_failing_blur_falls_back_to_the_plain_warp_the_same_everywhere(
         plain = fuse_layers(a, [warp_layer(b, truth, np.zeros((3, 3)))])
         assert comp.grid.logodds.tobytes() == plain.logodds.tobytes()
     assert cache.warps == 1 and cache.reuses == 1
+
+
+def test_the_worker_keeps_its_layers_from_one_rebuild_to_the_next(
+    halves: tuple, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A worker's rebuilds with real fusion: r2's next minor versions (its links hold)
+    re-warp r2 alone, and the global map is the one a cold build of the same book gives."""
+    a, b, _ = halves
+    ox, oy, yaw = a.origin
+    c = Grid(a.logodds, a.resolution, (ox + 1.0, oy - 0.5, yaw))  # r3: A's map, placed apart
+    book, globals_ = FleetBook(), []
+
+    def register(first: Grid, second: Grid) -> Registration:
+        return Registration(True, relative_matrix(first, second), COV, 0.9)  # one world frame
+
+    worker = FusionWorker("r1", book, register, book.add_link, globals_.append)
+    epoch = 1 << EPOCH_SHIFT
+    for robot, grid in (("r1", a), ("r2", b), ("r3", c)):
+        book.put_map(robot, epoch, grid)
+    caplog.set_level(logging.DEBUG, logger="pgvd.agent")
+
+    def settle(now: float) -> tuple[float, list[int]]:
+        """Steps over 40 s (every pair's turn comes); how many maps each rebuild warped."""
+        caplog.clear()
+        for _ in range(40):
+            worker.step(now)
+            now += 1.0
+        return now, [int(n) for n in re.findall(r"components, (\d+) maps warped", caplog.text)]
+
+    now, _ = settle(0.0)
+    assert len(book.snapshot().links) == 3 and globals_[-1].settled
+    for minor in (1, 2):
+        walls = b.logodds.copy()
+        walls[100 + 20 * minor, 40:120] = 3.0
+        book.put_map("r2", epoch | minor, Grid(walls, b.resolution, b.origin))
+        now, warped = settle(now)
+        assert warped == [1]  # one rebuild, of r2's layer alone
+    snap = book.snapshot()
+    (last,) = globals_[-1].components
+    assert last.versions == {"r1": epoch, "r2": epoch | 2, "r3": epoch}
+    assert same_maps([last], build_components(snap.maps, snap.links))
