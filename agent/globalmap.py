@@ -7,8 +7,11 @@ links build the same global maps, bit for bit.  Hence everything here is ordered
   :func:`pgvd.posegraph.solve`, which drops links inconsistent around a cycle (GNC-TLS)
   and sorts its inputs, so the order links arrive in does not matter;
 - components are the connected components of the links it kept, each anchored at its
-  lowest robot id, whose pixel frame is the component's frame;
-- local maps are fused into the anchor's map in increasing robot id, with
+  robot whose first epoch is oldest, ties by robot id (:func:`anchor_rank`), whose pixel
+  frame is the component's frame: a robot joining or returning never moves the frame of
+  the robots already merged, unless it is older than their anchor, and when two
+  components join the older anchor's frame stays;
+- local maps are fused into the anchor's map, then the others' in increasing robot id, with
   :func:`pgvd.fusion.fuse_maps` (eqs. (33)-(37), the transform's covariance blurring the
   added map per eqs. (4)-(8)).
 
@@ -18,6 +21,7 @@ Only local maps are ever fused: a fused map is never an input (fleet invariant 1
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
@@ -25,7 +29,7 @@ import numpy as np
 
 from agent.links import LinkRecord
 from pgvd.grid import Grid, relative_matrix
-from pgvd.posegraph import PoseGraphParams, link_problem, solve
+from pgvd.posegraph import PoseGraphParams, Rank, link_problem, solve
 from protocol.quantize import quantise
 
 FuseFn = Callable[[Grid, Grid, np.ndarray, np.ndarray], Grid]
@@ -41,8 +45,9 @@ class Component:
 
     Attributes
     ----------
-    anchor : lowest robot id of the component; its map's pixel frame is the global frame.
-    members : robot ids, sorted.
+    anchor : the robot of the component whose first epoch is oldest, ties by robot id
+        (:func:`anchor_rank`); its map's pixel frame is the global frame.
+    members : robot ids, the anchor first, then the others sorted (the fusion order).
     versions : ``{robot: version}`` that went into ``grid``.
     transforms : ``{robot: 3x3}`` from that robot's pixels to the anchor's pixels.
     covariances : ``{robot: 3x3}`` over ``(x px, y px, psi)`` of that transform, eq. (3).
@@ -79,6 +84,19 @@ def map_digest(grid: Grid) -> str:
     meta = np.round(np.array([grid.resolution, *grid.origin], dtype=np.float64), 6)
     h.update(meta.tobytes())
     return h.hexdigest()
+
+
+def anchor_rank(firsts: Mapping[str, int]) -> Rank:
+    """The rank that anchors each component at its oldest robot: least first epoch, then
+    least robot id (:func:`pgvd.posegraph.solve`).
+
+    A robot's first epoch is the epoch of its first map version, carried by every manifest
+    of the robot and kept in its state directory, so it never changes while the robot
+    lives: a robot that joins or returns ranks after the robots that were there before it
+    and leaves their frame where it was.  A robot whose first epoch is not known (a map
+    whose manifest did not say) ranks after every robot whose first epoch is.
+    """
+    return lambda robot: firsts.get(robot, math.inf)
 
 
 def accepted_links(
@@ -120,12 +138,16 @@ def build_components(
     fuse: FuseFn | None = None,
     params: PoseGraphParams | None = None,
     sound: Soundness | None = None,
+    firsts: Mapping[str, int] | None = None,
 ) -> list[Component]:
     """Every component's global map from the latest local maps and one link per pair.
 
     Parameters
     ----------
     maps : ``{robot: (version, local grid)}``, the latest local map of each robot.
+    firsts : ``{robot: first epoch}`` that came with those maps; each component is
+        anchored at its oldest robot (:func:`anchor_rank`), and without ``firsts`` at its
+        lowest robot id.
     links : at most one link per pair (:func:`agent.links.select_links`); rejected
         ones and those of robots without a map are ignored.
     fuse : ``fuse(base, other, other_px_to_base_px, covariance) -> Grid``; defaults to
@@ -137,13 +159,13 @@ def build_components(
 
     Returns
     -------
-    Components sorted by anchor id.
+    Components sorted by their anchor's rank.
     """
     if fuse is None:
         from pgvd.fusion import fuse_maps as fuse
     accepted = accepted_links(maps, links)
     usable = usable_links(maps, accepted, sound)
-    sol = solve(maps, usable, params)
+    sol = solve(maps, usable, params, anchor_rank(firsts or {}))
     dropped = {ln.pair for ln in accepted} - {
         ln.pair for ln, u in zip(usable, sol.used, strict=True) if u
     }
@@ -180,8 +202,8 @@ def _fuse_component(
     covs: Mapping[str, np.ndarray],
     fuse: FuseFn,
 ) -> tuple[Grid, tuple[str, ...]]:
-    """Local maps fused into the anchor's (``members[0]``) in increasing robot id,
-    eqs. (33)-(37); also the robots fused without their blur."""
+    """Local maps fused into the anchor's (``members[0]``), the others in increasing
+    robot id, eqs. (33)-(37); also the robots fused without their blur."""
     base = maps[members[0]][1]
     fused = base
     unblurred: list[str] = []

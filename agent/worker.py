@@ -495,7 +495,7 @@ class FusionWorker:
             self._register(snap, due[0], may_defer=others)
             return True
         signature = (
-            tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
+            tuple(sorted((r, v, snap.firsts.get(r)) for r, (v, _) in snap.maps.items())),
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
             tuple(_identity(ln) for ln in snap.links),
@@ -881,6 +881,8 @@ class FusionWorker:
 
     def _rebuild(self, snap: Snapshot) -> None:
         clock = _Clock.start()
-        components = build_components(snap.maps, snap.links, self.fuse, sound=self._soundness(snap))
+        components = build_components(
+            snap.maps, snap.links, self.fuse, sound=self._soundness(snap), firsts=snap.firsts
+        )
         log.debug("built %d components: %.2f s, %.2f s CPU", len(components), *clock.elapsed())
         self.on_global(GlobalState(components, snap.settled, time.time()))
