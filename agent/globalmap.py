@@ -47,7 +47,7 @@ class Component:
     ----------
     anchor : the robot of the component whose first epoch is oldest, ties by robot id
         (:func:`anchor_rank`); its map's pixel frame is the global frame.
-    members : robot ids, the anchor first, then the others sorted (the fusion order).
+    members : robot ids, sorted.
     versions : ``{robot: version}`` that went into ``grid``.
     transforms : ``{robot: 3x3}`` from that robot's pixels to the anchor's pixels.
     covariances : ``{robot: 3x3}`` over ``(x px, y px, psi)`` of that transform, eq. (3).
@@ -170,12 +170,13 @@ def build_components(
         ln.pair for ln, u in zip(usable, sol.used, strict=True) if u
     }
     out = []
-    for members in sol.components:
+    for placed in sol.components:  # the anchor first, then the others by id: the fusion order
+        members = tuple(sorted(placed))
         inside = [(ln.pair, u) for ln, u in zip(usable, sol.used, strict=True) if ln.a in members]
-        grid, unblurred = _fuse_component(maps, members, sol.transforms, sol.covariances, fuse)
+        grid, unblurred = _fuse_component(maps, placed, sol.transforms, sol.covariances, fuse)
         out.append(
             Component(
-                anchor=members[0],
+                anchor=placed[0],
                 members=members,
                 versions={r: maps[r][0] for r in members},
                 transforms={r: sol.transforms[r] for r in members},

@@ -132,7 +132,7 @@ def test_a_robot_with_a_lower_id_joining_moves_no_frame(lab) -> None:
     link(fleet, "r1", "r3", truth(to_r2, "r1", "r3"), (0.01, -0.3, 0.4))
     built = {robot: global_map(node) for robot, node in fleet.items()}
     (after,) = built["r3"]
-    assert after.anchor == "r2" and after.members == ("r2", "r1", "r3")
+    assert after.anchor == "r2" and after.members == ("r1", "r2", "r3")
     # fleet invariant 2: the same maps, first epochs and links give the same map everywhere
     assert {tuple(c.digest for c in comps) for comps in built.values()} == {(after.digest,)}
     for robot, (deg, cells) in moved(before, after, shapes).items():
@@ -160,11 +160,11 @@ def test_when_two_components_join_the_older_anchor_wins(lab) -> None:
         return LinkRecord(a, 1, b, 1, True, truth(to_r2, a, b), COV, 0.9, a)
 
     apart = build_components(maps, [rec("r2", "r3"), rec("r1", "r4")], firsts=firsts)
-    assert [(c.anchor, c.members) for c in apart] == [("r2", ("r2", "r3")), ("r4", ("r4", "r1"))]
+    assert [(c.anchor, c.members) for c in apart] == [("r2", ("r2", "r3")), ("r4", ("r1", "r4"))]
     joined = build_components(
         maps, [rec("r2", "r3"), rec("r1", "r4"), rec("r3", "r4")], firsts=firsts
     )
-    assert [(c.anchor, c.members) for c in joined] == [("r2", ("r2", "r1", "r3", "r4"))]
+    assert [(c.anchor, c.members) for c in joined] == [("r2", ("r1", "r2", "r3", "r4"))]
     shapes = {r: g.shape for r, (_, g) in maps.items()}
     for robot, (deg, cells) in moved(apart[0], joined[0], shapes).items():
         assert deg <= 0.1 and cells <= 1.0, robot
@@ -257,6 +257,6 @@ def test_fusion_takes_the_anchor_as_base_then_the_others_by_id(lab) -> None:
         return base
 
     (comp,) = build_components(maps, links, fuse, firsts={"r3": 1, "r1": 2, "r2": 2})
-    assert comp.anchor == "r3" and comp.members == ("r3", "r1", "r2")
+    assert comp.anchor == "r3" and comp.members == ("r1", "r2", "r3")
     assert len(fused) == 2 and all(base is grids["r3"] for base, _ in fused)
     assert fused[0][1] is grids["r1"] and fused[1][1] is grids["r2"]
