@@ -260,3 +260,15 @@ def test_fusion_takes_the_anchor_as_base_then_the_others_by_id(lab) -> None:
     assert comp.anchor == "r3" and comp.members == ("r1", "r2", "r3")
     assert len(fused) == 2 and all(base is grids["r3"] for base, _ in fused)
     assert fused[0][1] is grids["r1"] and fused[1][1] is grids["r2"]
+
+
+def test_a_damaged_first_epoch_is_one_error_line_not_a_crash(lab, tmp_path: Path) -> None:
+    grids, _ = lab
+    state = StateDir(tmp_path)
+    state.save_map("r1", StoredMap(5 << 31, grids["r1"], first_epoch=5))
+    path = tmp_path / "maps" / "r1.npz"
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    np.savez(path, **{**arrays, "first_epoch": np.int64(-1)})
+    maps, errors = state.load_maps()
+    assert maps == {} and errors == ["r1.npz: corrupt map arrays: first_epoch"]
