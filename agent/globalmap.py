@@ -145,9 +145,6 @@ def build_components(
     Parameters
     ----------
     maps : ``{robot: (version, local grid)}``, the latest local map of each robot.
-    firsts : ``{robot: first epoch}`` that came with those maps; each component is
-        anchored at its oldest robot (:func:`anchor_rank`), and without ``firsts`` at its
-        lowest robot id.
     links : at most one link per pair (:func:`agent.links.select_links`); rejected
         ones and those of robots without a map are ignored.
     fuse : ``fuse(base, other, other_px_to_base_px, covariance) -> Grid``; defaults to
@@ -156,6 +153,9 @@ def build_components(
         :func:`pgvd.grid.relative_matrix`.
     params : the pose graph's floors and threshold (:class:`pgvd.posegraph.PoseGraphParams`).
     sound : the links' soundness judged before (:func:`usable_links`); filled in.
+    firsts : ``{robot: first epoch}`` that came with those maps; each component is
+        anchored at its oldest robot (:func:`anchor_rank`), and without ``firsts`` at its
+        lowest robot id.
 
     Returns
     -------

@@ -23,8 +23,9 @@ Reported:
   materially: any move is jitter. Reported for all consecutive maps, and for those whose
   links were the same candidates (a pure function of them: the move must be zero);
 - anchor changes: consecutive global maps of an agent whose anchor differs; a *jump* is one
-  whose previous anchor is still a member (the merged frame moved under robots that stayed),
-  the others followed their anchor's departure. The target under churn is 0 jumps;
+  whose previous map merged several robots and whose previous anchor is still a member (the
+  merged frame moved under robots that stayed); the others followed their anchor's departure
+  or a lone robot's first merge. The target under churn is 0 jumps;
 - churn (``--churn``): a quarter into the run the last robot leaves (SIGTERM), half-way a new
   robot joins with the lowest id, ``r0`` (anchoring at the lowest id would move the merged
   frame to it), three quarters in the one that left comes back. The sources hold still after
@@ -367,14 +368,15 @@ def jumps(history: dict[str, list], shape_of) -> dict[str, dict[str, float]]:
 
 def anchor_moves(history: dict[str, list]) -> dict[str, int]:
     """Consecutive global maps of an agent whose anchor differs: ``changes`` in all, and
-    ``jumps``, those whose previous anchor is still a member (the merged frame moved although
-    the robot that anchored it stayed)."""
+    ``jumps``, those whose previous map merged several robots and whose previous anchor is
+    still a member (the merged frame moved although the robot that anchored it stayed; a
+    robot alone has no merged frame to keep)."""
     out = {"changes": 0, "jumps": 0}
     for maps in history.values():
         for prev, cur in itertools.pairwise(maps):
             if prev["anchor"] != cur["anchor"]:
                 out["changes"] += 1
-                out["jumps"] += prev["anchor"] in cur["members"]
+                out["jumps"] += len(prev["members"]) > 1 and prev["anchor"] in cur["members"]
     return out
 
 

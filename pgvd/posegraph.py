@@ -5,10 +5,10 @@ Nodes are maps, each one pixel frame; an edge ``(a, b)`` is a pairwise transform
 eq. (3), as the merge of Saeedi et al. (IROS 2012) returns it.  In each connected
 component the anchor is the node of least ``(rank, id)`` (by default the lowest id); the
 unknowns are the matrices ``X_i`` from node ``i``'s pixels to the anchor's, and an edge
-predicts ``Z = X_a^-1 X_b``.  Its
-residual is the difference of the ``(tx, ty, psi)`` parameters of ``X_a^-1 X_b`` and
-``Z`` (heading wrapped), the parametrisation of the covariance, weighted by the inverse
-covariance: a weighted least-squares pose graph solved by Gauss-Newton.
+predicts ``Z = X_a^-1 X_b``.  Its residual is the difference of the ``(tx, ty, psi)``
+parameters of ``X_a^-1 X_b`` and ``Z`` (heading wrapped), the parametrisation of the
+covariance, weighted by the inverse covariance: a weighted least-squares pose graph solved
+by Gauss-Newton.
 
 Outliers: graduated non-convexity with the truncated least-squares cost (GNC-TLS; Yang,
 Antonante, Tzoumas and Carlone, "Graduated Non-Convexity for Robust Spatial Perception:

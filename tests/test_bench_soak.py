@@ -52,6 +52,7 @@ def test_anchor_moves_tell_a_jump_from_a_departure() -> None:
             seen("r1", ["r1", "r2", "r3"]),  # r3 joins: the frame stays
             seen("r0", ["r0", "r1", "r2", "r3"]),  # r0 joins and takes the frame: a jump
             seen("r1", ["r1", "r2", "r3"]),  # r0 forgotten: the frame follows its departure
-        ]
+        ],
+        "r0": [seen("r0", ["r0"]), seen("r1", ["r0", "r1", "r2", "r3"])],  # a lone robot merged
     }
-    assert anchor_moves(history) == {"changes": 2, "jumps": 1}
+    assert anchor_moves(history) == {"changes": 3, "jumps": 1}
