@@ -7,10 +7,13 @@ links build the same global maps, bit for bit.  Hence everything here is ordered
   :func:`pgvd.posegraph.solve`, which drops links inconsistent around a cycle (GNC-TLS)
   and sorts its inputs, so the order links arrive in does not matter;
 - components are the connected components of the links it kept, each anchored at its
-  lowest robot id, whose pixel frame is the component's frame;
-- local maps are fused into the anchor's map in increasing robot id: each is warped into
-  the anchor's pixels with its placement's covariance blurring it per eqs. (4)-(8)
-  (:func:`pgvd.fusion.warp_layer`, kept between rebuilds by
+  robot whose first epoch is oldest, ties by robot id (:func:`anchor_rank`), whose pixel
+  frame is the component's frame: a robot joining or returning never moves the frame of
+  the robots already merged, unless it is older than their anchor, and when two
+  components join the older anchor's frame stays;
+- local maps are fused into the anchor's map, then the others' in increasing robot id: each
+  is warped into the anchor's pixels with its placement's covariance blurring it per eqs.
+  (4)-(8) (:func:`pgvd.fusion.warp_layer`, kept between rebuilds by
   :class:`agent.fusecache.LayerCache`), then the layers are fused in that order, eqs.
   (33)-(37) (:func:`pgvd.fusion.fuse_layers`).
 
@@ -28,6 +31,7 @@ Only local maps are ever fused: a fused map is never an input (fleet invariant 1
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
@@ -37,7 +41,7 @@ from agent.fusecache import LayerCache
 from agent.links import LinkRecord
 from pgvd.fusion import fuse_layers
 from pgvd.grid import Grid, relative_matrix
-from pgvd.posegraph import PoseGraphParams, link_problem, solve
+from pgvd.posegraph import PoseGraphParams, Rank, link_problem, solve
 from protocol.quantize import quantise
 
 FuseFn = Callable[[Grid, Grid, np.ndarray, np.ndarray], Grid]
@@ -53,7 +57,8 @@ class Component:
 
     Attributes
     ----------
-    anchor : lowest robot id of the component; its map's pixel frame is the global frame.
+    anchor : the robot of the component whose first epoch is oldest, ties by robot id
+        (:func:`anchor_rank`); its map's pixel frame is the global frame.
     members : robot ids, sorted.
     versions : ``{robot: version}`` that went into ``grid``.
     transforms : ``{robot: 3x3}`` from that robot's pixels to the anchor's pixels.
@@ -91,6 +96,19 @@ def map_digest(grid: Grid) -> str:
     meta = np.round(np.array([grid.resolution, *grid.origin], dtype=np.float64), 6)
     h.update(meta.tobytes())
     return h.hexdigest()
+
+
+def anchor_rank(firsts: Mapping[str, int]) -> Rank:
+    """The rank that anchors each component at its oldest robot: least first epoch, then
+    least robot id (:func:`pgvd.posegraph.solve`).
+
+    A robot's first epoch is the epoch of its first map version, carried by every manifest
+    of the robot and kept in its state directory, so it never changes while the robot
+    lives: a robot that joins or returns ranks after the robots that were there before it
+    and leaves their frame where it was.  A robot whose first epoch is not known (a map
+    whose manifest did not say) ranks after every robot whose first epoch is.
+    """
+    return lambda robot: firsts.get(robot, math.inf)
 
 
 def accepted_links(
@@ -133,6 +151,7 @@ def build_components(
     params: PoseGraphParams | None = None,
     sound: Soundness | None = None,
     layers: LayerCache | None = None,
+    firsts: Mapping[str, int] | None = None,
 ) -> list[Component]:
     """Every component's global map from the latest local maps and one link per pair.
 
@@ -151,22 +170,25 @@ def build_components(
     layers : the layers of the last rebuild (:class:`agent.fusecache.LayerCache`), reused
         where a robot's version and placement are unchanged; left holding this build's.
         None: a cold build.  Not used with ``fuse``.
+    firsts : ``{robot: first epoch}`` that came with those maps; each component is
+        anchored at its oldest robot (:func:`anchor_rank`), and without ``firsts`` at its
+        lowest robot id.
 
     Returns
     -------
-    Components sorted by anchor id.
+    Components sorted by their anchor's rank.
     """
     layers = LayerCache() if layers is None else layers
     accepted = accepted_links(maps, links)
     usable = usable_links(maps, accepted, sound)
-    sol = solve(maps, usable, params)
+    sol = solve(maps, usable, params, anchor_rank(firsts or {}))
     dropped = {ln.pair for ln in accepted} - {
         ln.pair for ln, u in zip(usable, sol.used, strict=True) if u
     }
     out = []
-    for members in sol.components:
-        anchor = members[0]
-        order = tuple(r for r in members if r != anchor)  # increasing robot id
+    for placed in sol.components:  # the anchor first, then the others by id: the fusion order
+        members = tuple(sorted(placed))
+        anchor, order = placed[0], placed[1:]
         inside = [(ln.pair, u) for ln, u in zip(usable, sol.used, strict=True) if ln.a in members]
         if fuse is None:
             grid, unblurred = _fuse_component(

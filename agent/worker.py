@@ -498,7 +498,7 @@ class FusionWorker:
             self._register(snap, due[0], may_defer=others)
             return True
         signature = (
-            tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
+            tuple(sorted((r, v, snap.firsts.get(r)) for r, (v, _) in snap.maps.items())),
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
             tuple(_identity(ln) for ln in snap.links),
@@ -887,7 +887,12 @@ class FusionWorker:
         layers = self._layers
         warps = layers.warps
         components = build_components(
-            snap.maps, snap.links, self.fuse, sound=self._soundness(snap), layers=layers
+            snap.maps,
+            snap.links,
+            self.fuse,
+            sound=self._soundness(snap),
+            layers=layers,
+            firsts=snap.firsts,
         )
         log.debug(
             "built %d components, %d maps warped: %.2f s, %.2f s CPU",
