@@ -172,3 +172,24 @@ def test_a_short_churn_soak_reports_the_merged_frame(tmp_path) -> None:
     md = (tmp_path / "soak-cycle-churn.md").read_text()
     assert "- anchor changes of an agent's merged map after warm-up:" in md
     assert "- largest move of robots whose map did not change" in md
+
+
+def test_a_lone_robots_first_merge_is_no_jump_and_a_departed_anchor_is_no_jump() -> None:
+    def seen(t: float, anchor: str, members: list[str]) -> dict:
+        return {"t": t, "anchor": anchor, "members": members, "others": []}
+
+    history = {
+        "r2": [
+            seen(1.0, "r1", ["r1", "r2"]),
+            seen(2.0, "r1", ["r1", "r2", "r3"]),  # r3 joins: the frame stays
+            seen(3.0, "r0", ["r0", "r1", "r2", "r3"]),  # r0 joins and takes the frame: a jump
+            seen(4.0, "r1", ["r1", "r2", "r3"]),  # r0 forgotten: the frame follows its departure
+        ],
+        "r0": [seen(1.0, "r0", ["r0"]), seen(3.0, "r1", ["r0", "r1", "r2", "r3"])],  # lone r0
+    }
+    assert anchor_changes(history) == {
+        "jumps": 1,
+        "left": 1,
+        "merged": 0,
+        "jumped": [["r2", 3.0, "r1", "r0"]],
+    }
