@@ -2,45 +2,12 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
 
+from bench.posegraph import Edge, random_graph
 from pgvd import posegraph
-from pgvd.grid import rigid_matrix
 from pgvd.posegraph import Solution, solve
-
-
-@dataclass(frozen=True)
-class Edge:
-    a: str
-    b: str
-    matrix: np.ndarray
-    covariance: np.ndarray
-
-
-def random_graph(n: int, seed: int, wrong: bool = False) -> tuple[list[str], list[Edge]]:
-    """A connected graph of ``n`` maps: a chain plus as many random chords, with the errors
-    of real merges (~1 px, ~0.1 deg) and varied covariances; ``wrong`` turns one chord by
-    25 degrees and 60 px (an outlier the robust solution must drop)."""
-    rng = np.random.default_rng(seed)
-    nodes = [f"r{i:02d}" for i in range(n)]
-    truth = {v: rigid_matrix(rng.uniform(-np.pi, np.pi), *rng.uniform(-400, 400, 2)) for v in nodes}
-    pairs = {(nodes[i], nodes[i + 1]) for i in range(n - 1)}
-    while len(pairs) < min(2 * n, n * (n - 1) // 2):
-        i, j = sorted(rng.choice(n, 2, replace=False))
-        pairs.add((nodes[i], nodes[j]))
-    edges = []
-    for k, (a, b) in enumerate(sorted(pairs)):
-        m = np.linalg.inv(truth[a]) @ truth[b]
-        m = m @ rigid_matrix(math.radians(rng.normal(0, 0.1)), *rng.normal(0, 1.0, 2))
-        if wrong and k == len(pairs) // 2:
-            m = rigid_matrix(math.radians(25.0), 60.0, 0.0) @ m
-        cov = np.diag([*rng.uniform(0.01, 0.5, 2), rng.uniform(1e-8, 1e-5)])
-        edges.append(Edge(a, b, m, cov))
-    return nodes, edges
 
 
 def solved_with(monkeypatch, sparse_from: int, nodes: list[str], edges: list[Edge]) -> Solution:
@@ -48,7 +15,7 @@ def solved_with(monkeypatch, sparse_from: int, nodes: list[str], edges: list[Edg
     return solve(nodes, edges)
 
 
-@pytest.mark.parametrize("n", [4, 8, 16, 32, 64])
+@pytest.mark.parametrize("n", [4, 16, 64])
 @pytest.mark.parametrize("wrong", [False, True])
 def test_the_sparse_solve_is_the_dense_solve(monkeypatch, n: int, wrong: bool) -> None:
     nodes, edges = random_graph(n, seed=n, wrong=wrong)
