@@ -48,6 +48,7 @@ import numpy as np
 
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
+from agent.footprints import MARGIN_M, FootprintCache
 from agent.globalmap import Component, FuseFn, Soundness, build_components, usable_links
 from agent.links import (
     LinkKey,
@@ -120,6 +121,9 @@ PREVIEW_SHARE = 0.05
 CHECKS_PREVIEW_SHARE = PREVIEW_SHARE / 4
 #: What a rejection without a pose records: finite for the wire.
 _REJECTED = (np.eye(3), np.zeros((3, 3)))
+#: Why a pair whose known cells the prediction places apart is rejected
+#: (:meth:`FusionWorker._apart`).
+APART = f"the predicted pose puts the known cells more than {MARGIN_M:g} m apart"
 
 
 @dataclass(frozen=True)
@@ -373,8 +377,8 @@ class FusionWorker:
     check : checks a pair's predicted transform before a full search (:data:`CheckFn`);
         None always searches.
     counters : where ``searches``, ``checks``, ``checks_confirmed``, ``checks_rejected``,
-        ``prior_checks``, ``prior_confirmed`` and ``prior_failed`` are counted (the status
-        shows them).
+        ``checks_skipped`` (pairs placed apart, :meth:`_apart`), ``prior_checks``,
+        ``prior_confirmed`` and ``prior_failed`` are counted (the status shows them).
     poses : known initial poses, robot -> ``(x, y, yaw)`` of its map frame in the world frame
         (:func:`agent.priors.parse_known_pose`); a pair with both is checked at their prior
         first (with ``check``).
@@ -413,6 +417,8 @@ class FusionWorker:
         self._now = 0.0
         #: When each needed key's turn came (:func:`agent.links.open_keys`).
         self._opened_at: dict[LinkKey, float] = {}
+        #: Known-cell footprints of the maps held (:meth:`_apart`).
+        self._footprints = FootprintCache()
         #: Due keys whose check rejected the pair where a rejection needs a search; they wait
         #: for the other checks of the round (:meth:`_register`).
         self._deferred: set[LinkKey] = set()
@@ -463,6 +469,7 @@ class FusionWorker:
         self._now = now
         snap = self.book.snapshot()
         robots = sorted(snap.maps)
+        self._footprints.forget_except(set(robots))
         # Without checks every pair is a search anyway: no wave to wait for.
         checkable: set[LinkKey] = set()
         opened = snap.needed
@@ -809,8 +816,10 @@ class FusionWorker:
         predicted = None if solved is None else predict(solved[0], a, b)
         if solved is None or predicted is None:
             return None
-        self.counters.add("checks")
-        res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
+        res = self._apart(snap, a, b, predicted)
+        if res is None:
+            self.counters.add("checks")
+            res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
         group = next((g for g in self._chains_of(snap).groups if a in g and b in g), ())
         if (
             res is not None
@@ -831,9 +840,22 @@ class FusionWorker:
             if not fresh and self._solution[0] is not self._chains_of(snap):
                 return self._checked(snap, a, b, fresh=True)
             return _Unproven()
-        if res is not None:
+        if res is not None and res.reason != APART:
             self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
         return res
+
+    def _apart(self, snap: Snapshot, a: str, b: str, predicted: np.ndarray) -> Registration | None:
+        """The check's rejection without the check when ``predicted`` places the known cells
+        of ``a`` and ``b`` farther apart than :data:`agent.footprints.MARGIN_M`
+        (:mod:`agent.footprints`): no wall of either map lies on the other's known space, so
+        the check could only find no overlap.  None when they come near: check them."""
+        (va, grid_a), (vb, grid_b) = snap.maps[a], snap.maps[b]
+        near = self._footprints.get(a, va, grid_a)
+        if near.comes_near(self._footprints.get(b, vb, grid_b), predicted):
+            return None
+        self.counters.add("checks_skipped")
+        log.debug("check %s - %s skipped: %s", a, b, APART)
+        return Registration(False, np.asarray(predicted, np.float64), _REJECTED[1], 0.0, APART)
 
     def _chains_of(self, snap: Snapshot) -> Chains:
         """:class:`Chains` of ``snap``, made anew only when the robots or the accepted links

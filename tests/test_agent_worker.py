@@ -13,7 +13,9 @@ from numpy.linalg import inv
 
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
+from agent.trust import WITHDRAWN
 from agent.worker import (
+    APART,
     CHECKS_PREVIEW_SHARE,
     PREVIEW_SHARE,
     RESOLVE_AFTER,
@@ -701,3 +703,59 @@ def test_a_link_records_soundness_is_judged_once(monkeypatch) -> None:
     assert not h.worker.step(now=0.1)  # r1-r3 added: a new Chains, only it judged
     assert sorted(judged) == [("r1", "r2"), ("r1", "r3"), ("r2", "r3")]
     assert h.globals[-1].settled and h.globals[-1].components[0].members == ("r1", "r2", "r3")
+
+
+def _far_chain(h: Harness) -> None:
+    """r1 - r2 - r3 linked, each 50 m (500 px) beyond the last: r1 and r3 100 m apart."""
+    for r in ("r1", "r2", "r3"):
+        h.book.put_map(r, V(1), tiny(int(r[1])))
+    h.book.add_link(_link("r1", "r2", rigid_matrix(0.0, 500.0, 0.0)))
+    h.book.add_link(_link("r2", "r3", rigid_matrix(0.0, 500.0, 0.0)))
+
+
+def test_a_pair_placed_apart_is_not_checked_and_rejected_if_it_was_before() -> None:
+    h = Checking("r3", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    _rejected_in_epoch_0(h, "r1", "r3")
+    _far_chain(h)
+    assert h.worker.step(now=0.0)
+    assert h.checked == [] and h.calls == []
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r3") and not rec.accepted and rec.reason == APART
+    np.testing.assert_allclose(rec.matrix, rigid_matrix(0.0, 1000.0, 0.0), atol=1e-9)
+    assert h.worker.counters.snapshot()["counts"] == {"checks_skipped": 1}
+
+
+def test_a_first_rejection_of_a_pair_placed_apart_is_searched() -> None:
+    """As a check's: the chain may be wrong on a bridge, and the search finds the true link."""
+    h = Checking("r3", None)
+    _far_chain(h)
+    assert h.worker.step(now=0.0)
+    assert h.checked == [] and len(h.calls) == 1 and [ln.accepted for ln in h.links] == [True]
+    assert h.worker.counters.snapshot()["counts"] == {"checks_skipped": 1, "searches": 1}
+
+
+def test_an_accepted_pair_placed_apart_in_its_next_epoch_is_still_withdrawn() -> None:
+    """r1-r4, accepted in epoch 0, placed 150 m apart by epoch 1's chain: not checked, and
+    the search its rejection needs (the chain runs through the pair's own older link)
+    contradicts it: withdrawn."""
+    h = Checking("r4", None)
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(0), tiny(i))
+    old = LinkRecord("r1", V(0), "r4", V(0), True, np.eye(3), np.eye(3) * 0.1, 0.9, "r9")
+    h.book.add_link(old)
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    far = {"r1": 0.0, "r2": 500.0, "r3": 1000.0, "r4": 1500.0}
+    for a, b in [("r1", "r2"), ("r1", "r3"), ("r2", "r3"), ("r2", "r4"), ("r3", "r4")]:
+        h.book.add_link(_link(a, b, rigid_matrix(0.0, far[b] - far[a], 0.0)))
+
+    def no_overlap(a: Grid, b: Grid) -> Registration:
+        h.calls.append((0, 0))
+        return Registration(False, np.eye(3), np.zeros((3, 3)), 0.0, "no overlap")
+
+    h.worker.register = no_overlap
+    assert h.worker.step(now=0.0)
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r4") and rec.state == WITHDRAWN
+    assert h.checked == [] and len(h.calls) == 1
+    assert h.worker.counters.snapshot()["counts"] == {"checks_skipped": 1, "searches": 1}
