@@ -289,15 +289,16 @@ def _jacobians(x: np.ndarray, e: _Edges) -> tuple[np.ndarray, np.ndarray]:
     return ja, jb
 
 
-def _block_matrix(x: np.ndarray, e: _Edges, omega: np.ndarray) -> sparse.csr_array:
+def _block_matrix(
+    n: int, e: _Edges, ja: np.ndarray, jb: np.ndarray, omega: np.ndarray
+) -> sparse.csr_array:
     """``sum_k J_k^T Omega_k J_k`` over the edges, (3n x 3n) sparse: one 3x3 block per node
-    and one per pair of linked nodes, whatever the number of nodes.
+    and one per pair of linked nodes, whatever the number of nodes.  ``ja``, ``jb`` are
+    the edges' Jacobians (:func:`_jacobians`).
 
     The blocks are summed in edge order (:func:`solve` sorts the edges by content), so the
     same edges give the same matrix bit for bit.
     """
-    n = len(x)
-    ja, jb = _jacobians(x, e)
     three = np.arange(3)
     rows, cols, vals = [], [], []
     for i, ji in ((e.ia, ja), (e.ib, jb)):
@@ -326,7 +327,7 @@ def _normal_equations(
     g = np.zeros((len(x), 3))
     for i, ji in ((e.ia, ja), (e.ib, jb)):
         np.add.at(g, i, (ji.transpose(0, 2, 1) @ wor[:, :, None])[:, :, 0])
-    return _block_matrix(x, e, wo), g.ravel()
+    return _block_matrix(len(x), e, ja, jb, wo), g.ravel()
 
 
 def _solve(h: sparse.csr_array, rhs: np.ndarray) -> np.ndarray:
@@ -459,7 +460,7 @@ def _sandwich_covariances(x: np.ndarray, e: _Edges) -> np.ndarray:
     (n, 3, 3)."""
     n = len(x)
     h, _ = _normal_equations(x, e, np.ones(len(e.z)))
-    spread = _block_matrix(x, e, e.info @ e.cov @ e.info)
+    spread = _block_matrix(n, e, *_jacobians(x, e), e.info @ e.cov @ e.info)
     # every block of H^-1 is needed: a dense inverse, which a sparse LU's solve of 3n
     # right-hand sides is slower than at any size this fleet reaches
     hinv = np.linalg.inv(h[3:][:, 3:].toarray())
