@@ -303,9 +303,28 @@ def _current_chain(snap: Snapshot, group: Collection[str]) -> bool:
     )
 
 
-def _rejection_stands(snap: Snapshot, kept: list[LinkRecord], a: str, b: str) -> bool:
-    """Whether a check's rejection of ``(a, b)`` may stand without a search, given the links
-    ``kept`` by the robust solution that predicted the pair.
+#: Robots joined by links of current epochs: over triangles only, and at all
+#: (:meth:`FusionWorker._current_groups`).
+Joins = tuple[list[tuple[str, ...]], list[tuple[str, ...]]]
+
+
+def _current_pairs(snap: Snapshot, kept: list[LinkRecord]) -> tuple[tuple[str, str], ...]:
+    """The pairs of the links ``kept`` that ``snap`` still holds, of its current epochs."""
+    versions = {r: v for r, (v, _) in snap.maps.items()}
+    held = {id(ln) for ln in snap.links}
+    return tuple(ln.pair for ln in kept if id(ln) in held and ln.current(versions))
+
+
+def _joins(pairs: tuple[tuple[str, str], ...]) -> Joins:
+    """The triangle groups (:func:`pgvd.posegraph.triangle_groups`) and the components of
+    ``pairs``."""
+    nodes = sorted({r for pair in pairs for r in pair})
+    return triangle_groups(nodes, pairs), components(nodes, pairs)
+
+
+def _rejection_stands(joins: Joins, links: list[LinkRecord], a: str, b: str) -> bool:
+    """Whether a check's rejection of ``(a, b)`` may stand without a search, given how the
+    links kept of current epochs join robots (``joins``, :func:`_joins`).
 
     Only over links of the current epochs (:func:`_current_chain`): a link of older epochs
     maps the pixels of its epochs, and a robot whose SLAM grew its canvas is placed metres
@@ -313,17 +332,15 @@ def _rejection_stands(snap: Snapshot, kept: list[LinkRecord], a: str, b: str) ->
     runs over links on triangles only: were it wrong (a false link on a bridge, or on a
     long cycle alone, where its error spreads thin), skipping the search would lose the
     true link that closes a short cycle around the false one and lets the pose graph reject
-    it.  For a pair a search rejected before, any chain of current links will do.  Links of
-    older epochs elsewhere in the component do not matter: a robot whose links are of an
-    older epoch moves only itself, and in a large fleet some robot always is in a new epoch.
+    it.  For a pair a search rejected before (among ``links``), any chain of current links
+    will do.  Links of older epochs elsewhere in the component do not matter: a robot whose
+    links are of an older epoch moves only itself, and in a large fleet some robot always
+    is in a new epoch.
     """
-    versions = {r: v for r, (v, _) in snap.maps.items()}
-    held = {id(ln) for ln in snap.links}
-    current = [ln.pair for ln in kept if id(ln) in held and ln.current(versions)]
-    if any(a in g and b in g for g in triangle_groups(snap.maps, current)):
+    triangles, joined = joins
+    if any(a in g and b in g for g in triangles):
         return True
-    joined = any(a in g and b in g for g in components(snap.maps, current))
-    return joined and _rejected_before(snap.links, a, b)
+    return any(a in g and b in g for g in joined) and _rejected_before(links, a, b)
 
 
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
@@ -444,6 +461,8 @@ class FusionWorker:
         self._now = 0.0
         #: When each needed key's turn came (:func:`agent.links.open_keys`).
         self._opened_at: dict[LinkKey, float] = {}
+        #: The pairs of current links kept and how they join robots (:meth:`_current_groups`).
+        self._joins: tuple[tuple[tuple[str, str], ...] | None, Joins] = (None, ([], []))
         #: Known-cell footprints of the maps held (:meth:`_apart`).
         self._footprints = FootprintCache()
         #: Due keys whose check rejected the pair where a rejection needs a search; they wait
@@ -854,7 +873,10 @@ class FusionWorker:
             res = self.check(snap.maps[a][1], snap.maps[b][1], predicted)
             if res is None:
                 log.debug("check %s - %s inconclusive: the pose left the basin", a, b)
-        if res is not None and not res.accepted and not _rejection_stands(snap, solved[1], a, b):
+        rejected = res is not None and not res.accepted
+        if rejected and not _rejection_stands(
+            self._current_groups(snap, solved[1]), snap.links, a, b
+        ):
             # A recent solution may lack links that arrived meanwhile and put the pair on
             # triangles: those are worth a second check (~0.1 s with the solve) before a
             # search (seconds).
@@ -864,6 +886,15 @@ class FusionWorker:
         if res is not None and res.reason != APART:
             self.counters.add("checks_confirmed" if res.accepted else "checks_rejected")
         return res
+
+    def _current_groups(self, snap: Snapshot, kept: list[LinkRecord]) -> Joins:
+        """:func:`_joins` of the links ``kept`` of current epochs, made anew only when those
+        changed: at 128 robots, some 6000 links, they take ~0.1 s, and a round of checks
+        asks for them at every rejection."""
+        pairs = _current_pairs(snap, kept)
+        if self._joins[0] != pairs:
+            self._joins = (pairs, _joins(pairs))
+        return self._joins[1]
 
     def _apart(self, snap: Snapshot, a: str, b: str, predicted: np.ndarray) -> Registration | None:
         """The check's rejection without the check when ``predicted`` places the known cells

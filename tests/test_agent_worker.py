@@ -22,6 +22,8 @@ from agent.worker import (
     FusionWorker,
     GlobalState,
     Registration,
+    _current_pairs,
+    _joins,
     _registration,
     _rejection_stands,
     merge_registration,
@@ -793,8 +795,9 @@ def test_a_rejection_rests_on_current_links_only() -> None:
     h.book.add_link(_link("r1", "r2", _far(1)[0]))
     snap = h.book.snapshot()
     kept = h.worker._solved_for(snap, "r1", "r4")[1]
-    assert _rejection_stands(snap, kept, "r1", "r2")
-    assert not _rejection_stands(snap, kept, "r1", "r4")
+    joins = _joins(_current_pairs(snap, kept))
+    assert _rejection_stands(joins, snap.links, "r1", "r2")
+    assert not _rejection_stands(joins, snap.links, "r1", "r4")
 
 
 def _far(steps: int) -> tuple[np.ndarray, np.ndarray]:
