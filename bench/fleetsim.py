@@ -41,17 +41,19 @@ REFERENCE_ROBOTS = 16
 
 
 def _positive(text: str) -> float:
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return value
 
 
 def _robots(text: str) -> int:
-    value = int(text)
-    if not 2 <= value <= 256:
-        raise argparse.ArgumentTypeError(f"robots must be in 2..256, got {text}")
-    return value
+    if not text.isdigit() or not 2 <= int(text) <= 256:
+        raise argparse.ArgumentTypeError(f"robots must be in 2..256, got {text!r}")
+    return int(text)
 
 
 def _churn(text: str) -> Churn:
@@ -68,9 +70,16 @@ def _churn(text: str) -> Churn:
     return Churn(parts[0], *times)
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad arguments: one line on stderr, exit 2."""
+
+    def error(self, message: str) -> None:
+        self.exit(2, f"fleetsim: {message}\n")
+
+
 def parser() -> argparse.ArgumentParser:
     first = __doc__.split("\n")[0]
-    ap = argparse.ArgumentParser(prog="python3 -m bench fleetsim", description=first)
+    ap = _Parser(prog="python3 -m bench fleetsim", description=first)
     ap.add_argument("--robots", type=_robots, nargs="+", default=[16, 32, 64, 128])
     ap.add_argument("--quick", action="store_true", help="rarer polls, fewer real rebuilds")
     ap.add_argument("--speed", type=_positive, default=100.0, help="replay speed at <= 16 robots")
@@ -84,6 +93,9 @@ def parser() -> argparse.ArgumentParser:
         help="split the fleet in two halves (by robot number) from START to END s",
     )  # fmt: skip
     ap.add_argument("--churn", type=_churn, action="append", default=[], metavar="R:LEAVE[:BACK]")
+    ap.add_argument(
+        "--cores", type=int, help="agents share this many cores (default: one computer each)"
+    )
     ap.add_argument("--limit", type=_positive, default=900.0, help="simulated seconds at most")
     ap.add_argument("--log", type=Path, default=LOG, help="CARMEN log the robots replay")
     ap.add_argument("--cache", type=Path, default=CACHE, help="where the outcome cache lives")
@@ -102,6 +114,8 @@ def scenario(args: argparse.Namespace, n: int) -> Scenario:
     partitions = tuple(Partition(s, e, halves) for s, e in args.partition)
     if any(not 0 <= p.start < p.end for p in partitions):
         raise ValueError("a partition needs 0 <= START < END")
+    if args.cores is not None and args.cores < 1:
+        raise ValueError(f"--cores must be >= 1, got {args.cores}")
     net = NetParams(args.latency, args.jitter, args.loss, args.bandwidth, partitions)
     slow = 1.0 if args.no_slowdown else min(1.0, (REFERENCE_ROBOTS + 1) / (n + 1))
     return Scenario(
@@ -112,6 +126,7 @@ def scenario(args: argparse.Namespace, n: int) -> Scenario:
         churn=tuple(args.churn),
         poll=1.0 if args.quick else 0.2,
         limit=args.limit,
+        cores=args.cores,
     )
 
 

@@ -61,11 +61,13 @@ class Meter:
     clock: SimClock
     charged: float = 0.0
     excluded: float = 0.0
+    #: Wall seconds per CPU second of the job at hand (> 1 when agents share cores).
+    stretch: float = 1.0
 
     def charge(self, seconds: float) -> None:
-        """A stand-in's cost: the worker is busy ``seconds`` longer."""
+        """A stand-in's cost: ``seconds`` of CPU, the worker busy ``stretch`` times longer."""
         self.charged += seconds
-        self.clock.now += seconds
+        self.clock.now += seconds * self.stretch
 
     @contextlib.contextmanager
     def excluding(self) -> Iterator[None]:

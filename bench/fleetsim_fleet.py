@@ -57,7 +57,9 @@ class Churn:
 class Scenario:
     """What is simulated: ``robots`` replaying ``log`` split as :func:`agent.scenario.segments`,
     in the frames of :func:`agent.scenario.random_frames` (seed ``frames_seed``), at ``speed``
-    times real time; the agents' options as ``pgvd agent``'s defaults."""
+    times real time; the agents' options as ``pgvd agent``'s defaults.  ``cores``: the
+    workers share that many cores (as :mod:`bench.fleet`'s agents share one machine's);
+    None gives each agent a computer of its own."""
 
     robots: int
     log: Path
@@ -69,6 +71,7 @@ class Scenario:
     churn: tuple[Churn, ...] = ()
     poll: float = 0.2
     limit: float = 900.0
+    cores: int | None = None
 
     def names(self) -> list[str]:
         return [f"r{i + 1}" for i in range(self.robots)]
@@ -269,16 +272,27 @@ class SimFleet:
         if robot.name not in self.net.online:
             return
         self.clock.now = start = self.loop.now
-        excluded = self.meter.excluded
+        self.meter.stretch = self._stretch(robot)
+        charged, excluded = self.meter.charged, self.meter.excluded
         t0 = time.thread_time()
         more = robot.worker.step(start)
-        overhead = time.thread_time() - t0 - (self.meter.excluded - excluded)
-        robot.busy_until = self.clock.now + max(overhead, 0.0)
-        robot.worker_cpu += robot.busy_until - start
+        overhead = max(time.thread_time() - t0 - (self.meter.excluded - excluded), 0.0)
+        robot.busy_until = self.clock.now + overhead * self.meter.stretch
+        robot.worker_cpu += self.meter.charged - charged + overhead
         reports, robot.reports = robot.reports, []
         for report in reports:
             self.loop.at(robot.busy_until, report)
         self._schedule(robot, robot.busy_until + (0.0 if more else self.sc.poll))
+
+    def _stretch(self, robot: SimRobot) -> float:
+        """Wall seconds per CPU second of ``robot``'s next job: 1 with a core each, else the
+        workers busy now (this one too) shared over ``cores`` (processor sharing, as the
+        load stood when the job began)."""
+        if self.sc.cores is None:
+            return 1.0
+        now = self.loop.now
+        busy = 1 + sum(r.busy_until > now for r in self.robots.values() if r is not robot)
+        return max(1.0, busy / self.sc.cores)
 
     def _on_global(self, robot: SimRobot, state: GlobalState) -> None:
         robot.state = state

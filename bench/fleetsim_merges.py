@@ -119,8 +119,12 @@ def render(log: Path, segment: tuple[float, float], frame: tuple[float, float, f
     return src.grid(), RobotTruth(np.asarray(src.describe()["world_to_pixel"]))
 
 
-def _plan() -> list[tuple[int, float, list[tuple[int, int]]]]:
-    """(robots, share of each segment mapped, pairs) of the cache (module docstring)."""
+#: (robots, share of each segment mapped, pairs of robot indices): which pairs are measured.
+Plan = list[tuple[int, float, list[tuple[int, int]]]]
+
+
+def cache_plan() -> Plan:
+    """The pairs of the cache (module docstring)."""
     plan = []
     for n in (4, 8, 16, 32, 64):
         step = max(1, n // 8)
@@ -133,13 +137,13 @@ def _plan() -> list[tuple[int, float, list[tuple[int, int]]]]:
     return plan
 
 
-def measure_outcomes(log: Path) -> list[PairOutcome]:
-    """Run the real search and check on every pair of :func:`_plan` (minutes)."""
+def measure_outcomes(log: Path, plan: Plan) -> list[PairOutcome]:
+    """Run the real search and check on every pair of ``plan`` (minutes for the cache's)."""
     from agent.scenario import random_frames, segments
 
     register, check = merge_registration(), verify_check()
     out = []
-    for n, share, pairs in _plan():
+    for n, share, pairs in plan:
         segs = [(s, s + share * (e - s)) for s, e in segments(n)]
         maps = [render(log, seg, fr) for seg, fr in zip(segs, random_frames(n, 7), strict=True)]
         for i, j in pairs:
@@ -169,7 +173,7 @@ def load_outcomes(cache: Path, log: Path) -> list[PairOutcome]:
     path = cache / f"fleetsim-outcomes-v{CACHE_VERSION}{cache_suffix()}.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
-    outcomes = measure_outcomes(log)
+    outcomes = measure_outcomes(log, cache_plan())
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(pickle.dumps(outcomes))
     return outcomes
