@@ -100,6 +100,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--log", type=Path, default=LOG, help="CARMEN log the robots replay")
     ap.add_argument("--cache", type=Path, default=CACHE, help="where the outcome cache lives")
     ap.add_argument("--out", type=Path, default=RESULTS, help="where the results go")
+    ap.add_argument("--tag", help="results named fleetsim-TAG.* instead of fleetsim.*")
     return ap
 
 

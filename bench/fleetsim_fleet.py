@@ -12,8 +12,9 @@ files (links, status, global map) are not written.  A worker steps as the real o
 per :meth:`FusionWorker.step`, the next right after it while there is more, else a poll
 ``poll`` s later or a wake; its decisions and rebuilds reach the node when the step's charged
 CPU (:mod:`bench.fleetsim_core`) has passed.  The host's own work (decoding, reassembly,
-encoding, answering queries, the source's ray casting) is charged at its real CPU time but
-does not hold the worker up.
+encoding, the source's ray casting) is charged at its real CPU time and keeps its main thread
+busy that long: messages wait in the robot's inbox meanwhile, in order, as in the daemon's.
+Queries are answered at once (Zenoh's threads answer them in the daemon).
 
 Liveliness: a robot that comes online sees every robot online and is seen by them after one
 latency; one that goes offline (churn) or a partition that separates two robots tells both
@@ -23,6 +24,7 @@ that the other left, and they see each other again when it ends.
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -88,6 +90,9 @@ class SimRobot:
     host_cpu: float = 0.0
     worker_cpu: float = 0.0
     busy_until: float = 0.0
+    host_busy_until: float = 0.0
+    inbox: deque[tuple[str, bytes]] = field(default_factory=deque)
+    draining: bool = False
     next_step: float | None = None
     token: int = 0
     final_version: int | None = None
@@ -208,7 +213,10 @@ class SimFleet:
         """Call the core, charge its CPU to the host, carry out what it returns."""
         t0 = time.thread_time()
         actions = method(*args)
-        robot.host_cpu += time.thread_time() - t0
+        cpu = time.thread_time() - t0
+        robot.host_cpu += cpu
+        start = max(self.loop.now, robot.host_busy_until)
+        robot.host_busy_until = start + cpu * self._stretch(robot)
         self._carry_out(robot, actions)
 
     def _carry_out(self, robot: SimRobot, actions: list[act.Action]) -> None:
@@ -234,8 +242,23 @@ class SimFleet:
                     pass
 
     def _deliver(self, receiver: str, key: str, payload: bytes) -> None:
+        """A message into ``receiver``'s inbox, which its main thread drains in order."""
         robot = self.robots[receiver]
+        robot.inbox.append((key, payload))
+        if not robot.draining:
+            robot.draining = True
+            self.loop.at(robot.host_busy_until, self._drain, robot)
+
+    def _drain(self, robot: SimRobot) -> None:
+        """The next message of the inbox, once the main thread is free."""
+        if self.loop.now < robot.host_busy_until:
+            self.loop.at(robot.host_busy_until, self._drain, robot)
+            return
+        key, payload = robot.inbox.popleft()
         self._call(robot, robot.node.on_message, key, payload, self._instant())
+        robot.draining = bool(robot.inbox)
+        if robot.draining:
+            self.loop.at(robot.host_busy_until, self._drain, robot)
 
     def _query(self, target: str, asker: str, selector: str) -> None:
         robot = self.robots[target]
@@ -286,12 +309,13 @@ class SimFleet:
 
     def _stretch(self, robot: SimRobot) -> float:
         """Wall seconds per CPU second of ``robot``'s next job: 1 with a core each, else the
-        workers busy now (this one too) shared over ``cores`` (processor sharing, as the
-        load stood when the job began)."""
+        workers and main threads busy now (this one too) shared over ``cores`` (processor
+        sharing, as the load stood when the job began)."""
         if self.sc.cores is None:
             return 1.0
         now = self.loop.now
-        busy = 1 + sum(r.busy_until > now for r in self.robots.values() if r is not robot)
+        others = (r for r in self.robots.values() if r is not robot)
+        busy = 1 + sum((r.busy_until > now) + (r.host_busy_until > now) for r in others)
         return max(1.0, busy / self.sc.cores)
 
     def _on_global(self, robot: SimRobot, state: GlobalState) -> None:

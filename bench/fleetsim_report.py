@@ -198,17 +198,21 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def write_results(rows: list[dict], args: argparse.Namespace, out: Path, root: Path) -> None:
-    """``fleetsim.json``, ``fleetsim.md`` and ``fleetsim.png`` under ``out``."""
+    """``fleetsim.json``, ``fleetsim.md`` and ``fleetsim.png`` under ``out`` (``fleetsim-TAG``
+    with ``--tag``)."""
+    stem = "fleetsim" if not args.tag else f"fleetsim-{args.tag}"
     add_relative(rows)
     checks = validation(rows, root / "bench" / "results" / "fleet.json")
     out.mkdir(parents=True, exist_ok=True)
-    (out / "fleetsim.json").write_text(json.dumps({"rows": rows, "validation": checks}, indent=1))
-    plot(rows, out / "fleetsim.png")
+    (out / f"{stem}.json").write_text(json.dumps({"rows": rows, "validation": checks}, indent=1))
+    plot(rows, out / f"{stem}.png")
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    quick = " --quick" if args.quick else ""
+    flags = " --quick" if args.quick else ""
+    flags += "" if args.cores is None else f" --cores {args.cores}"
+    flags += "" if not args.tag else f" --tag {args.tag}"
     md = (
         "# Fleet simulator\n\n"
-        f"`python3 -m bench fleetsim --robots {' '.join(map(str, args.robots))}{quick}`, "
+        f"`python3 -m bench fleetsim --robots {' '.join(map(str, args.robots))}{flags}`, "
         f"{stamp}.  Real fleet cores in simulated time; registrations drawn from real "
         "outcomes, charged at their measured CPU (see the module docstrings of "
         "bench/fleetsim*.py).\n\n"
@@ -217,6 +221,6 @@ def write_results(rows: list[dict], args: argparse.Namespace, out: Path, root: P
         + "\n".join(targets(rows))
         + "\n\nBeside bench.fleet (bench/results/fleet.json, real processes) at the same N:\n\n"
         + validation_table(checks)
-        + "\n\n![measures against N](fleetsim.png)\n"
+        + f"\n\n![measures against N]({stem}.png)\n"
     )
-    (out / "fleetsim.md").write_text(md)
+    (out / f"{stem}.md").write_text(md)
