@@ -32,7 +32,6 @@ from functools import lru_cache
 import agent.sources
 import agent.worker
 from agent.globalmap import build_components
-from agent.links import preference
 from agent.sources import SourceSpec
 
 #: Distinct rebuild inputs remembered (their components hold fused maps).
@@ -79,6 +78,14 @@ class Meter:
             self.excluded += time.thread_time() - t0
 
 
+def _identity(ln) -> tuple[object, ...]:
+    """What tells a link record from another in a simulation: its key and who decided it
+    on which versions, with what.  (:func:`agent.links.preference` tells them apart by the
+    bits of their matrices too, ten times the cost; a simulated decider reaches one matrix
+    for one pair of versions.)"""
+    return (*ln.key, ln.revision, ln.decided_by, ln.version_a, ln.version_b, ln.accepted, ln.state)
+
+
 def _no_fusion(base, other, matrix, covariance):
     """A fusion that keeps the base map: the rebuilds not sampled (module docstring)."""
     del other, matrix, covariance
@@ -111,7 +118,7 @@ class Rebuilds:
                 repr(
                     (
                         sorted((r, v) for r, (v, _) in maps.items()),
-                        sorted((ln.key, preference(ln)) for ln in links),
+                        sorted(_identity(ln) for ln in links),
                     )
                 ).encode()
             ).digest()
