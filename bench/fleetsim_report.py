@@ -211,7 +211,7 @@ def write_results(rows: list[dict], args: argparse.Namespace, out: Path, root: P
     flags += "" if args.cores is None else f" --cores {args.cores}"
     flags += "" if not args.tag else f" --tag {args.tag}"
     md = (
-        "# Fleet simulator\n\n"
+        f"# Fleet simulator{'' if not args.tag else f' ({args.tag})'}\n\n"
         f"`python3 -m bench fleetsim --robots {' '.join(map(str, args.robots))}{flags}`, "
         f"{stamp}.  Real fleet cores in simulated time; registrations drawn from real "
         "outcomes, charged at their measured CPU (see the module docstrings of "
