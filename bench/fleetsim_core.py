@@ -10,13 +10,14 @@ CPU is charged as follows (:class:`Meter`): a worker's step costs the real CPU s
 (``time.thread_time``) the core spent in it, minus what the simulation's stand-ins spent, plus
 what those stand-ins charge (a drawn registration's measured cost, :mod:`bench.fleetsim_merges`;
 a rebuild's cost).  A rebuild runs the real :func:`agent.globalmap.build_components` on the
-robots' real maps: for the first rebuild and then at a sample of the distinct inputs (every
-``every``-th, up to ``budget`` per run) with the real fusion, its measured CPU charged; for
-the others with the same pose graph but no fusion (each component's map is its anchor's),
-charged the real pose-graph CPU plus the fusion's measured CPU per map fused times the
-maps fused.  Any two agents holding the same maps and links get the same global maps
-(fleet invariant 2), so a rebuild of inputs seen before returns the same components at the
-same charged cost without running again.
+robots' real maps: for the first rebuild of two maps or more and then at a sample of the
+distinct inputs (every ``every``-th by their hash, up to ``budget`` per run) with the real
+fusion, its measured CPU charged; for the others with the same pose graph but no fusion
+(each component's map is its anchor's), charged the real pose-graph CPU plus the sampled
+rebuilds' CPU per map (over those of two maps or more) times the maps.  Any two agents
+holding the same maps and links get the same global maps (fleet invariant 2), so a rebuild
+of inputs seen before returns the same components at the same charged cost without running
+again.
 """
 
 from __future__ import annotations
@@ -107,10 +108,15 @@ class Rebuilds:
     def __post_init__(self) -> None:
         self._memo: OrderedDict[bytes, tuple[list, float]] = OrderedDict()
 
+    def _fused(self) -> list[tuple[int, float]]:
+        """The samples that fused maps (a lone robot's rebuild fuses none)."""
+        return [(n, s) for n, s in self.samples if n > 1]
+
     def per_map(self) -> float:
-        """Real fusion CPU seconds per map, from the samples (0 before any)."""
-        maps = sum(n for n, _ in self.samples)
-        return sum(s for _, s in self.samples) / maps if maps else 0.0
+        """Real rebuild CPU seconds per map, from the samples that fused (0 before any)."""
+        fused = self._fused()
+        maps = sum(n for n, _ in fused)
+        return sum(s for _, s in fused) / maps if maps else 0.0
 
     def __call__(self, maps, links, fuse=None, params=None, sound=None):
         with self.meter.excluding():
@@ -134,7 +140,7 @@ class Rebuilds:
         return held[0]
 
     def _build(self, signature, maps, links, fuse, params, sound) -> tuple[list, float]:
-        real = not self.samples or (
+        real = (len(maps) > 1 and not self._fused()) or (
             len(self.samples) < self.budget and signature[0] % self.every == 0
         )
         t0 = time.thread_time()
