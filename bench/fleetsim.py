@@ -8,15 +8,17 @@ are real merge and check outcomes drawn from a cache by true overlap, charged at
 measured CPU cost (:mod:`bench.fleetsim_merges`); global-map rebuilds really run, at a sample
 (:mod:`bench.fleetsim_core`).  Above 16 robots the replay slows by 17 / (N + 1), so that each
 robot's segment lasts as many simulated seconds as at 16 robots (``--no-slowdown``: not).
+Each agent has a computer of its own unless ``--cores`` makes them share that many cores, as
+:mod:`bench.fleet`'s agents share one machine (``--cores 2 --tag validation`` at 8 and 16).
 
 Per N: searches and checks per epoch, messages and bytes received per robot, global-map
 rebuild CPU, agreement time after the last update, bytes of grids held per agent, CPU per
 agent per epoch relative to 16 robots.  At 8 and 16 robots the counts stand beside
 :mod:`bench.fleet`'s (``bench/results/fleet.json``).
 
-Run: ``python3 -m bench fleetsim [--robots 16 32 64 128] [--quick]``; writes
-``fleetsim.json``, ``fleetsim.md`` and ``fleetsim.png`` under ``--out``
-(default ``bench/results``); progress on stderr.
+Run: ``python3 -m bench fleetsim [--robots 16 32 64 128] [--quick] [--cores C] [--tag T]``;
+writes ``fleetsim.json``, ``fleetsim.md`` and ``fleetsim.png`` (``fleetsim-T.*`` with a tag)
+under ``--out`` (default ``bench/results``); progress on stderr.
 """
 
 from __future__ import annotations
