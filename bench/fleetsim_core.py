@@ -118,19 +118,20 @@ class Rebuilds:
         maps = sum(n for n, _ in fused)
         return sum(s for _, s in fused) / maps if maps else 0.0
 
-    def __call__(self, maps, links, fuse=None, params=None, sound=None):
+    def __call__(self, maps, links, fuse=None, params=None, sound=None, layers=None, firsts=None):
         with self.meter.excluding():
             signature = hashlib.sha256(
                 repr(
                     (
                         sorted((r, v) for r, (v, _) in maps.items()),
                         sorted(_identity(ln) for ln in links),
+                        sorted((firsts or {}).items()),
                     )
                 ).encode()
             ).digest()
             held = self._memo.get(signature)
             if held is None:
-                held = self._build(signature, maps, links, fuse, params, sound)
+                held = self._build(signature, maps, links, fuse, params, sound, layers, firsts)
         self._memo[signature] = held
         self._memo.move_to_end(signature)
         while len(self._memo) > MEMO_SIZE:
@@ -139,12 +140,24 @@ class Rebuilds:
         self.meter.charge(held[1])
         return held[0]
 
-    def _build(self, signature, maps, links, fuse, params, sound) -> tuple[list, float]:
+    def _build(
+        self, signature, maps, links, fuse, params, sound, layers, firsts
+    ) -> tuple[list, float]:
+        # A sampled rebuild runs with the asking agent's layer cache, so its CPU is a warm
+        # rebuild's where the agent's own last build left layers to reuse.
         real = (len(maps) > 1 and not self._fused()) or (
             len(self.samples) < self.budget and signature[0] % self.every == 0
         )
         t0 = time.thread_time()
-        comps = build_components(maps, links, fuse if real else _no_fusion, params, sound)
+        comps = build_components(
+            maps,
+            links,
+            fuse if real else _no_fusion,
+            params,
+            sound,
+            layers=layers if real else None,
+            firsts=firsts,
+        )
         cpu = time.thread_time() - t0
         if real:
             self.samples.append((len(maps), cpu))
