@@ -61,6 +61,10 @@ class FleetBook:
         self._firsts: dict[str, int] = {}
         self._links = LinkCache()
         self._alive: frozenset[str] | None = None
+        #: Bumped whenever the maps or the links used change (:meth:`snapshot`).
+        self._generation = 0
+        #: The links chosen, settled and the keys needed, with the generation they are of.
+        self._derived: tuple[int, list[LinkRecord], bool, list[LinkKey]] | None = None
 
     def set_alive(self, robots: set[str]) -> None:
         """The robots whose agents are up (liveliness), this one included."""
@@ -96,6 +100,7 @@ class FleetBook:
             else:
                 self._firsts[robot] = first_epoch
             self._links.prune({r: v for r, (v, _) in self._maps.items()})
+            self._generation += 1
         return True
 
     def forget(self, robot: str) -> bool:
@@ -104,6 +109,7 @@ class FleetBook:
             held = self._maps.pop(robot, None)
             self._firsts.pop(robot, None)
             self._links.forget(robot)
+            self._generation += 1
         return held is not None
 
     def add_link(self, rec: LinkRecord) -> bool:
@@ -112,7 +118,10 @@ class FleetBook:
             held = {r: epoch_of(v) for r, (v, _) in self._maps.items()}
             if rec.key[1] < held.get(rec.a, -1) or rec.key[3] < held.get(rec.b, -1):
                 return False  # superseded already: useless, and must not be re-chosen
-            return self._links.add(rec)
+            used = self._links.add(rec)
+            if used:  # a candidate stored but not preferred leaves the links used as they were
+                self._generation += 1
+            return used
 
     def link_candidates(self) -> list[LinkRecord]:
         """Every link held (all candidates), for persistence and peers' queries."""
@@ -127,9 +136,20 @@ class FleetBook:
         """The maps, chosen links and the pairs still lacking a link of the latest versions."""
         with self._lock:
             maps = dict(self._maps)
-            versions = {r: v for r, (v, _) in maps.items()}
+            chosen, settled, needed = self._chosen_and_needed()
+            firsts = dict(self._firsts)
+            return Snapshot(maps, chosen, settled, needed, self._alive, firsts)
+
+    def _chosen_and_needed(self) -> tuple[list[LinkRecord], bool, list[LinkKey]]:
+        """:func:`select_links` and :func:`needed_keys` of what is held (lock held), made
+        anew only when that changed: a worker steps at every wake and poll, and both go
+        over every pair of robots.  Fresh lists each call: a snapshot's owner may change
+        them."""
+        if self._derived is None or self._derived[0] != self._generation:
+            versions = {r: v for r, (v, _) in self._maps.items()}
             chosen, settled = select_links(versions, self._links)
             needed = needed_keys(versions, self._links)
             # a candidate waiting for its re-check may still enter the map: not settled
-            firsts = dict(self._firsts)
-            return Snapshot(maps, chosen, settled and not needed, needed, self._alive, firsts)
+            self._derived = (self._generation, chosen, settled and not needed, needed)
+        _, chosen, settled, needed = self._derived
+        return list(chosen), settled, list(needed)

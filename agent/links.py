@@ -111,10 +111,23 @@ class LinkRecord:
         if not np.isfinite(self.score):
             raise ValueError("link score must be finite")
 
-    @property
+    @cached_property
     def key(self) -> LinkKey:
         """The epochs this link is valid in (see the module docstring)."""
         return (self.a, epoch_of(self.version_a), self.b, epoch_of(self.version_b))
+
+    @cached_property
+    def rank(self) -> tuple[object, ...]:
+        """:func:`preference` of this record, made once: a record never changes, and every
+        agent ranks every link held at each step of its worker (the bytes of two matrices
+        per link, 8000 links at 128 robots)."""
+        return preference(self)
+
+    @cached_property
+    def identity(self) -> tuple[object, ...]:
+        """What tells this candidate from any other of any key: its key, then its
+        :attr:`rank`."""
+        return (self.key, *self.rank)
 
     def current(self, versions: Mapping[str, int]) -> bool:
         """True if the link is of the epochs of ``versions`` (the latest maps)."""
@@ -214,6 +227,15 @@ def preference(rec: LinkRecord) -> tuple[object, ...]:
     return (-rec.revision, rec.decided_by, rec.version_a, rec.version_b, *content, *lifecycle)
 
 
+def _rank(rec: LinkRecord) -> tuple[object, ...]:
+    return rec.rank
+
+
+def _preferred(held: list[LinkRecord]) -> LinkRecord:
+    """The candidate of ``held`` (one key's) that :func:`preference` puts first."""
+    return held[0] if len(held) == 1 else min(held, key=_rank)
+
+
 class LinkCache:
     """Links by ``(a, epoch_a, b, epoch_b)``, every candidate kept; old epochs are pruned."""
 
@@ -232,15 +254,15 @@ class LinkCache:
         """
         held = self._by_key.setdefault(rec.key, [])
         latest = max((r.revision for r in held), default=rec.revision)
-        if rec.revision < latest or any(preference(r) == preference(rec) for r in held):
+        if rec.revision < latest or any(r.rank == rec.rank for r in held):
             return False
         held[:] = [r for r in held if r.revision == rec.revision] + [rec]
-        return min(held, key=preference) is rec
+        return _preferred(held) is rec
 
     def get(self, key: LinkKey) -> LinkRecord | None:
         """The link used for ``key``: the same on every agent that saw the same candidates."""
         held = self._by_key.get(key)
-        return min(held, key=preference) if held else None
+        return _preferred(held) if held else None
 
     def __len__(self) -> int:
         return len(self._by_key)
@@ -251,7 +273,8 @@ class LinkCache:
 
     def candidates(self) -> list[LinkRecord]:
         """Every link held, for persistence and for peers' queries."""
-        return [r for k in sorted(self._by_key) for r in sorted(self._by_key[k], key=preference)]
+        by_key = self._by_key
+        return [r for k in sorted(by_key) for r in sorted(by_key[k], key=_rank)]
 
     def forget(self, robot: str) -> None:
         """Drop every link of ``robot``."""
@@ -304,6 +327,42 @@ def needed_keys(versions: Mapping[str, int], cache: LinkCache) -> list[LinkKey]:
     return keys
 
 
+class Ring:
+    """The robots, sorted, on a circle (:func:`first_registrar`), placed once for many pairs.
+
+    Every agent asks whose turn and which wave each pair still needed is at every step of
+    its worker: sorting the robots anew for each pair cost O(n log n) per pair, O(n^3) per
+    step.
+    """
+
+    def __init__(self, robots: Iterable[str]) -> None:
+        self.robots = sorted(set(robots))
+        self._at = {r: i for i, r in enumerate(self.robots)}
+
+    def around(self, a: str, b: str) -> Ring:
+        """This ring, or one with ``a`` and ``b`` added when it lacks either."""
+        if a in self._at and b in self._at:
+            return self
+        return Ring([*self.robots, a, b])
+
+    def first(self, a: str, b: str) -> str:
+        """:func:`first_registrar` of ``(a, b)`` on this ring."""
+        ring = self.around(a, b)
+        n = len(ring.robots)
+        i, j = ring._at[a], ring._at[b]
+        d = (j - i) % n
+        if 2 * d == n:  # opposite on an even circle: alternate
+            return a if min(i, j) % 2 == 0 else b
+        return a if 2 * d < n else b
+
+    def distance(self, a: str, b: str) -> int:
+        """:func:`ring_distance` of ``(a, b)`` on this ring."""
+        ring = self.around(a, b)
+        n = len(ring.robots)
+        d = (ring._at[b] - ring._at[a]) % n
+        return min(d, n - d)
+
+
 def first_registrar(a: str, b: str, robots: Sequence[str]) -> str:
     """The robot whose agent registers the pair ``(a, b)`` first, among ``robots`` known.
 
@@ -313,20 +372,12 @@ def first_registrar(a: str, b: str, robots: Sequence[str]) -> str:
     ``n - 1``.  Agents that know different robot sets for a moment may disagree; the
     timeouts of :func:`wait_before_computing` cover that.
     """
-    ring = sorted(set(robots) | {a, b})
-    n = len(ring)
-    i, j = ring.index(a), ring.index(b)
-    d = (j - i) % n
-    if 2 * d == n:  # opposite on an even circle: alternate
-        return a if min(i, j) % 2 == 0 else b
-    return a if 2 * d < n else b
+    return Ring(robots).first(a, b)
 
 
 def ring_distance(a: str, b: str, robots: Sequence[str]) -> int:
     """Steps between ``a`` and ``b`` on the circle of :func:`first_registrar`: 1 .. n // 2."""
-    ring = sorted(set(robots) | {a, b})
-    d = (ring.index(b) - ring.index(a)) % len(ring)
-    return min(d, len(ring) - d)
+    return Ring(robots).distance(a, b)
 
 
 def open_keys(
@@ -346,7 +397,8 @@ def open_keys(
     in the end.
     """
     keys = list(keys)
-    waves = {k: ring_distance(k[0], k[2], robots) for k in keys if k not in predicted}
+    ring = Ring(robots)
+    waves = {k: ring.distance(k[0], k[2]) for k in keys if k not in predicted}
     first = min(waves.values(), default=None)
     return [k for k in keys if k in predicted or waves[k] == first]
 
@@ -355,7 +407,7 @@ def wait_before_computing(
     me: str,
     key: LinkKey,
     timeout: float,
-    robots: Sequence[str] = (),
+    robots: Sequence[str] | Ring = (),
     alive: Collection[str] | None = None,
 ) -> float:
     """Seconds an agent waits for someone else's link before registering ``key`` itself.
@@ -364,10 +416,12 @@ def wait_before_computing(
     ``timeout``, anyone else after ``2 * timeout``: normally one registration per pair
     for the whole fleet.  With ``alive`` (the robots whose liveliness token is up), a
     robot that left hands its turn on at once: the other robot of the pair computes
-    immediately, and if both left, anyone after ``timeout``.
+    immediately, and if both left, anyone after ``timeout``.  ``robots`` may be a
+    :class:`Ring` already placed, for many keys.
     """
     a, _, b, _ = key
-    first = first_registrar(a, b, robots)
+    ring = robots if isinstance(robots, Ring) else Ring(robots)
+    first = ring.first(a, b)
     order = [first, b if first == a else a]
     if alive is not None:
         order = [r for r in order if r in alive] + [r for r in order if r not in alive]
@@ -375,7 +429,7 @@ def wait_before_computing(
         return 0.0
     if me in order:
         return timeout
-    if alive is not None and not (set(order) & set(alive)):
+    if alive is not None and not any(r in alive for r in order):
         return timeout
     return 2.0 * timeout
 
@@ -394,10 +448,11 @@ def due_keys(
     ``opened_at`` says since when each key has been open (:func:`open_keys`): the waits of
     :func:`wait_before_computing` count from then.
     """
+    ring = Ring(robots)
     due = [
         k
         for k in keys
-        if now - opened_at.get(k, now) >= wait_before_computing(me, k, timeout, robots, alive)
+        if now - opened_at.get(k, now) >= wait_before_computing(me, k, timeout, ring, alive)
     ]
     return sorted(due, key=lambda k: (me not in (k[0], k[2]), k))
 

@@ -60,7 +60,6 @@ from agent.links import (
     due_keys,
     epoch_of,
     open_keys,
-    preference,
     stale_candidate,
 )
 from agent.memory import release_free_memory
@@ -284,11 +283,6 @@ def _rejected_before(links: list[LinkRecord], a: str, b: str) -> bool:
     return held is not None and not held.accepted
 
 
-def _identity(ln: LinkRecord) -> tuple[object, ...]:
-    """What tells one link candidate from another (:meth:`agent.links.LinkCache.get`)."""
-    return (ln.key, *preference(ln))
-
-
 def _current_chain(snap: Snapshot, group: Collection[str]) -> bool:
     """Whether every accepted link within ``group`` is of its robots' current epochs.
 
@@ -369,11 +363,15 @@ class Chains:
         self.maps = maps
         self.usable = usable_links(maps, links, sound)
         self.groups = components(maps, [ln.pair for ln in self.usable])
+        #: The index in ``groups`` of each robot's group: a worker asks :meth:`linked` of
+        #: every pair still needed at each step.
+        self._group_of = {r: i for i, g in enumerate(self.groups) for r in g}
         self._solved: tuple[Solution, list[LinkRecord]] | None = None
 
     def linked(self, a: str, b: str) -> bool:
         """Whether accepted links join ``a`` and ``b`` (a prediction is likely)."""
-        return any(a in g and b in g for g in self.groups)
+        group = self._group_of.get(a)
+        return group is not None and group == self._group_of.get(b)
 
     def solved(self) -> tuple[Solution, list[LinkRecord]]:
         """:func:`placements`, and the links it kept (:func:`_rejection_stands` reads on
@@ -554,7 +552,7 @@ class FusionWorker:
             tuple(sorted((r, v, snap.firsts.get(r)) for r, (v, _) in snap.maps.items())),
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
-            tuple(_identity(ln) for ln in snap.links),
+            tuple(ln.identity for ln in snap.links),
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
         # would take CPU from the registrations the settled map waits for.
@@ -914,7 +912,7 @@ class FusionWorker:
         changed: rejections and new minor versions leave the placements as they were."""
         signature = (
             tuple(sorted(snap.maps)),
-            tuple(_identity(ln) for ln in snap.links if ln.accepted),
+            tuple(ln.identity for ln in snap.links if ln.accepted),
         )
         held = self._chains
         if held[0] != signature or held[1] is None:
