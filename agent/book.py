@@ -8,17 +8,10 @@ the worker (:meth:`agent.worker.FusionWorker.wake`, on the core's ``Register`` a
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from agent.links import (
-    EPOCH_SHIFT,
-    LinkCache,
-    LinkKey,
-    LinkRecord,
-    epoch_of,
-    needed_keys,
-    select_links,
-)
+from agent.links import EPOCH_SHIFT, LinkCache, LinkKey, LinkRecord, epoch_of, needed_key
 from pgvd.grid import Grid
 
 #: The minor part of a version (:func:`next_version`).
@@ -52,6 +45,70 @@ class Snapshot:
     firsts: dict[str, int] = field(default_factory=dict)
 
 
+class _Pairs:
+    """Per pair of the robots held: the link used (:func:`agent.links.select_links`) and the
+    key needed (:func:`agent.links.needed_keys`), each pair updated when its robots' maps or
+    its links change.
+
+    A worker asks for both at every step, and every map version or link received moves
+    the book: going over every pair each time cost each agent O(N^2) per message.
+    """
+
+    def __init__(self) -> None:
+        self.used: dict[tuple[str, str], LinkRecord] = {}
+        self.needed: dict[tuple[str, str], LinkKey] = {}
+        #: Pairs without a link of their current epochs.
+        self.unsettled: set[tuple[str, str]] = set()
+        #: Every pair of the robots held, sorted; None when the robots changed.
+        self._order: list[tuple[str, str]] | None = []
+
+    def refresh(self, a: str, b: str, versions: Mapping[str, int], cache: LinkCache) -> None:
+        """Look ``(a, b)`` up again in ``cache`` (``a < b``, both in ``versions``)."""
+        pair = (a, b)
+        rec = cache.used_for(a, b, versions)
+        if rec is None:
+            self.used.pop(pair, None)
+        else:
+            self.used[pair] = rec
+        if rec is None or not rec.current(versions):
+            self.unsettled.add(pair)
+        else:
+            self.unsettled.discard(pair)
+        key = needed_key(a, b, versions, cache)
+        if key is None:
+            self.needed.pop(pair, None)
+        else:
+            self.needed[pair] = key
+
+    def refresh_robot(self, robot: str, versions: Mapping[str, int], cache: LinkCache) -> None:
+        """:meth:`refresh` every pair of ``robot``, whose map changed (or arrived)."""
+        for other in versions:
+            if other != robot:
+                self.refresh(min(robot, other), max(robot, other), versions, cache)
+
+    def robots_changed(self) -> None:
+        self._order = None
+
+    def drop(self, robot: str) -> None:
+        """Forget every pair of ``robot``."""
+        for table in (self.used, self.needed):
+            for pair in [p for p in table if robot in p]:
+                del table[pair]
+        self.unsettled = {p for p in self.unsettled if robot not in p}
+        self._order = None
+
+    def lists(self, robots: list[str]) -> tuple[list[LinkRecord], bool, list[LinkKey]]:
+        """The links used and the keys needed, by pair, and whether all are settled; of
+        ``robots``, the robots held, sorted."""
+        if self._order is None:
+            self._order = [(a, b) for i, a in enumerate(robots) for b in robots[i + 1 :]]
+        used, needed = self.used, self.needed
+        chosen = [used[p] for p in self._order if p in used]
+        keys = [needed[p] for p in self._order if p in needed]
+        # a candidate waiting for its re-check may still enter the map: not settled
+        return chosen, not self.unsettled and not keys, keys
+
+
 class FleetBook:
     """Latest maps, each with its robot's first epoch when known, and link cache."""
 
@@ -60,6 +117,7 @@ class FleetBook:
         self._maps: dict[str, tuple[int, Grid]] = {}
         self._firsts: dict[str, int] = {}
         self._links = LinkCache()
+        self._pairs = _Pairs()
         self._alive: frozenset[str] | None = None
         #: Bumped whenever the maps or the links used change (:meth:`snapshot`).
         self._generation = 0
@@ -99,7 +157,11 @@ class FleetBook:
                 self._firsts.pop(robot, None)
             else:
                 self._firsts[robot] = first_epoch
-            self._links.prune({r: v for r, (v, _) in self._maps.items()})
+            versions = {r: v for r, (v, _) in self._maps.items()}
+            self._links.prune(versions, robot)
+            self._pairs.refresh_robot(robot, versions, self._links)
+            if held is None:
+                self._pairs.robots_changed()
             self._generation += 1
         return True
 
@@ -109,19 +171,28 @@ class FleetBook:
             held = self._maps.pop(robot, None)
             self._firsts.pop(robot, None)
             self._links.forget(robot)
+            self._pairs.drop(robot)
             self._generation += 1
         return held is not None
 
     def add_link(self, rec: LinkRecord) -> bool:
         """Cache ``rec``; True if it is now the link used for its epochs."""
         with self._lock:
-            held = {r: epoch_of(v) for r, (v, _) in self._maps.items()}
-            if rec.key[1] < held.get(rec.a, -1) or rec.key[3] < held.get(rec.b, -1):
+            if rec.key[1] < self._epoch(rec.a) or rec.key[3] < self._epoch(rec.b):
                 return False  # superseded already: useless, and must not be re-chosen
             used = self._links.add(rec)
-            if used:  # a candidate stored but not preferred leaves the links used as they were
+            # a candidate stored but not preferred leaves the links used as they were
+            if used and rec.a in self._maps and rec.b in self._maps:
+                versions = {r: self._maps[r][0] for r in rec.pair}
+                self._pairs.refresh(rec.a, rec.b, versions, self._links)
+            if used:
                 self._generation += 1
             return used
+
+    def _epoch(self, robot: str) -> int:
+        """The epoch of ``robot``'s map held, -1 without one (lock held)."""
+        held = self._maps.get(robot)
+        return -1 if held is None else epoch_of(held[0])
 
     def link_candidates(self) -> list[LinkRecord]:
         """Every link held (all candidates), for persistence and peers' queries."""
@@ -141,15 +212,11 @@ class FleetBook:
             return Snapshot(maps, chosen, settled, needed, self._alive, firsts)
 
     def _chosen_and_needed(self) -> tuple[list[LinkRecord], bool, list[LinkKey]]:
-        """:func:`select_links` and :func:`needed_keys` of what is held (lock held), made
-        anew only when that changed: a worker steps at every wake and poll, and both go
-        over every pair of robots.  Fresh lists each call: a snapshot's owner may change
-        them."""
+        """The links used, settled and the keys needed (:class:`_Pairs`, lock held), listed
+        anew only when the book moved: a worker steps at every wake and poll.  Fresh lists
+        each call: a snapshot's owner may change them."""
         if self._derived is None or self._derived[0] != self._generation:
-            versions = {r: v for r, (v, _) in self._maps.items()}
-            chosen, settled = select_links(versions, self._links)
-            needed = needed_keys(versions, self._links)
-            # a candidate waiting for its re-check may still enter the map: not settled
-            self._derived = (self._generation, chosen, settled and not needed, needed)
+            chosen, settled, needed = self._pairs.lists(sorted(self._maps))
+            self._derived = (self._generation, chosen, settled, needed)
         _, chosen, settled, needed = self._derived
         return list(chosen), settled, list(needed)

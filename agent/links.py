@@ -237,10 +237,17 @@ def _preferred(held: list[LinkRecord]) -> LinkRecord:
 
 
 class LinkCache:
-    """Links by ``(a, epoch_a, b, epoch_b)``, every candidate kept; old epochs are pruned."""
+    """Links by ``(a, epoch_a, b, epoch_b)``, every candidate kept; old epochs are pruned.
+
+    The keys are also indexed by pair, so that what one robot's new map or one new link
+    changes is found without going over every link held (:meth:`used_for`).
+    """
 
     def __init__(self, records: Iterable[LinkRecord] = ()) -> None:
         self._by_key: dict[LinkKey, list[LinkRecord]] = {}
+        self._by_pair: dict[tuple[str, str], set[LinkKey]] = {}
+        #: The robots each robot has a pair with in ``_by_pair``.
+        self._partners: dict[str, set[str]] = {}
         for rec in records:
             self.add(rec)
 
@@ -257,12 +264,24 @@ class LinkCache:
         if rec.revision < latest or any(r.rank == rec.rank for r in held):
             return False
         held[:] = [r for r in held if r.revision == rec.revision] + [rec]
+        self._by_pair.setdefault(rec.pair, set()).add(rec.key)
+        self._partners.setdefault(rec.a, set()).add(rec.b)
+        self._partners.setdefault(rec.b, set()).add(rec.a)
         return _preferred(held) is rec
 
     def get(self, key: LinkKey) -> LinkRecord | None:
         """The link used for ``key``: the same on every agent that saw the same candidates."""
         held = self._by_key.get(key)
         return _preferred(held) if held else None
+
+    def used_for(self, a: str, b: str, versions: Mapping[str, int]) -> LinkRecord | None:
+        """The link :func:`select_links` uses for ``(a, b)`` (both in ``versions``): that of
+        the current epochs when held, else that of the pair's newest epochs held."""
+        current = self.get((a, epoch_of(versions[a]), b, epoch_of(versions[b])))
+        if current is not None:
+            return current
+        keys = self._by_pair.get((a, b))
+        return self.get(max(keys)) if keys else None
 
     def __len__(self) -> int:
         return len(self._by_key)
@@ -279,28 +298,35 @@ class LinkCache:
     def forget(self, robot: str) -> None:
         """Drop every link of ``robot``."""
         self._by_key = {k: v for k, v in self._by_key.items() if robot not in (k[0], k[2])}
+        self._by_pair = {p: v for p, v in self._by_pair.items() if robot not in p}
+        for other in self._partners.pop(robot, set()):
+            self._partners[other].discard(robot)
 
-    def prune(self, versions: Mapping[str, int]) -> None:
+    def prune(self, versions: Mapping[str, int], robot: str | None = None) -> None:
         """Drop links of superseded epochs, but keep per pair the newest of those.
 
         A link of epochs not yet seen (it can arrive before the maps) is kept.  The
         newest superseded link stands in for the pair (:func:`select_links`) while the
-        link of the current epochs is being computed.
+        link of the current epochs is being computed.  ``robot``: only its version changed
+        since the last prune, so only its pairs are looked at.
         """
         epochs = {r: epoch_of(v) for r, v in versions.items()}
-        keep: dict[LinkKey, list[LinkRecord]] = {}
-        newest: dict[tuple[str, str], LinkKey] = {}
-        for key, held in self._by_key.items():
-            a, ea, b, eb = key
-            if ea >= epochs.get(a, -1) and eb >= epochs.get(b, -1):
-                keep[key] = held
-                continue
-            old = newest.get((a, b))
-            if old is None or (ea, eb) > (old[1], old[3]):
-                newest[(a, b)] = key
-        for key in newest.values():
-            keep.setdefault(key, self._by_key[key])
-        self._by_key = keep
+        if robot is None:
+            pairs = list(self._by_pair)
+        else:
+            pairs = [(min(robot, r), max(robot, r)) for r in self._partners.get(robot, ())]
+        for pair in pairs:
+            self._prune_pair(pair, self._by_pair[pair], epochs)
+
+    def _prune_pair(
+        self, pair: tuple[str, str], keys: set[LinkKey], epochs: Mapping[str, int]
+    ) -> None:
+        """:meth:`prune` of one pair's ``keys``."""
+        a, b = pair
+        old = {k for k in keys if k[1] < epochs.get(a, -1) or k[3] < epochs.get(b, -1)}
+        for key in old - {max(old, key=lambda k: (k[1], k[3]), default=None)}:
+            keys.discard(key)
+            del self._by_key[key]
 
 
 def stale_candidate(rec: LinkRecord | None, versions: Mapping[str, int]) -> bool:
@@ -313,18 +339,20 @@ def stale_candidate(rec: LinkRecord | None, versions: Mapping[str, int]) -> bool
     )
 
 
+def needed_key(a: str, b: str, versions: Mapping[str, int], cache: LinkCache) -> LinkKey | None:
+    """The key of the current epochs of ``(a, b)`` (both in ``versions``) if no link covers
+    it yet, or its link is a candidate of older versions (:func:`stale_candidate`)."""
+    key = (a, epoch_of(versions[a]), b, epoch_of(versions[b]))
+    held = cache.get(key)
+    return key if held is None or stale_candidate(held, versions) else None
+
+
 def needed_keys(versions: Mapping[str, int], cache: LinkCache) -> list[LinkKey]:
-    """Keys of the current epochs of every pair of robots that no link covers yet, or whose
-    link is a candidate of older versions (:func:`stale_candidate`)."""
+    """:func:`needed_key` of every pair of robots of ``versions``, sorted."""
     robots = sorted(versions)
-    keys = []
-    for i, a in enumerate(robots):
-        for b in robots[i + 1 :]:
-            key = (a, epoch_of(versions[a]), b, epoch_of(versions[b]))
-            held = cache.get(key)
-            if held is None or stale_candidate(held, versions):
-                keys.append(key)
-    return keys
+    pairs = ((a, b) for i, a in enumerate(robots) for b in robots[i + 1 :])
+    keys = (needed_key(a, b, versions, cache) for a, b in pairs)
+    return [k for k in keys if k is not None]
 
 
 class Ring:
@@ -461,27 +489,15 @@ def select_links(versions: Mapping[str, int], cache: LinkCache) -> tuple[list[Li
     """The one link per pair the global map uses, and whether all are of the current epochs.
 
     The link of the current epochs when known; otherwise the newest older link of the
-    pair stands in, and the result is not *settled*: agents agree on the global map only
-    once every pair is settled (fleet invariant 2).
+    pair stands in (:meth:`LinkCache.used_for`), and the result is not *settled*: agents
+    agree on the global map only once every pair is settled (fleet invariant 2).
     """
-    chosen: dict[tuple[str, str], LinkRecord] = {}
-    for rec in cache.records():
-        if rec.a not in versions or rec.b not in versions:
-            continue
-        old = chosen.get(rec.pair)
-        if (
-            rec.current(versions)
-            or old is None
-            or (not old.current(versions) and rec.key > old.key)
-        ):
-            chosen[rec.pair] = rec
     robots = sorted(versions)
-    settled = all(
-        (a, b) in chosen and chosen[(a, b)].current(versions)
-        for i, a in enumerate(robots)
-        for b in robots[i + 1 :]
-    )
-    return [chosen[p] for p in sorted(chosen)], settled
+    used = (cache.used_for(a, b, versions) for i, a in enumerate(robots) for b in robots[i + 1 :])
+    chosen = [rec for rec in used if rec is not None]
+    n = len(robots)
+    settled = len(chosen) == n * (n - 1) // 2 and all(rec.current(versions) for rec in chosen)
+    return chosen, settled
 
 
 def dumps(records: Iterable[LinkRecord]) -> str:
