@@ -43,6 +43,25 @@ class Snapshot:
     needed: list[LinkKey]
     alive: frozenset[str] | None
     firsts: dict[str, int] = field(default_factory=dict)
+    #: The keys of ``needed`` whose link is held: candidates to check again at their pose.
+    rechecks: frozenset[LinkKey] = frozenset()
+    #: :attr:`agent.links.LinkRecord.identity` of ``links``, and of the accepted ones: what
+    #: a worker's rebuilds and chains depend on, made once per change of the book.
+    link_ids: tuple[tuple[object, ...], ...] = ()
+    accepted_ids: tuple[tuple[object, ...], ...] = ()
+
+
+@dataclass(frozen=True)
+class _Listing:
+    """What :meth:`FleetBook.snapshot` lists of the pairs, made once per change of the book."""
+
+    generation: int
+    links: list[LinkRecord]
+    settled: bool
+    needed: list[LinkKey]
+    rechecks: frozenset[LinkKey]
+    link_ids: tuple[tuple[object, ...], ...]
+    accepted_ids: tuple[tuple[object, ...], ...]
 
 
 class _Pairs:
@@ -97,7 +116,7 @@ class _Pairs:
         self.unsettled = {p for p in self.unsettled if robot not in p}
         self._order = None
 
-    def lists(self, robots: list[str]) -> tuple[list[LinkRecord], bool, list[LinkKey]]:
+    def listing(self, generation: int, robots: list[str]) -> _Listing:
         """The links used and the keys needed, by pair, and whether all are settled; of
         ``robots``, the robots held, sorted."""
         if self._order is None:
@@ -105,8 +124,17 @@ class _Pairs:
         used, needed = self.used, self.needed
         chosen = [used[p] for p in self._order if p in used]
         keys = [needed[p] for p in self._order if p in needed]
-        # a candidate waiting for its re-check may still enter the map: not settled
-        return chosen, not self.unsettled and not keys, keys
+        rechecks = frozenset(k for p, k in needed.items() if p in used and used[p].key == k)
+        return _Listing(
+            generation,
+            chosen,
+            # a candidate waiting for its re-check may still enter the map: not settled
+            not self.unsettled and not keys,
+            keys,
+            rechecks,
+            tuple(ln.identity for ln in chosen),
+            tuple(ln.identity for ln in chosen if ln.accepted),
+        )
 
 
 class FleetBook:
@@ -121,8 +149,8 @@ class FleetBook:
         self._alive: frozenset[str] | None = None
         #: Bumped whenever the maps or the links used change (:meth:`snapshot`).
         self._generation = 0
-        #: The links chosen, settled and the keys needed, with the generation they are of.
-        self._derived: tuple[int, list[LinkRecord], bool, list[LinkKey]] | None = None
+        #: What the last snapshot listed of the pairs (:meth:`snapshot`).
+        self._listing: _Listing | None = None
 
     def set_alive(self, robots: set[str]) -> None:
         """The robots whose agents are up (liveliness), this one included."""
@@ -206,17 +234,19 @@ class FleetBook:
     def snapshot(self) -> Snapshot:
         """The maps, chosen links and the pairs still lacking a link of the latest versions."""
         with self._lock:
-            maps = dict(self._maps)
-            chosen, settled, needed = self._chosen_and_needed()
-            firsts = dict(self._firsts)
-            return Snapshot(maps, chosen, settled, needed, self._alive, firsts)
-
-    def _chosen_and_needed(self) -> tuple[list[LinkRecord], bool, list[LinkKey]]:
-        """The links used, settled and the keys needed (:class:`_Pairs`, lock held), listed
-        anew only when the book moved: a worker steps at every wake and poll.  Fresh lists
-        each call: a snapshot's owner may change them."""
-        if self._derived is None or self._derived[0] != self._generation:
-            chosen, settled, needed = self._pairs.lists(sorted(self._maps))
-            self._derived = (self._generation, chosen, settled, needed)
-        _, chosen, settled, needed = self._derived
-        return list(chosen), settled, list(needed)
+            # listed anew only when the book moved: a worker steps at every wake and poll
+            held = self._listing
+            if held is None or held.generation != self._generation:
+                held = self._listing = self._pairs.listing(self._generation, sorted(self._maps))
+            return Snapshot(
+                dict(self._maps),
+                # fresh lists: a snapshot's owner may change them
+                list(held.links),
+                held.settled,
+                list(held.needed),
+                self._alive,
+                dict(self._firsts),
+                held.rechecks,
+                held.link_ids,
+                held.accepted_ids,
+            )

@@ -523,7 +523,7 @@ class FusionWorker:
         if self.check is not None:
             chains = self._chains_of(snap)
             # a candidate's re-check is a check at its own pose: open at once like a chain's
-            rechecks = {ln.key for ln in snap.links} & set(snap.needed)
+            rechecks = set(snap.rechecks)
             checkable = rechecks | {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
             opened = open_keys(snap.needed, checkable, robots)
         # A pair's turn (and the timeouts of the agents stepping in) counts from when its
@@ -552,7 +552,7 @@ class FusionWorker:
             tuple(sorted((r, v, snap.firsts.get(r)) for r, (v, _) in snap.maps.items())),
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
-            tuple(ln.identity for ln in snap.links),
+            snap.link_ids,
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
         # would take CPU from the registrations the settled map waits for.
@@ -912,7 +912,7 @@ class FusionWorker:
         changed: rejections and new minor versions leave the placements as they were."""
         signature = (
             tuple(sorted(snap.maps)),
-            tuple(ln.identity for ln in snap.links if ln.accepted),
+            snap.accepted_ids,
         )
         held = self._chains
         if held[0] != signature or held[1] is None:

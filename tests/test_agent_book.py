@@ -74,3 +74,4 @@ def test_the_book_keeps_the_links_used_and_needed_as_a_full_recompute_would() ->
         assert [r.identity for r in snap.links] == [r.identity for r in chosen]
         assert snap.needed == needed
         assert snap.settled == (settled and not needed)
+        assert snap.rechecks == {ln.key for ln in chosen} & set(needed)
