@@ -78,8 +78,11 @@ class _Pairs:
         self.needed: dict[tuple[str, str], LinkKey] = {}
         #: Pairs without a link of their current epochs.
         self.unsettled: set[tuple[str, str]] = set()
-        #: Every pair of the robots held, sorted; None when the robots changed.
-        self._order: list[tuple[str, str]] | None = []
+        #: The index of every pair of the robots held, sorted; None when the robots changed.
+        self._slot: dict[tuple[str, str], int] | None = {}
+        #: By index: the link used, its identity, that identity if the link is accepted, and
+        #: the key needed, None where there is none; :meth:`listing` drops the Nones.
+        self._columns: tuple[list[object], ...] = ([], [], [], [])
 
     def refresh(self, a: str, b: str, versions: Mapping[str, int], cache: LinkCache) -> None:
         """Look ``(a, b)`` up again in ``cache`` (``a < b``, both in ``versions``)."""
@@ -98,6 +101,17 @@ class _Pairs:
             self.needed.pop(pair, None)
         else:
             self.needed[pair] = key
+        if self._slot is not None:
+            self._fill(self._slot[pair], pair)
+
+    def _fill(self, slot: int, pair: tuple[str, str]) -> None:
+        """Write the columns of ``pair`` at ``slot``."""
+        rec = self.used.get(pair)
+        used, ids, accepted, needed = self._columns
+        used[slot] = rec
+        ids[slot] = None if rec is None else rec.identity
+        accepted[slot] = rec.identity if rec is not None and rec.accepted else None
+        needed[slot] = self.needed.get(pair)
 
     def refresh_robot(self, robot: str, versions: Mapping[str, int], cache: LinkCache) -> None:
         """:meth:`refresh` every pair of ``robot``, whose map changed (or arrived)."""
@@ -106,7 +120,8 @@ class _Pairs:
                 self.refresh(min(robot, other), max(robot, other), versions, cache)
 
     def robots_changed(self) -> None:
-        self._order = None
+        """A robot joined: the pairs are placed anew at the next :meth:`listing`."""
+        self._slot = None
 
     def drop(self, robot: str) -> None:
         """Forget every pair of ``robot``."""
@@ -114,26 +129,30 @@ class _Pairs:
             for pair in [p for p in table if robot in p]:
                 del table[pair]
         self.unsettled = {p for p in self.unsettled if robot not in p}
-        self._order = None
+        self._slot = None
 
     def listing(self, generation: int, robots: list[str]) -> _Listing:
         """The links used and the keys needed, by pair, and whether all are settled; of
         ``robots``, the robots held, sorted."""
-        if self._order is None:
-            self._order = [(a, b) for i, a in enumerate(robots) for b in robots[i + 1 :]]
-        used, needed = self.used, self.needed
-        chosen = [used[p] for p in self._order if p in used]
-        keys = [needed[p] for p in self._order if p in needed]
-        rechecks = frozenset(k for p, k in needed.items() if p in used and used[p].key == k)
+        if self._slot is None:
+            order = [(a, b) for i, a in enumerate(robots) for b in robots[i + 1 :]]
+            self._slot = {p: i for i, p in enumerate(order)}
+            self._columns = tuple([None] * len(order) for _ in range(4))
+            for slot, pair in enumerate(order):
+                self._fill(slot, pair)
+        used, ids, accepted, needed = (list(filter(None, c)) for c in self._columns)
+        rechecks = frozenset(
+            k for p, k in self.needed.items() if p in self.used and self.used[p].key == k
+        )
         return _Listing(
             generation,
-            chosen,
+            used,  # type: ignore[arg-type]
             # a candidate waiting for its re-check may still enter the map: not settled
-            not self.unsettled and not keys,
-            keys,
+            not self.unsettled and not needed,
+            needed,  # type: ignore[arg-type]
             rechecks,
-            tuple(ln.identity for ln in chosen),
-            tuple(ln.identity for ln in chosen if ln.accepted),
+            tuple(ids),  # type: ignore[arg-type]
+            tuple(accepted),  # type: ignore[arg-type]
         )
 
 
@@ -187,9 +206,9 @@ class FleetBook:
                 self._firsts[robot] = first_epoch
             versions = {r: v for r, (v, _) in self._maps.items()}
             self._links.prune(versions, robot)
-            self._pairs.refresh_robot(robot, versions, self._links)
             if held is None:
                 self._pairs.robots_changed()
+            self._pairs.refresh_robot(robot, versions, self._links)
             self._generation += 1
         return True
 
