@@ -477,10 +477,13 @@ def due_keys(
     :func:`wait_before_computing` count from then.
     """
     ring = Ring(robots)
+    # no wait is longer: a key open that long is due whoever registers it first
+    longest = max(0.0, timeout, 2.0 * timeout)
     due = [
         k
         for k in keys
-        if now - opened_at.get(k, now) >= wait_before_computing(me, k, timeout, ring, alive)
+        if (waited := now - opened_at.get(k, now)) >= longest
+        or waited >= wait_before_computing(me, k, timeout, ring, alive)
     ]
     return sorted(due, key=lambda k: (me not in (k[0], k[2]), k))
 
