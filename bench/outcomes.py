@@ -6,7 +6,10 @@ and lists every pair whose accepted/rejected outcome or success differs, and eve
 accepted by both whose poses differ by more than ``--cells`` (the largest displacement of
 B's corners, in cells) or ``--degrees``::
 
-    python3 -m bench outcomes bench/results/merge.json NEW/merge.json [--method pgvd]
+    python3 -m bench outcomes bench/results/merge.json NEW/merge.json [--method pgvd] [--subset]
+
+``--subset``: the new run covers only some of the reference's pairs (``--sources``); the
+pairs it lacks are not differences.
 
 Exit 0 when the runs agree, 1 when they do not (the differences on stdout), 2 for bad input.
 """
@@ -50,7 +53,12 @@ def pose_gap(m1: np.ndarray, m2: np.ndarray, shape_b: tuple[int, int]) -> tuple[
 
 
 def compare_runs(
-    reference: list[dict], new: list[dict], method: str, cells: float, degrees: float
+    reference: list[dict],
+    new: list[dict],
+    method: str,
+    cells: float,
+    degrees: float,
+    subset: bool = False,
 ) -> Comparison:
     """The differences of ``method``'s records of ``new`` from those of ``reference``.
 
@@ -62,6 +70,8 @@ def compare_runs(
         The method whose records are compared.
     cells, degrees : float
         Largest pose difference of a pair both runs accept (:func:`pose_gap`).
+    subset : bool, optional
+        Compare only the pairs ``new`` has; else a pair it lacks is listed as missing.
 
     Returns
     -------
@@ -74,7 +84,8 @@ def compare_runs(
         name = ref["pair"]
         rec = ours.get(name)
         if rec is None:
-            out.missing.append(name)
+            if not subset:
+                out.missing.append(name)
             continue
         out.compared += 1
         if (ref["accepted"], ref["success"]) != (rec["accepted"], rec["success"]):
@@ -107,13 +118,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", default="pgvd")
     parser.add_argument("--cells", type=float, default=1.0, help="largest pose gap, cells")
     parser.add_argument("--degrees", type=float, default=0.1, help="largest heading gap")
+    parser.add_argument(
+        "--subset", action="store_true", help="compare only the pairs the new run has"
+    )
     args = parser.parse_args(argv)
     try:
         reference, new = _records(args.reference), _records(args.new)
     except ValueError as error:
         print(f"bench outcomes: {error}", file=sys.stderr)
         return 2
-    result = compare_runs(reference, new, args.method, args.cells, args.degrees)
+    result = compare_runs(reference, new, args.method, args.cells, args.degrees, args.subset)
     for kind in ("missing", "outcome", "pose"):
         for line in getattr(result, kind):
             print(f"{kind}: {line}")

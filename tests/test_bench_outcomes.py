@@ -56,3 +56,11 @@ def test_cli_exit_codes(tmp_path, capsys):
     bad.write_text("[]")
     assert main([str(RUN), str(bad)]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_a_subset_run_is_compared_on_its_own_pairs(records):
+    first = next(r for r in records if r["method"] == "pgvd")
+    part = [r for r in records if r["source"] == first["source"]]
+    assert compare_runs(records, part, "pgvd", 1.0, 0.1).missing
+    result = compare_runs(records, part, "pgvd", 1.0, 0.1, subset=True)
+    assert result.same and result.compared == sum(r["method"] == "pgvd" for r in part)
