@@ -320,7 +320,7 @@ class Agent:
                 self._loop(stop, outputs)
             finally:
                 halt.set()
-                receiver.join(timeout=1.0)
+                receiver.join(timeout=0.2)  # a decode in progress is not waited for
                 self.worker.stop(timeout=0.5)
                 self._call(self.node.flush)
                 if not self.persister.close():
@@ -408,6 +408,8 @@ class Agent:
             _, key, data = item
             try:
                 msg = self.node.read(key, data)
+                if halt.is_set():  # a decode outlasted the shutdown: the session may be gone
+                    return
                 if isinstance(msg, act.Drop):
                     self._carry_out([msg])
                 else:
