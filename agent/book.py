@@ -8,7 +8,7 @@ the worker (:meth:`agent.worker.FusionWorker.wake`, on the core's ``Register`` a
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from agent.links import (
     EPOCH_SHIFT,
@@ -41,21 +41,24 @@ def next_version(held: int | None, now: float, new_epoch: bool) -> int:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """A consistent view: ``maps`` ``{robot: (version, grid)}``, the links to use, settled."""
+    """A consistent view: ``maps`` ``{robot: (version, grid)}``, the links to use, settled;
+    ``firsts`` ``{robot: first epoch}`` of the maps whose first epoch is known."""
 
     maps: dict[str, tuple[int, Grid]]
     links: list[LinkRecord]
     settled: bool
     needed: list[LinkKey]
     alive: frozenset[str] | None
+    firsts: dict[str, int] = field(default_factory=dict)
 
 
 class FleetBook:
-    """Latest maps and link cache."""
+    """Latest maps, each with its robot's first epoch when known, and link cache."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._maps: dict[str, tuple[int, Grid]] = {}
+        self._firsts: dict[str, int] = {}
         self._links = LinkCache()
         self._alive: frozenset[str] | None = None
 
@@ -77,13 +80,21 @@ class FleetBook:
         with self._lock:
             return self._maps.get(robot)
 
-    def put_map(self, robot: str, version: int, grid: Grid) -> bool:
-        """Store ``grid`` if ``version`` is newer than what is held; True if stored."""
+    def put_map(self, robot: str, version: int, grid: Grid, first_epoch: int | None = None) -> bool:
+        """Store ``grid`` if ``version`` is newer than what is held; True if stored.
+
+        ``first_epoch`` is the epoch of the robot's first version, as the version's
+        manifest said (None: unknown); it goes with the version.
+        """
         with self._lock:
             held = self._maps.get(robot)
             if held is not None and held[0] >= version:
                 return False
             self._maps[robot] = (version, grid)
+            if first_epoch is None:
+                self._firsts.pop(robot, None)
+            else:
+                self._firsts[robot] = first_epoch
             self._links.prune({r: v for r, (v, _) in self._maps.items()})
         return True
 
@@ -91,6 +102,7 @@ class FleetBook:
         """Drop ``robot``'s map and links; True if a map was held."""
         with self._lock:
             held = self._maps.pop(robot, None)
+            self._firsts.pop(robot, None)
             self._links.forget(robot)
         return held is not None
 
@@ -119,4 +131,5 @@ class FleetBook:
             chosen, settled = select_links(versions, self._links)
             needed = needed_keys(versions, self._links)
             # a candidate waiting for its re-check may still enter the map: not settled
-            return Snapshot(maps, chosen, settled and not needed, needed, self._alive)
+            firsts = dict(self._firsts)
+            return Snapshot(maps, chosen, settled and not needed, needed, self._alive, firsts)

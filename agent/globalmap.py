@@ -7,10 +7,23 @@ links build the same global maps, bit for bit.  Hence everything here is ordered
   :func:`pgvd.posegraph.solve`, which drops links inconsistent around a cycle (GNC-TLS)
   and sorts its inputs, so the order links arrive in does not matter;
 - components are the connected components of the links it kept, each anchored at its
-  lowest robot id, whose pixel frame is the component's frame;
-- local maps are fused into the anchor's map in increasing robot id, with
-  :func:`pgvd.fusion.fuse_maps` (eqs. (33)-(37), the transform's covariance blurring the
-  added map per eqs. (4)-(8)).
+  robot whose first epoch is oldest, ties by robot id (:func:`anchor_rank`), whose pixel
+  frame is the component's frame: a robot joining or returning never moves the frame of
+  the robots already merged, unless it is older than their anchor, and when two
+  components join the older anchor's frame stays;
+- local maps are fused into the anchor's map, then the others' in increasing robot id: each
+  is warped into the anchor's pixels with its placement's covariance blurring it per eqs.
+  (4)-(8) (:func:`pgvd.fusion.warp_layer`, kept between rebuilds by
+  :class:`agent.fusecache.LayerCache`), then the layers are fused in that order, eqs.
+  (33)-(37) (:func:`pgvd.fusion.fuse_layers`).
+
+The canvas of a global map is the smallest that holds every member's map whole, computed
+before anything is fused, and each layer is warped and blurred on its own map's footprint
+rather than on that canvas.  Why: on a canvas grown map by map (:func:`pgvd.fusion.fuse_maps`
+in turn) each map's blur reaches to the edges of the canvas the maps before it made, so a
+robot joining would re-warp every robot after it; a layer that depends on its map and its
+placement alone is kept until one of them changes, and a warm rebuild is bit for bit a
+cold one.
 
 Only local maps are ever fused: a fused map is never an input (fleet invariant 1).
 """
@@ -18,14 +31,17 @@ Only local maps are ever fused: a fused map is never an input (fleet invariant 1
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from agent.fusecache import LayerCache
 from agent.links import LinkRecord
+from pgvd.fusion import fuse_layers
 from pgvd.grid import Grid, relative_matrix
-from pgvd.posegraph import PoseGraphParams, link_problem, solve
+from pgvd.posegraph import PoseGraphParams, Rank, link_problem, solve
 from protocol.quantize import quantise
 
 FuseFn = Callable[[Grid, Grid, np.ndarray, np.ndarray], Grid]
@@ -41,7 +57,8 @@ class Component:
 
     Attributes
     ----------
-    anchor : lowest robot id of the component; its map's pixel frame is the global frame.
+    anchor : the robot of the component whose first epoch is oldest, ties by robot id
+        (:func:`anchor_rank`); its map's pixel frame is the global frame.
     members : robot ids, sorted.
     versions : ``{robot: version}`` that went into ``grid``.
     transforms : ``{robot: 3x3}`` from that robot's pixels to the anchor's pixels.
@@ -79,6 +96,19 @@ def map_digest(grid: Grid) -> str:
     meta = np.round(np.array([grid.resolution, *grid.origin], dtype=np.float64), 6)
     h.update(meta.tobytes())
     return h.hexdigest()
+
+
+def anchor_rank(firsts: Mapping[str, int]) -> Rank:
+    """The rank that anchors each component at its oldest robot: least first epoch, then
+    least robot id (:func:`pgvd.posegraph.solve`).
+
+    A robot's first epoch is the epoch of its first map version, carried by every manifest
+    of the robot and kept in its state directory, so it never changes while the robot
+    lives: a robot that joins or returns ranks after the robots that were there before it
+    and leaves their frame where it was.  A robot whose first epoch is not known (a map
+    whose manifest did not say) ranks after every robot whose first epoch is.
+    """
+    return lambda robot: firsts.get(robot, math.inf)
 
 
 def accepted_links(
@@ -120,6 +150,8 @@ def build_components(
     fuse: FuseFn | None = None,
     params: PoseGraphParams | None = None,
     sound: Soundness | None = None,
+    layers: LayerCache | None = None,
+    firsts: Mapping[str, int] | None = None,
 ) -> list[Component]:
     """Every component's global map from the latest local maps and one link per pair.
 
@@ -128,32 +160,47 @@ def build_components(
     maps : ``{robot: (version, local grid)}``, the latest local map of each robot.
     links : at most one link per pair (:func:`agent.links.select_links`); rejected
         ones and those of robots without a map are ignored.
-    fuse : ``fuse(base, other, other_px_to_base_px, covariance) -> Grid``; defaults to
-        :func:`pgvd.fusion.fuse_maps`.  The result may grow the canvas: its ``origin``
-        says where the base went, so matrices are re-expressed through
-        :func:`pgvd.grid.relative_matrix`.
+    fuse : a stand-in for the fusion, ``fuse(base, other, other_px_to_base_px, covariance)
+        -> Grid``, applied map by map on a growing canvas: its ``origin`` says where the base
+        went, so matrices are re-expressed through :func:`pgvd.grid.relative_matrix`.  None
+        (the agents' fusion) warps each map into the anchor's pixels and fuses the layers,
+        see the module's docstring.
     params : the pose graph's floors and threshold (:class:`pgvd.posegraph.PoseGraphParams`).
     sound : the links' soundness judged before (:func:`usable_links`); filled in.
+    layers : the layers of the last rebuild (:class:`agent.fusecache.LayerCache`), reused
+        where a robot's version and placement are unchanged; left holding this build's.
+        None: a cold build.  Not used with ``fuse``.
+    firsts : ``{robot: first epoch}`` that came with those maps; each component is
+        anchored at its oldest robot (:func:`anchor_rank`), and without ``firsts`` at its
+        lowest robot id.
 
     Returns
     -------
-    Components sorted by anchor id.
+    Components sorted by their anchor's rank.
     """
-    if fuse is None:
-        from pgvd.fusion import fuse_maps as fuse
+    layers = LayerCache() if layers is None else layers
     accepted = accepted_links(maps, links)
     usable = usable_links(maps, accepted, sound)
-    sol = solve(maps, usable, params)
+    sol = solve(maps, usable, params, anchor_rank(firsts or {}))
     dropped = {ln.pair for ln in accepted} - {
         ln.pair for ln, u in zip(usable, sol.used, strict=True) if u
     }
     out = []
-    for members in sol.components:
+    for placed in sol.components:  # the anchor first, then the others by id: the fusion order
+        members = tuple(sorted(placed))
+        anchor, order = placed[0], placed[1:]
         inside = [(ln.pair, u) for ln, u in zip(usable, sol.used, strict=True) if ln.a in members]
-        grid, unblurred = _fuse_component(maps, members, sol.transforms, sol.covariances, fuse)
+        if fuse is None:
+            grid, unblurred = _fuse_component(
+                maps, anchor, order, sol.transforms, sol.covariances, layers
+            )
+        else:
+            grid, unblurred = _fuse_in_turn(
+                maps, anchor, order, sol.transforms, sol.covariances, fuse
+            )
         out.append(
             Component(
-                anchor=members[0],
+                anchor=anchor,
                 members=members,
                 versions={r: maps[r][0] for r in members},
                 transforms={r: sol.transforms[r] for r in members},
@@ -170,30 +217,52 @@ def build_components(
                 ),
             )
         )
+    if fuse is None:
+        layers.retain({r for c in out for r in c.members if r != c.anchor})
     return out
 
 
 def _fuse_component(
     maps: Mapping[str, tuple[int, Grid]],
-    members: tuple[str, ...],
+    anchor: str,
+    order: tuple[str, ...],
+    mats: Mapping[str, np.ndarray],
+    covs: Mapping[str, np.ndarray],
+    layers: LayerCache,
+) -> tuple[Grid, tuple[str, ...]]:
+    """Local maps fused into ``anchor``'s in ``order``, eqs. (33)-(37); also the robots
+    fused without their blur.
+
+    ``mats`` and ``covs`` place each robot of ``order`` in ``anchor``'s pixels.  Each map is
+    warped into them on its own (:meth:`agent.fusecache.LayerCache.layer`, eq. (8)), then
+    the layers are fused into the anchor's map in ``order`` on one canvas that holds them
+    all (:func:`pgvd.fusion.fuse_layers`).
+    """
+    got = [(r, *layers.layer(r, maps[r][0], maps[r][1], mats[r], covs[r])) for r in order]
+    grid = fuse_layers(maps[anchor][1], [layer for _, layer, _ in got])
+    return grid, tuple(r for r, _, unblurred in got if unblurred)
+
+
+def _fuse_in_turn(
+    maps: Mapping[str, tuple[int, Grid]],
+    anchor: str,
+    order: tuple[str, ...],
     mats: Mapping[str, np.ndarray],
     covs: Mapping[str, np.ndarray],
     fuse: FuseFn,
 ) -> tuple[Grid, tuple[str, ...]]:
-    """Local maps fused into the anchor's (``members[0]``) in increasing robot id,
-    eqs. (33)-(37); also the robots fused without their blur."""
-    base = maps[members[0]][1]
+    """Local maps fused into ``anchor``'s in ``order`` by a stand-in ``fuse``, one after
+    another on a growing canvas; also the robots fused without their blur."""
+    base = maps[anchor][1]
     fused = base
     unblurred: list[str] = []
-    for robot in members[1:]:
+    for robot in order:
         # The canvas of `fused` may have grown: anchor px -> fused px, then compose.
         to_fused = relative_matrix(fused, base) @ mats[robot]
         try:
             fused = fuse(fused, maps[robot][1], to_fused, covs[robot])
         except (ValueError, ArithmeticError):
-            # The same inputs fail the same way on every agent, so falling back to
-            # fusion without the uncertainty blur keeps them in agreement; a global
-            # map that never settles would be worse.
+            # as agent.fusecache does: the same inputs fail the same way on every agent
             fused = fuse(fused, maps[robot][1], to_fused, np.zeros((3, 3)))
             unblurred.append(robot)
     return fused, tuple(unblurred)

@@ -58,7 +58,7 @@ from agent.counters import Counters
 from agent.fetching import MIN_INTERVAL_S, FetchSchedule
 from agent.globalmap import component_of
 from agent.keys import FleetKeys
-from agent.links import LinkRecord
+from agent.links import LinkRecord, epoch_of
 from agent.sources import ChangeGate, epoch_due
 from agent.state import StoredMap
 from agent.status import (
@@ -161,17 +161,31 @@ class FleetNode:
         self._pending: tuple[Grid, bool, dict[str, object]] | None = None
         self._unsaved: wire.Prepared | None = None
         self._epoch_base: Grid | None = None  # own map when the current epoch began
+        # The epoch of this robot's first version: its age, by which merged frames are
+        # anchored (agent.globalmap.anchor_rank); None until the first version.
+        self._first_epoch: int | None = None
         self._next_announce = self._next_status = -float("inf")
         self._status_due = False
 
     def restore(
         self, maps: Mapping[str, StoredMap], links: Iterable[LinkRecord], now: Instant
     ) -> None:
-        """Take back what the state directory held; the own map is served again at once."""
+        """Take back what the state directory held; the own map is served again at once.
+
+        A peer's map persisted without its first epoch (a file of an older agent) is left to
+        be fetched again: every agent must read the same first epoch with a version.  The
+        own map's is its version's epoch then, the oldest this robot can still vouch for.
+        """
         for robot, stored in maps.items():
+            first = stored.first_epoch
+            if robot == self.me:
+                first = epoch_of(stored.version) if first is None else first
+                self._first_epoch = first
+            elif first is None:
+                continue
             # Own maps are persisted as the source holds them (to resume integrating).
             grid = wire.on_the_wire(stored.grid) if robot == self.me else stored.grid
-            self.book.put_map(robot, stored.version, grid)
+            self.book.put_map(robot, stored.version, grid, first)
             # Gone until its liveliness token says otherwise (the membership history reports
             # every robot present): a robot that left while this agent was down is forgotten
             # on the same bound as everywhere else, not kept for good in this agent's global
@@ -182,7 +196,7 @@ class FleetNode:
             self._absent_until_seen(rec.pair, now)
         own = self.book.map_of(self.me)
         if own is not None:
-            self.outbound.prepare(own[0], own[1], previous=None)
+            self.outbound.prepare(own[0], own[1], previous=None, first_epoch=self._first_epoch)
             self.gate.reset(own[1], now.mono)
             # The epoch goes on from the last version held: with no base, the first version
             # after every restart began an epoch, and all of this robot's links were
@@ -270,7 +284,7 @@ class FleetNode:
             return []
         self._unsaved = None
         self.outbound.install(unsaved)
-        self.book.put_map(self.me, version, unsaved.grid)
+        self.book.put_map(self.me, version, unsaved.grid, unsaved.first_epoch)
         self.last_update = now.wall
         tiles, manifest = unsaved.published
         key = self.keys.tiles(self.me)
@@ -446,13 +460,13 @@ class FleetNode:
             if self.inbound.incomplete(msg.robot):
                 self.fetches.later(msg.robot, now.mono)  # tiles may still be in flight
             return []
-        version, grid = done
-        if not self.book.put_map(msg.robot, version, grid):
+        version, grid, first = done
+        if not self.book.put_map(msg.robot, version, grid, first):
             return []
         self.counters.add("maps_received")
         self.fetches.cancel(msg.robot)
         log.debug("map %s v%d received (%dx%d)", msg.robot, version, *grid.shape)
-        return [PersistMap(msg.robot, StoredMap(version, grid)), Register()]
+        return [PersistMap(msg.robot, StoredMap(version, grid, first_epoch=first)), Register()]
 
     def _publish_pending(self, now: Instant) -> list[Action]:
         """Encode the source's map as the next own version if the gate says it is due."""
@@ -470,14 +484,18 @@ class FleetNode:
             # the final maps (a candidate is re-checked at every version anyway).
             new_epoch = final or epoch_due(self._epoch_base, sent, self.opts.epoch_change)
             version = next_version(None if held is None else held[0], now.wall, new_epoch)
-            self._unsaved = self.outbound.encode(version, sent, held)
+            # A robot's first version fixes its age for good (persisted with every version).
+            first = epoch_of(version) if self._first_epoch is None else self._first_epoch
+            self._unsaved = self.outbound.encode(version, sent, held, first)
         except ProtocolError as exc:  # e.g. a map beyond the wire's limits: keep serving
             return [Drop("own_map_unencodable", self.me, str(exc))]
+        self._first_epoch = first
         if new_epoch:
             self._epoch_base = sent
             self.counters.add("epochs")  # the bench counts registrations per epoch
         # Persisted first, published by on_persisted: a peer never holds a version we could lose.
-        return [PersistMap(self.me, StoredMap(version, grid, resume), point="state-write")]
+        stored = StoredMap(version, grid, resume, first)
+        return [PersistMap(self.me, stored, point="state-write")]
 
     def _fetch(self, robot: str, now: Instant, links: bool) -> list[Action]:
         """Query ``robot``'s latest map (only the tiles missing, when few), and its links."""

@@ -2,7 +2,8 @@
 
 Layout of ``--state-dir``::
 
-    maps/<robot>.npz   latest map of a robot: log-odds, resolution, origin, version, extra JSON
+    maps/<robot>.npz   latest map of a robot: log-odds, resolution, origin, version, extra JSON,
+                       and the robot's first epoch when known
     links.json         the cached links (:mod:`agent.links`)
     status.json        the last status snapshot (for people and for ``pgvd demo``)
 
@@ -36,11 +37,17 @@ from pgvd.npy_map import NPY_HEADER_ERRORS
 
 @dataclass(frozen=True)
 class StoredMap:
-    """One robot's latest map as persisted; ``extra`` holds source progress for own maps."""
+    """One robot's latest map as persisted; ``extra`` holds source progress for own maps.
+
+    ``first_epoch`` is the epoch of the robot's first version (the merged frame's anchor is
+    chosen by it): kept with the own map, a restarted robot keeps its age; None where it is
+    unknown, as in files written before it was kept.
+    """
 
     version: int
     grid: Grid
     extra: dict[str, object] = field(default_factory=dict)
+    first_epoch: int | None = None
 
 
 def atomic_write_bytes(
@@ -83,6 +90,7 @@ class StateDir:
         arms a failpoint mid-write (tests)."""
         buf = io.BytesIO()
         g = stored.grid
+        first = {} if stored.first_epoch is None else {"first_epoch": np.int64(stored.first_epoch)}
         np.savez(
             buf,
             logodds=np.ascontiguousarray(g.logodds, dtype=np.float32),
@@ -90,6 +98,7 @@ class StateDir:
             origin=np.asarray(g.origin, dtype=np.float64),
             version=np.int64(stored.version),
             extra=np.frombuffer(json.dumps(stored.extra).encode(), dtype=np.uint8),
+            **first,
         )
         path = self.maps_dir / f"{check_name(robot, 'robot id')}.npz"
         atomic_write_bytes(path, buf.getvalue(), point, durable)
@@ -173,4 +182,15 @@ def _read_map(path: Path) -> StoredMap:
             raise ValueError("corrupt resume state: not a JSON object")
         check_cell_size(float(resolution))
         grid = Grid(logodds, float(resolution), tuple(origin.tolist()))  # type: ignore[arg-type]
-        return StoredMap(int(version), grid, extra)
+        return StoredMap(int(version), grid, extra, _first_epoch(z))
+
+
+def _first_epoch(archive: np.lib.npyio.NpzFile) -> int | None:
+    """The persisted first epoch, None if the file has none; ``ValueError`` if it is no
+    non-negative integer scalar."""
+    if "first_epoch" not in archive.files:
+        return None
+    first = _member(archive, "first_epoch", "iu")
+    if first.shape != () or int(first) < 0:
+        raise ValueError("corrupt map arrays: first_epoch")
+    return int(first)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agent.keys import FleetKeys
-from agent.links import LinkRecord
+from agent.links import LinkRecord, epoch_of
 from pgvd.grid import Grid
 from pgvd.uncertainty import check_covariance
 from protocol import (
@@ -85,12 +85,13 @@ class TileBudget:
 class Prepared:
     """One own version encoded: ``published`` goes out on the tiles and manifest keys, ``whole``
     (every tile, default message size) answers the ``latest`` queryable. Each is
-    ``(tile messages, manifest)``."""
+    ``(tile messages, manifest)``; both manifests carry ``first_epoch``."""
 
     version: int
     grid: Grid
     published: tuple[list[bytes], bytes]
     whole: tuple[list[bytes], bytes]
+    first_epoch: int | None = None
 
 
 class Outbound:
@@ -108,26 +109,39 @@ class Outbound:
         self._latest: tuple[int, list[bytes], bytes, Grid] | None = None
         self.fetch_budget = TileBudget(FETCH_TILES_PER_SECOND)
 
-    def encode(self, version: int, grid: Grid, previous: tuple[int, Grid] | None) -> Prepared:
-        """``version`` encoded, to publish (a delta against ``previous`` if given) and to serve.
+    def encode(
+        self,
+        version: int,
+        grid: Grid,
+        previous: tuple[int, Grid] | None,
+        first_epoch: int | None = None,
+    ) -> Prepared:
+        """``version`` encoded, to publish (a delta against ``previous`` if given) and to serve;
+        its manifests carry the robot's ``first_epoch`` (the merged frame's anchor is chosen
+        by it, :func:`agent.globalmap.anchor_rank`).
 
         Nothing changes until :meth:`install`: a version that is not yet persisted must not be
         served to a fetch.
         """
-        full = self._encode(version, grid, None, packed=False)
+        full = self._encode(version, grid, None, False, first_epoch=first_epoch)
         if previous is None and not self.datagrams:
-            return Prepared(version, grid, full, full)
-        return Prepared(version, grid, self._encode(version, grid, previous, self.datagrams), full)
+            return Prepared(version, grid, full, full, first_epoch)
+        published = self._encode(version, grid, previous, self.datagrams, first_epoch=first_epoch)
+        return Prepared(version, grid, published, full, first_epoch)
 
     def install(self, prepared: Prepared) -> None:
         """Serve ``prepared`` as the latest version from now on."""
         self._latest = (prepared.version, *prepared.whole, prepared.grid)
 
     def prepare(
-        self, version: int, grid: Grid, previous: tuple[int, Grid] | None
+        self,
+        version: int,
+        grid: Grid,
+        previous: tuple[int, Grid] | None,
+        first_epoch: int | None = None,
     ) -> tuple[list[bytes], bytes]:
         """:meth:`encode` and :meth:`install` ``version``; its tile messages and manifest."""
-        prepared = self.encode(version, grid, previous)
+        prepared = self.encode(version, grid, previous, first_epoch)
         self.install(prepared)
         return prepared.published
 
@@ -138,6 +152,7 @@ class Outbound:
         previous: tuple[int, Grid] | None,
         packed: bool,
         indices: frozenset[int] | None = None,
+        first_epoch: int | None = None,
     ) -> tuple[list[bytes], bytes]:
         since = {} if previous is None else {"since": previous[1], "base_version": previous[0]}
         packing = {"max_message_bytes": DATAGRAM_BYTES, "lone_oversize": True} if packed else {}
@@ -149,6 +164,7 @@ class Outbound:
             self.key,
             tile_size=self._tile_size,
             indices=indices,
+            first_epoch=first_epoch,
             **since,
             **packing,
         )
@@ -196,8 +212,16 @@ class Inbound:
         (:func:`protocol.codec.peek_map`: cheap, nothing is decompressed)."""
         return peek_map(data, self.key, self.limits)
 
-    def feed(self, msg: MapTiles | Manifest) -> tuple[int, Grid] | None:
-        """Feed a map message; ``(version, grid)`` when a version completes."""
+    def feed(self, msg: MapTiles | Manifest) -> tuple[int, Grid, int | None] | None:
+        """Feed a map message; ``(version, grid, first epoch)`` when a version completes.
+
+        Raises ProtocolError for a manifest whose first epoch is newer than its version's.
+        """
+        if isinstance(msg, Manifest) and (msg.first_epoch or 0) > epoch_of(msg.version):
+            raise ProtocolError(
+                f"first epoch {msg.first_epoch} is newer than version {msg.version}'s",
+                reason="value",
+            )
         reasm = self._reassemblers.get(msg.robot)
         if reasm is None:
             if len(self._reassemblers) >= MAX_PEERS:
@@ -209,7 +233,7 @@ class Inbound:
         if grid is None:
             return None
         assert reasm.version is not None
-        return reasm.version, grid
+        return reasm.version, grid, reasm.first_epoch
 
     def wanted(self, robot: str) -> tuple[int, list[int]] | None:
         """The version of ``robot`` being assembled and the tiles it lacks, if a manifest waits."""

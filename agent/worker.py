@@ -48,6 +48,7 @@ import numpy as np
 
 from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
+from agent.fusecache import LayerCache
 from agent.globalmap import Component, FuseFn, Soundness, build_components, usable_links
 from agent.links import (
     LinkKey,
@@ -407,6 +408,8 @@ class FusionWorker:
         self._chains: tuple[object, Chains | None] = (None, None)
         #: Which link records held are sound (:data:`Soundness`).
         self._sound: Soundness = {}
+        #: The warped maps of the last rebuild, for the next (:class:`LayerCache`).
+        self._layers = LayerCache()
         #: The :class:`Chains` whose solution predicts, and the step time it was solved at.
         self._solution: tuple[Chains | None, float] = (None, -np.inf)
         #: The time of the current :meth:`step`.
@@ -495,7 +498,7 @@ class FusionWorker:
             self._register(snap, due[0], may_defer=others)
             return True
         signature = (
-            tuple(sorted((r, v) for r, (v, _) in snap.maps.items())),
+            tuple(sorted((r, v, snap.firsts.get(r)) for r, (v, _) in snap.maps.items())),
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
             tuple(_identity(ln) for ln in snap.links),
@@ -881,6 +884,18 @@ class FusionWorker:
 
     def _rebuild(self, snap: Snapshot) -> None:
         clock = _Clock.start()
-        components = build_components(snap.maps, snap.links, self.fuse, sound=self._soundness(snap))
-        log.debug("built %d components: %.2f s, %.2f s CPU", len(components), *clock.elapsed())
+        layers = self._layers
+        warps = layers.warps
+        components = build_components(
+            snap.maps,
+            snap.links,
+            self.fuse,
+            sound=self._soundness(snap),
+            layers=layers,
+            firsts=snap.firsts,
+        )
+        log.debug(
+            "built %d components, %d maps warped: %.2f s, %.2f s CPU",
+            len(components), layers.warps - warps, *clock.elapsed(),
+        )  # fmt: skip
         self.on_global(GlobalState(components, snap.settled, time.time()))

@@ -22,8 +22,13 @@ Reported:
   sources each map alternates between two fixed variants, so no link evidence changes
   materially: any move is jitter. Reported for all consecutive maps, and for those whose
   links were the same candidates (a pure function of them: the move must be zero);
+- anchor changes: consecutive global maps of an agent whose anchor differs; a *jump* is one
+  whose previous map merged several robots and whose previous anchor is still a member (the
+  merged frame moved under robots that stayed); the others followed their anchor's departure
+  or a lone robot's first merge. The target under churn is 0 jumps;
 - churn (``--churn``): a quarter into the run the last robot leaves (SIGTERM), half-way a new
-  robot joins, three quarters in the one that left comes back. The sources hold still after
+  robot joins with the lowest id, ``r0`` (anchoring at the lowest id would move the merged
+  frame to it), three quarters in the one that left comes back. The sources hold still after
   each change until the running agents agree (at most :data:`CHURN_HOLD` s), so that the
   seconds each change takes to reach agreement can be measured; the robots each agent holds
   just before each change show whether a departed robot was forgotten (``--forget-after``
@@ -187,6 +192,7 @@ def _record_placements(history: dict[str, list], statuses: dict[str, dict | None
                 "t": now,
                 "digest": comp["digest"],
                 "members": comp["members"],
+                "anchor": comp["anchor"],
                 "transforms": comp["transforms"],
                 "links": links,
             }
@@ -194,9 +200,10 @@ def _record_placements(history: dict[str, list], statuses: dict[str, dict | None
 
 
 def _churn_plan(robots: int, minutes: float) -> list[tuple[float, str, str]]:
-    """(second, leave|join|return, robot): the last robot leaves, a new one joins, it returns."""
+    """(second, leave|join|return, robot): the last robot leaves, a new one of the lowest id
+    joins, the one that left returns."""
     total = minutes * 60
-    last, new = f"r{robots}", f"r{robots + 1}"
+    last, new = f"r{robots}", "r0"
     return [(total / 4, "leave", last), (total / 2, "join", new), (3 * total / 4, "return", last)]
 
 
@@ -210,8 +217,9 @@ def soak(
 ) -> dict:
     """Run the fleet for ``minutes``; the raw time series and events.
 
-    With ``churn``, the robot of a ``join`` event is the last of ``sources.agents`` and is
-    started only then; ``leave`` stops a robot with SIGTERM and ``return`` restarts it.
+    With ``churn``, the robot of a ``join`` event is the last of ``sources.agents``, under the
+    id the event gives it, and is started only then; ``leave`` stops a robot with SIGTERM and
+    ``return`` restarts it.
     """
     series: dict[str, list[tuple[float, float, float]]] = {}
     published: dict[tuple[str, int], float] = {}
@@ -224,7 +232,9 @@ def soak(
     plan = sorted(churn or [])
     joiners = {r for _, kind, r in plan if kind == "join"}
     with LocalFleet("soak", workdir / "fleet", agent_args or []) as fleet:
-        declared = [(f"r{i + 1}", a) for i, a in enumerate(sources.agents(workdir))]
+        agents = sources.agents(workdir)
+        names = [f"r{i + 1}" for i in range(len(agents) - len(joiners))] + sorted(joiners)
+        declared = list(zip(names, agents, strict=True))
         later = {r: a for r, a in declared if r in joiners}
         for robot, (source, args) in declared:
             if robot not in joiners:
@@ -356,6 +366,20 @@ def jumps(history: dict[str, list], shape_of) -> dict[str, dict[str, float]]:
     return out
 
 
+def anchor_moves(history: dict[str, list]) -> dict[str, int]:
+    """Consecutive global maps of an agent whose anchor differs: ``changes`` in all, and
+    ``jumps``, those whose previous map merged several robots and whose previous anchor is
+    still a member (the merged frame moved although the robot that anchored it stayed; a
+    robot alone has no merged frame to keep)."""
+    out = {"changes": 0, "jumps": 0}
+    for maps in history.values():
+        for prev, cur in itertools.pairwise(maps):
+            if prev["anchor"] != cur["anchor"]:
+                out["changes"] += 1
+                out["jumps"] += len(prev["members"]) > 1 and prev["anchor"] in cur["members"]
+    return out
+
+
 def least_held(statuses: dict[str, dict]) -> dict[str, int]:
     """Per robot, the oldest version any agent holds (0 where an agent holds none)."""
     robots = {r for s in statuses.values() for r in s["robots"]}
@@ -415,6 +439,7 @@ def summarise(run: dict, minutes: float, shape_of=lambda robot: (DEFAULT_SIDE,) 
         "drops": run["drops"],
         "dead": run["dead"],
         "jumps": jumps(run["history"], shape_of),
+        "anchor": anchor_moves(run["history"]),
         "global_maps_per_agent": {r: len(h) for r, h in sorted(run["history"].items())},
         "churn": run["changes"],
         "robots_held_max": {r: max(c for _, c in rows) for r, rows in sorted(run["held"].items())},
@@ -515,6 +540,8 @@ def main() -> None:
         f"(cells over the robot's canvas corners, degrees): {summary['jumps']['all']}; "
         f"of those whose links were the same candidates: {summary['jumps']['same_links']} "
         "(target <= 1 cell and <= 0.1 deg where the link evidence did not change)",
+        f"- anchor changes between consecutive global maps of an agent: "
+        f"{summary['anchor']} (jumps: the previous anchor still a member; target 0)",
         f"- global maps seen per agent: {summary['global_maps_per_agent']}",
         f"- churn (event, seconds into the run, seconds to agreement among running agents "
         f"with the sources held for at most {CHURN_HOLD:g} s, robots each agent held just "

@@ -1,8 +1,15 @@
-"""Map fusion: log-odds addition (33)-(34) and the entropy filter (35)-(37), Sec. IV-G."""
+"""Map fusion: log-odds addition (33)-(34) and the entropy filter (35)-(37), Sec. IV-G.
+
+Two maps: :func:`fuse_maps`.  Many maps into one base, with the warp of each kept apart
+from the combine so that a caller can keep the warps: :func:`warp_layer` moves one map
+into the base's pixels with its uncertainty, eq. (8), and :func:`fuse_layers` fuses such
+layers into the base in a fixed order, eqs. (33)-(37).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -13,7 +20,7 @@ from pgvd.grid import (
     pixel_to_world,
     probability_to_logodds,
 )
-from pgvd.transform import union_canvas
+from pgvd.transform import footprint, union_canvas
 from pgvd.uncertainty import propagate
 
 
@@ -165,15 +172,168 @@ def fuse_maps(
     dx, dy = int(offset[0, 2]), int(offset[1, 2])
     base = np.zeros(shape, dtype=np.float32)
     base[dy : dy + a.shape[0], dx : dx + a.shape[1]] = a.logodds
-    moved = propagate(
-        b.probability(),
-        offset @ matrix,
-        covariance if propagation else np.zeros((3, 3)),
-        shape,
-        center=center,
-        cval=0.5,
+    cov = covariance if propagation else np.zeros((3, 3))
+    fused = fuse(base, _moved_logodds(b, offset @ matrix, cov, shape, center))
+    return Grid(fused, a.resolution, _canvas_origin(a, -dx, shape[0] - 1 - dy))
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One map moved into a base map's pixel frame with its uncertainty, eq. (8).
+
+    Attributes
+    ----------
+    logodds : numpy.ndarray
+        float32 log-odds of the moved map over the smallest box that holds every cell
+        it knows; the cells around the box are unknown (0).
+    corner : tuple of int
+        ``(x, y)``, the base pixel of ``logodds[0, 0]``.
+    bounds : tuple of int
+        ``(x0, y0, x1, y1)``, inclusive: the base pixels the moved map covers
+        (:func:`pgvd.transform.footprint`), known or not; a canvas that holds the map
+        whole holds them.
+    resolution : float
+        Metres per cell of the moved map.
+    """
+
+    logodds: np.ndarray
+    corner: tuple[int, int]
+    bounds: tuple[int, int, int, int]
+    resolution: float
+
+
+def warp_layer(
+    b: Grid,
+    matrix: np.ndarray,
+    covariance: np.ndarray,
+    center: tuple[float, float] = (0.0, 0.0),
+    propagation: bool = True,
+) -> Layer:
+    """Map B moved into a base map's pixels and blurred by the transform's covariance, eq. (8).
+
+    The warp step of :func:`fuse_layers`.  The blur is computed on B's own footprint in
+    the base's pixels (:func:`pgvd.transform.footprint`), whatever canvas it will be fused
+    on: the layer is then a function of ``b``, ``matrix`` and ``covariance`` alone, and
+    placing it on a canvas that grew is a shift by whole cells, exact.  (In
+    :func:`fuse_maps` the blur reaches to the edges of the two maps' canvas instead; the
+    two differ in cells within the blur's reach of B's footprint's edge.)
+
+    Parameters
+    ----------
+    b : Grid
+        The map to move.
+    matrix : numpy.ndarray
+        3x3, B pixel -> base pixel.
+    covariance : numpy.ndarray
+        3x3 over ``(tx px, ty px, psi rad)`` of ``matrix``, eq. (3), as in :func:`fuse_maps`.
+    center : tuple of float, optional
+        B pixel about which the heading error acts, as in :func:`fuse_maps`.
+    propagation : bool, optional
+        False: B is only warped (bilinear); ``covariance`` is not used.
+
+    Returns
+    -------
+    Layer
+        Cut to the cells B knows after the blur: the combine leaves every other cell of
+        the base as it was, eq. (33) adding 0.
+
+    Raises
+    ------
+    ValueError
+        If ``matrix`` is not a finite 3x3 array, or ``covariance`` is not a finite,
+        symmetric, positive semi-definite 3x3 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (3)-(8).
+    """
+    matrix = finite_3x3(matrix, "matrix")
+    lo, hi = footprint(b.shape, matrix)
+    to_box = np.array([[1.0, 0.0, -lo[0]], [0.0, 1.0, -lo[1]], [0.0, 0.0, 1.0]])
+    shape = (int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1))
+    cov = covariance if propagation else np.zeros((3, 3))
+    moved = _moved_logodds(b, to_box @ matrix, cov, shape, center)
+    rows, cols = np.flatnonzero(moved.any(axis=1)), np.flatnonzero(moved.any(axis=0))
+    r0, c0 = (int(rows[0]), int(cols[0])) if rows.size else (0, 0)
+    r1, c1 = (int(rows[-1]) + 1, int(cols[-1]) + 1) if rows.size else (0, 0)
+    return Layer(
+        moved[r0:r1, c0:c1].copy(),  # a copy: the footprint's array is freed
+        (int(lo[0]) + c0, int(lo[1]) + r0),
+        (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])),
+        float(b.resolution),
     )
-    fused = fuse(base, probability_to_logodds(np.clip(moved, 0.0, 1.0)))
-    # canvas pixel (0, H-1) is A pixel (-dx, H-1-dy); its lower-left corner is the new origin
-    corner = pixel_to_world(a, [[-dx - 0.5, shape[0] - 1 - dy + 0.5]])[0]
-    return Grid(fused, a.resolution, (float(corner[0]), float(corner[1]), a.origin[2]))
+
+
+def fuse_layers(base: Grid, layers: Sequence[Layer]) -> Grid:
+    """Fuse layers into ``base`` one after another, in the order given, eqs. (33)-(37).
+
+    The combine step after :func:`warp_layer`.  The canvas is the smallest one that holds
+    the base and every layer's ``bounds`` whole, so it depends only on the set of maps,
+    not on the order they are fused in; each layer is fused where it lies, cells outside
+    it staying as they were (eq. (33) adds 0 there).  The entropy filter (37) judges each
+    layer against the map so far, so callers pass a fixed order (:func:`fuse_many`).
+
+    Parameters
+    ----------
+    base : Grid
+        The base map; the layers are in its pixel frame.
+    layers : sequence of Layer
+        At the base's resolution.
+
+    Returns
+    -------
+    Grid
+        In the base's frame, shifted by whole cells to hold every map; ``base`` itself
+        when there is no layer.
+
+    Raises
+    ------
+    ValueError
+        If a layer's resolution is not the base's.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (33)-(37).
+    """
+    if not layers:
+        return base
+    for layer in layers:
+        if not np.isclose(base.resolution, layer.resolution, rtol=1e-6, atol=0.0):
+            raise ValueError(
+                f"resolutions differ ({base.resolution} vs {layer.resolution}); resample the layer"
+            )
+    h, w = base.shape
+    bounds = np.array([(0, 0, w - 1, h - 1), *(layer.bounds for layer in layers)])
+    x0, y0 = bounds[:, :2].min(axis=0)
+    x1, y1 = bounds[:, 2:].max(axis=0)
+    canvas = np.zeros((y1 - y0 + 1, x1 - x0 + 1), dtype=np.float32)
+    canvas[-y0 : h - y0, -x0 : w - x0] = base.logodds
+    for layer in layers:
+        x, y = layer.corner[0] - x0, layer.corner[1] - y0
+        lh, lw = layer.logodds.shape
+        view = canvas[y : y + lh, x : x + lw]
+        view[...] = fuse(view, layer.logodds)
+    return Grid(canvas, base.resolution, _canvas_origin(base, int(x0), int(y1)))
+
+
+def _moved_logodds(
+    b: Grid,
+    matrix: np.ndarray,
+    covariance: np.ndarray,
+    shape: tuple[int, int],
+    center: tuple[float, float],
+) -> np.ndarray:
+    """B's log-odds moved by ``matrix`` onto ``shape`` and blurred by ``covariance``, eq. (8)
+    (:func:`pgvd.uncertainty.propagate` on B's probabilities); unknown outside B."""
+    moved = propagate(b.probability(), matrix, covariance, shape, center=center, cval=0.5)
+    return probability_to_logodds(np.clip(moved, 0.0, 1.0))
+
+
+def _canvas_origin(a: Grid, x0: int, y1: int) -> tuple[float, float, float]:
+    """The origin of a canvas whose first column is A's pixel column ``x0`` and whose last
+    row is A's pixel row ``y1``: the metric pose of its lower-left corner, so that A's cells
+    keep their metric positions."""
+    corner = pixel_to_world(a, [[x0 - 0.5, y1 + 0.5]])[0]
+    return (float(corner[0]), float(corner[1]), a.origin[2])

@@ -3,11 +3,12 @@
 Nodes are maps, each one pixel frame; an edge ``(a, b)`` is a pairwise transform ``Z``
 (eq. (1) as a matrix, B pixel -> A pixel) with its covariance over ``(x px, y px, psi)``,
 eq. (3), as the merge of Saeedi et al. (IROS 2012) returns it.  In each connected
-component the lowest node id is the anchor; the unknowns are the matrices ``X_i`` from
-node ``i``'s pixels to the anchor's, and an edge predicts ``Z = X_a^-1 X_b``.  Its
-residual is the difference of the ``(tx, ty, psi)`` parameters of ``X_a^-1 X_b`` and
-``Z`` (heading wrapped), the parametrisation of the covariance, weighted by the inverse
-covariance: a weighted least-squares pose graph solved by Gauss-Newton.
+component the anchor is the node of least ``(rank, id)`` (by default the lowest id); the
+unknowns are the matrices ``X_i`` from node ``i``'s pixels to the anchor's, and an edge
+predicts ``Z = X_a^-1 X_b``.  Its residual is the difference of the ``(tx, ty, psi)``
+parameters of ``X_a^-1 X_b`` and ``Z`` (heading wrapped), the parametrisation of the
+covariance, weighted by the inverse covariance: a weighted least-squares pose graph solved
+by Gauss-Newton.
 
 Outliers: graduated non-convexity with the truncated least-squares cost (GNC-TLS; Yang,
 Antonante, Tzoumas and Carlone, "Graduated Non-Convexity for Robust Spatial Perception:
@@ -50,7 +51,7 @@ nothing is random; the same edges in any order give the same result bit for bit.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -59,6 +60,9 @@ from scipy.special import gammaincinv
 
 from pgvd.grid import matrix_to_pose, rigid_matrix
 from pgvd.uncertainty import check_covariance, compose_covariance, inverse_covariance
+
+#: A node's rank: the anchor of a component is its node of least ``(rank(node), node)``.
+Rank = Callable[[str], float]
 
 
 class Link(Protocol):
@@ -121,8 +125,8 @@ class Solution:
 
     Attributes
     ----------
-    components : node ids per component of the links kept, each sorted (its anchor
-        first), components sorted by anchor.
+    components : node ids per component of the links kept, each its anchor first and
+        the others sorted by id; components sorted by their anchor's ``(rank, id)``.
     transforms : ``{node: 3x3}`` from the node's pixels to its anchor's pixels.
     covariances : ``{node: 3x3}`` over ``(x px, y px, psi)`` of that transform.
     used : per input link, in the order given: kept in the joint solution.
@@ -138,8 +142,23 @@ class Solution:
     residuals: tuple[float, ...]
 
 
-def components(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list[tuple[str, ...]]:
-    """Connected components, each sorted, sorted by their lowest node (the anchor)."""
+def _lowest_id(node: str) -> float:
+    """The default :data:`Rank`: every node alike, so the lowest id anchors."""
+    return 0.0
+
+
+def components(
+    nodes: Iterable[str], edges: Iterable[tuple[str, str]], rank: Rank = _lowest_id
+) -> list[tuple[str, ...]]:
+    """Connected components, each its anchor first and the others sorted by id.
+
+    The anchor is the node of least ``(rank(node), node)``; components are sorted by their
+    anchor's ``(rank, id)``.  The default rank makes the lowest id the anchor.
+    """
+
+    def order(n: str) -> tuple[float, str]:
+        return rank(n), n
+
     parent = {n: n for n in nodes}
 
     def find(n: str) -> str:
@@ -151,11 +170,12 @@ def components(nodes: Iterable[str], edges: Iterable[tuple[str, str]]) -> list[t
     for a, b in edges:
         ra, rb = find(a), find(b)
         if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
+            parent[max(ra, rb, key=order)] = min(ra, rb, key=order)
     groups: dict[str, list[str]] = {}
     for n in sorted(parent):
-        groups.setdefault(find(n), []).append(n)
-    return [tuple(groups[r]) for r in sorted(groups)]
+        if n != find(n):
+            groups.setdefault(find(n), []).append(n)
+    return [(r, *groups.get(r, ())) for r in sorted({find(n) for n in parent}, key=order)]
 
 
 def triangle_groups(
@@ -454,7 +474,8 @@ def _content_key(ln: Link) -> tuple[str, str, bytes, bytes]:
 def _place(
     comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Transforms to ``comp[0]`` and covariances of one component from its kept links."""
+    """Transforms to ``comp[0]`` (the anchor) and covariances of one component from its
+    kept links."""
     if len(links) == len(comp) - 1:  # a tree: composition is the least-squares optimum
         return compose_transforms(comp[0], links)
     e = _prepare(comp, links, params)
@@ -466,7 +487,10 @@ def _place(
 
 
 def solve(
-    nodes: Iterable[str], links: Sequence[Link], params: PoseGraphParams | None = None
+    nodes: Iterable[str],
+    links: Sequence[Link],
+    params: PoseGraphParams | None = None,
+    rank: Rank = _lowest_id,
 ) -> Solution:
     """Place every node in its component's anchor frame from all links at once.
 
@@ -476,6 +500,9 @@ def solve(
     links : pairwise transforms, ``matrix`` B px -> A px and its 3x3 covariance over
         ``(x px, y px, psi rad)``, eq. (3).  Several links may join the same pair.
     params : thresholds and floors, :class:`PoseGraphParams`.
+    rank : each component is anchored at its node of least ``(rank(node), node)``
+        (:func:`components`); by default at its lowest id.  The placements and their
+        covariances, eq. (4), are relative to that anchor.
 
     Returns
     -------
@@ -495,7 +522,7 @@ def solve(
     order = sorted(range(len(links)), key=lambda i: _content_key(links[i]))
     ordered = [links[i] for i in order]
     keep = np.zeros(len(ordered), dtype=bool)
-    for comp in components(node_list, [(ln.a, ln.b) for ln in ordered]):
+    for comp in components(node_list, [(ln.a, ln.b) for ln in ordered], rank):
         members = set(comp)
         idx = [k for k, ln in enumerate(ordered) if ln.a in members]
         if len(idx) == len(comp) - 1:
@@ -505,7 +532,7 @@ def solve(
         inliers = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
         keep[idx] = inliers
     kept = [ln for ln, k in zip(ordered, keep, strict=True) if k]
-    final = components(node_list, [(ln.a, ln.b) for ln in kept])
+    final = components(node_list, [(ln.a, ln.b) for ln in kept], rank)
     transforms: dict[str, np.ndarray] = {}
     covariances: dict[str, np.ndarray] = {}
     for comp in final:

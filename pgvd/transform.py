@@ -137,6 +137,28 @@ def resample(grid: Grid, resolution: float) -> Grid:
     return Grid(out.astype(np.float32), float(resolution), grid.origin)
 
 
+def footprint(shape: tuple[int, int], matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The whole cells of frame A that a map of ``shape`` covers through ``matrix``.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (rows, cols) of the map.
+    matrix : numpy.ndarray
+        3x3, map pixel -> A pixel.
+
+    Returns
+    -------
+    lo, hi : numpy.ndarray
+        Integer ``(x, y)`` of the first and the last A cell of the bounding box of the
+        map's cell centres (``hi`` inclusive).
+    """
+    h, w = shape
+    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float)
+    pts = (np.asarray(matrix, dtype=np.float64) @ corners.T)[:2].T
+    return np.floor(pts.min(axis=0)).astype(int), np.ceil(pts.max(axis=0)).astype(int)
+
+
 def union_canvas(
     shape_a: tuple[int, int], shape_b: tuple[int, int], matrix: np.ndarray
 ) -> tuple[tuple[int, int], np.ndarray]:
@@ -157,12 +179,8 @@ def union_canvas(
         3x3 integer translation, A pixel -> canvas pixel, so that A lands on
         the canvas without interpolation; B -> canvas is ``offset_matrix @ matrix``.
     """
-    hb, wb = shape_b
-    ha, wa = shape_a
-    corners_b = np.array([[0, 0, 1], [wb - 1, 0, 1], [0, hb - 1, 1], [wb - 1, hb - 1, 1]], float)
-    pts = (np.asarray(matrix, dtype=np.float64) @ corners_b.T)[:2].T
-    pts = np.vstack([pts, [[0.0, 0.0], [wa - 1.0, ha - 1.0]]])
-    lo = np.floor(pts.min(axis=0)).astype(int)
-    hi = np.ceil(pts.max(axis=0)).astype(int)
+    lo_b, hi_b = footprint(shape_b, matrix)
+    lo = np.minimum(lo_b, 0)
+    hi = np.maximum(hi_b, [shape_a[1] - 1, shape_a[0] - 1])
     offset = np.array([[1.0, 0.0, -lo[0]], [0.0, 1.0, -lo[1]], [0.0, 0.0, 1.0]])
     return (int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1)), offset

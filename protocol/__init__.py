@@ -8,7 +8,9 @@ Messages (:mod:`protocol.messages`, frozen dataclasses)
     ``Tile(index, checksum, cells: int8 ndarray, base_checksum=None)``,
     ``MapTiles(fleet, robot, version, geometry, tiles, base_version=None)``,
     ``Manifest(fleet, robot, version, geometry, checksums: {tile index: crc32},
-    base_version=None, digest=None)`` (a delta manifest when base_version is set),
+    base_version=None, digest=None, first_epoch=None)`` (a delta manifest when
+    base_version is set; ``first_epoch``, the epoch of the robot's first version, a
+    trailing field a manifest may leave out),
     ``Link(fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted,
     matrix 3x3, covariance 3x3, score, trust=None)``, ``trust`` a
     ``LinkTrust(state, margin, first_margin, reason, first_version_a, first_version_b, holds,
@@ -27,12 +29,12 @@ Bytes (:mod:`protocol.codec`)
 
 Maps (:mod:`protocol.mapsync`)
     ``encode_map(fleet, robot, version, grid, key=None, since=None,
-    base_version=None, max_message_bytes=60_000, tile_size=128, indices=None)
-    -> (tile_messages: list[bytes], manifest: bytes)``: log-odds quantised to
-    int8 (:mod:`protocol.quantize`), cut into 128x128 tiles, only tiles holding
-    knowledge sent, each in the smallest of three byte layouts, the layouts of
-    one message compressed as one stream by deflate, LZMA or, for the few
-    sparse cells of a small delta, an adaptive arithmetic coder
+    base_version=None, max_message_bytes=60_000, tile_size=128, indices=None,
+    lone_oversize=False, first_epoch=None) -> (tile_messages: list[bytes], manifest: bytes)``:
+    log-odds quantised to int8 (:mod:`protocol.quantize`), cut into 128x128
+    tiles, only tiles holding knowledge sent, each in the smallest of three
+    byte layouts, the layouts of one message compressed as one stream by
+    deflate, LZMA or, for the few sparse cells of a small delta, an adaptive arithmetic coder
     (:mod:`protocol.compress`, :mod:`protocol.arith`); with ``since`` (the Grid or int8 array of an
     earlier version) only changed tiles, as differences, and with
     ``base_version`` too a delta manifest (only changed tiles' checksums plus a
@@ -49,9 +51,10 @@ Maps (:mod:`protocol.mapsync`)
     the newest manifest is held (older versions are ignored; tiles ahead of
     their manifest are buffered, bounded by ``limits.max_buffered_cells``);
     ``missing() -> list[int]`` names the tile indices to fetch, e.g. a delta
-    whose base this receiver never had; ``version`` and ``quantised`` hold the
-    last complete one; ``dropped`` counts buffered messages that contradicted
-    their manifest.  A sender's versions must keep growing across its restarts.
+    whose base this receiver never had; ``version``, ``quantised`` and
+    ``first_epoch`` hold the last complete one; ``dropped`` counts buffered
+    messages that contradicted their manifest.  A sender's versions must keep
+    growing across its restarts.
 
 Fetches (:mod:`protocol.fetch`)
     ``fetch_parameters(version, indices) -> dict | None`` names the tiles a receiver lacks as
@@ -67,7 +70,7 @@ Replays (:mod:`protocol.auth`)
     after ``decode``; persist ``guard.state`` to refuse replays across restarts.
     Only meaningful with a fleet key: without one anybody can forge new versions.
 
-Wire layout (:mod:`protocol.codec`, schema version 2)
+Wire layout (:mod:`protocol.codec`, schema version 3)
     ``b"PG" | schema version | flags | msgpack body | CRC-32 or HMAC-SHA256``;
     the body is a positional msgpack array (kind first); the trailer is
     checked before the body is parsed, decompressing is bounded by the tile

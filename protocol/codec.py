@@ -51,8 +51,9 @@ from protocol.tiles import checksum, pack_checksums
 
 MAGIC = b"PG"
 #: Bumped on any incompatible change of the body layout (2: positional bodies, one
-#: compressed stream per tile message).
-SCHEMA_VERSION = 2
+#: compressed stream per tile message; 3: a manifest's trailing ``first_epoch``, which the
+#: merged frame's anchor is chosen by, so a fleet must not mix agents that lack it).
+SCHEMA_VERSION = 3
 FLAG_MAC = 0x01
 HEADER_BYTES = 4
 DELTA_BIT = 0x80
@@ -149,6 +150,7 @@ def _body(msg: Message) -> list[Any]:
         return [
             KIND_MANIFEST, msg.fleet, msg.robot, msg.version, _geometry(msg.geometry),
             pack_checksums(msg.geometry, msg.checksums), msg.base_version, msg.digest,
+            *([] if msg.first_epoch is None else [msg.first_epoch]),
         ]  # fmt: skip
     if isinstance(msg, Link):
         return [
@@ -434,6 +436,8 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
     packed = fields.take("checksums", bytes)
     base_version = fields.take("base_version", int, nullable=True)
     digest = fields.take("digest", int, nullable=True)
+    # A manifest that does not say its robot's first epoch ends here.
+    first_epoch = fields.take("first_epoch", int) if fields.more() else None
     fields.done()
     n = geometry.n_tiles
     bitmap = -(-n // 8)
@@ -452,7 +456,7 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
         )
     crcs = np.frombuffer(packed, "<u4", offset=bitmap)
     checksums = {int(i): int(c) for i, c in zip(listed, crcs, strict=True)}
-    return Manifest(fleet, robot, version, geometry, checksums, base_version, digest)
+    return Manifest(fleet, robot, version, geometry, checksums, base_version, digest, first_epoch)
 
 
 def _matrix(fields: _Fields, name: str) -> list[list[Any]]:

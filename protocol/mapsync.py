@@ -64,6 +64,7 @@ def encode_map(
     tile_size: int = DEFAULT_TILE_SIZE,
     indices: Collection[int] | None = None,
     lone_oversize: bool = False,
+    first_epoch: int | None = None,
 ) -> tuple[list[bytes], bytes]:
     """Encode one version of a robot's own map as tile messages and a manifest.
 
@@ -90,6 +91,8 @@ def encode_map(
     lone_oversize : let a tile that alone exceeds ``max_message_bytes`` travel
         in a message of its own rather than raise (packing into datagrams, see
         :func:`protocol.codec.encode_tiles`).
+    first_epoch : the registration epoch of ``robot``'s first map version, carried by
+        the manifest (:class:`protocol.messages.Manifest`); None leaves it out.
 
     Returns
     -------
@@ -101,7 +104,7 @@ def encode_map(
     q = quantise_grid(grid)
     geometry = Geometry(grid.shape, grid.resolution, tuple(grid.origin), tile_size)
     checksums = manifest_checksums(q, geometry)
-    manifest = Manifest(fleet, robot, version, geometry, checksums)
+    manifest = Manifest(fleet, robot, version, geometry, checksums, first_epoch=first_epoch)
     base = None if since is None else _as_quantised(since)
     if base is not None and base.shape != q.shape:
         base, base_version = None, None
@@ -130,7 +133,9 @@ def _delta_manifest(full: Manifest, base: np.ndarray, base_version: int) -> Mani
     changes = {i: crc for i, crc in full.checksums.items() if before.get(i) != crc}
     changes.update({i: zero_checksum(g, i) for i in before if i not in full.checksums})
     digest = manifest_digest(g, full.checksums)
-    return Manifest(full.fleet, full.robot, full.version, g, changes, base_version, digest)
+    return Manifest(
+        full.fleet, full.robot, full.version, g, changes, base_version, digest, full.first_epoch
+    )
 
 
 #: Delta manifests a reassembler keeps while their base versions complete.
@@ -159,6 +164,8 @@ class MapReassembler:
         self.version: int | None = None
         #: Its int8 cells (what the sender quantised), or None.
         self.quantised: np.ndarray | None = None
+        #: The first epoch its manifest carried (:class:`Manifest`), or None.
+        self.first_epoch: int | None = None
         #: Buffered tile messages dropped when their manifest arrived and contradicted them.
         self.dropped = 0
         self._manifest: Manifest | None = None  # full manifest being assembled
@@ -302,6 +309,7 @@ class MapReassembler:
         assembler.forget(manifest.checksums)
         q.flags.writeable = False
         self.version, self.quantised, self._manifest = manifest.version, q, None
+        self.first_epoch = manifest.first_epoch
         self._base = manifest
         g = manifest.geometry
         grid = Grid(dequantise(q), g.resolution, g.origin)

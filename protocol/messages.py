@@ -30,6 +30,8 @@ MAX_VERSION = 2**63 - 1
 TILE_SIZES = (16, 32, 64, 128, 256)
 #: The default tile side: 128 x 128 int8 = 16 KiB before compression.
 DEFAULT_TILE_SIZE = 128
+#: A first epoch is the high part of a version below 2**63 whose low 31 bits are the minor.
+FIRST_EPOCH_BITS = 32
 
 
 def check_id(value: object, what: str) -> str:
@@ -282,6 +284,11 @@ class Manifest:
     tile), plus ``digest``, the :func:`protocol.tiles.manifest_digest` of the
     full list, so a receiver holding ``base_version`` rebuilds and verifies the
     full manifest while the bytes stay proportional to the change, not the map.
+
+    ``first_epoch`` is the registration epoch of the robot's first map version (the
+    high part of a version, ``version >> 31`` for an agent's versions): the robot's age,
+    which every receiver needs alike to anchor a merged frame at its oldest robot.  An
+    unsigned 32-bit integer, or None for a manifest that does not say.
     """
 
     fleet: str
@@ -291,6 +298,7 @@ class Manifest:
     checksums: Mapping[int, int] = field(default_factory=dict)
     base_version: int | None = None
     digest: int | None = None
+    first_epoch: int | None = None
 
     def __post_init__(self) -> None:
         _check_map_header(self.fleet, self.robot, self.version, self.geometry, self.base_version)
@@ -300,6 +308,9 @@ class Manifest:
             )
         if self.digest is not None:
             object.__setattr__(self, "digest", check_unsigned(self.digest, "digest", 64))
+        if self.first_epoch is not None:
+            first = check_unsigned(self.first_epoch, "first_epoch", FIRST_EPOCH_BITS)
+            object.__setattr__(self, "first_epoch", first)
         if not isinstance(self.checksums, Mapping):
             raise ProtocolError("checksums must map tile index -> checksum", reason="schema")
         n = self.geometry.n_tiles
@@ -319,7 +330,7 @@ class Manifest:
     def _key(self) -> tuple:
         return (
             self.fleet, self.robot, self.version, self.geometry, dict(self.checksums),
-            self.base_version, self.digest,
+            self.base_version, self.digest, self.first_epoch,
         )  # fmt: skip
 
     def __eq__(self, other: object) -> bool:

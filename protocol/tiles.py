@@ -65,7 +65,10 @@ def expand_manifest(delta: Manifest, base: Mapping[int, int]) -> Manifest:
             f"version {delta.base_version}",
             reason="value",
         )
-    return Manifest(delta.fleet, delta.robot, delta.version, delta.geometry, full)
+    return Manifest(
+        delta.fleet, delta.robot, delta.version, delta.geometry, full,
+        first_epoch=delta.first_epoch,
+    )  # fmt: skip
 
 
 def check_quantised(q: np.ndarray, geometry: Geometry) -> np.ndarray:

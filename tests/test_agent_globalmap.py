@@ -10,7 +10,7 @@ import pytest
 
 from agent.globalmap import build_components, map_digest
 from agent.links import LinkRecord
-from pgvd.fusion import fuse_maps
+from pgvd.fusion import fuse_layers, fuse_maps, warp_layer
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.posegraph import compose_transforms
@@ -71,7 +71,7 @@ def test_component_fuses_local_maps_in_a_fixed_order(halves: tuple) -> None:
     assert comp.anchor == "r1" and comp.members == ("r1", "r2")
     assert comp.versions == {"r1": 7, "r2": 4}
     # Exactly one fusion of the two local maps: never a fused map fused again.
-    direct = fuse_maps(a, b, truth, np.diag([0.2, 0.2, 1e-5]))
+    direct = fuse_layers(a, [warp_layer(b, truth, np.diag([0.2, 0.2, 1e-5]))])
     np.testing.assert_array_equal(comp.grid.logodds, direct.logodds)
     assert comp.digest == map_digest(direct)
 

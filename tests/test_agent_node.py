@@ -339,7 +339,10 @@ def test_a_restored_robot_that_never_shows_up_is_forgotten_like_any_gone_one(cro
     # A robot that left while this agent was down: every other agent forgot it, and this one
     # once kept it in its global map for good.
     r1 = FleetNode(NodeOptions("r1", "lab", KEY, forget_after=60.0), at(0.0))
-    stored = {"r2": StoredMap(3 << 31, crops[0]), "r3": StoredMap(5 << 31, crops[1])}
+    stored = {
+        "r2": StoredMap(3 << 31, crops[0], first_epoch=3),
+        "r3": StoredMap(5 << 31, crops[1], first_epoch=4),
+    }
     # and a persisted link names r7, of whom nothing else is held
     r1.restore(stored, [link("r3", "r7", np.eye(3), versions=(5 << 31, 1 << 31))], at(10.0))
     r1.on_alive("r3", True, at(10.5))  # the membership history: r3 is there, r2 is not
@@ -417,7 +420,8 @@ def _version(sent: list[Publish]) -> int:
 def test_after_a_restart_the_own_map_is_served_and_versions_move_on(crops) -> None:
     old = (int(T0) + 100) << 31 | 5  # persisted by a run whose clock was ahead
     r1 = ungated("r1")
-    r1.restore({"r1": StoredMap(old, crops[0]), "r2": StoredMap(3 << 31, crops[1])}, [], at(0.0))
+    peer = StoredMap(3 << 31, crops[1], first_epoch=3)
+    r1.restore({"r1": StoredMap(old, crops[0]), "r2": peer}, [], at(0.0))
     assert r1.book.versions() == {"r1": old, "r2": 3 << 31}
     assert r1.answer_latest(None, None)[-1].key == f"pgvd/lab/latest/r1/{old}/m"
     assert any(isinstance(a, Publish) and a.key.endswith("manifest/r1") for a in r1.tick(at(0.0)))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.soak import jumps, placement_move
+from bench.soak import anchor_moves, jumps, placement_move
 from pgvd.grid import rigid_matrix
 
 
@@ -40,3 +40,19 @@ def test_jumps_split_same_links_from_new_links() -> None:
     assert out["all"]["pairs"] == 2 and out["all"]["cells"] == pytest.approx(2.0)
     history["r1"][1]["members"] = ["r1", "r2", "r3"]  # membership changed: not compared
     assert jumps(history, lambda robot: (10, 10))["all"]["pairs"] == 0
+
+
+def test_anchor_moves_tell_a_jump_from_a_departure() -> None:
+    def seen(anchor: str, members: list[str]) -> dict:
+        return {"anchor": anchor, "members": members}
+
+    history = {
+        "r2": [
+            seen("r1", ["r1", "r2"]),
+            seen("r1", ["r1", "r2", "r3"]),  # r3 joins: the frame stays
+            seen("r0", ["r0", "r1", "r2", "r3"]),  # r0 joins and takes the frame: a jump
+            seen("r1", ["r1", "r2", "r3"]),  # r0 forgotten: the frame follows its departure
+        ],
+        "r0": [seen("r0", ["r0"]), seen("r1", ["r0", "r1", "r2", "r3"])],  # a lone robot merged
+    }
+    assert anchor_moves(history) == {"changes": 3, "jumps": 1}

@@ -236,8 +236,9 @@ def test_the_link_between_the_maps_reaches_rviz_as_a_line_between_their_centres(
 
 
 def test_tf_places_each_robot_map_within_2_cells_and_half_a_degree(ros_fleet: dict) -> None:
-    # the merged frame is r1's map frame
-    ros2_truth.assert_tf_places_maps(ros_fleet["tf"][0], ros_fleet["maps"], anchor="r1")
+    # the merged frame is the anchor's map frame: the robot whose first map came first
+    anchor = ros_fleet["statuses"]["r1"]["global"]["anchor"]
+    ros2_truth.assert_tf_places_maps(ros_fleet["tf"][0], ros_fleet["maps"], anchor=anchor)
 
 
 def test_a_late_ros_subscriber_still_gets_the_merged_map(ros_fleet: dict) -> None:
@@ -339,4 +340,4 @@ def test_a_growing_slam_map_is_followed_and_placed_again(ros_fleet: dict) -> Non
     msg = grown["merged_map"][0]
     assert (msg.info.height, msg.info.width) == tuple(comp["shape"])
     maps = {"r1": ros_fleet["maps"]["r1"], "r2": grown["map"]}
-    ros2_truth.assert_tf_places_maps(grown["tf"][0], maps, anchor="r1")
+    ros2_truth.assert_tf_places_maps(grown["tf"][0], maps, anchor=comp["anchor"])

@@ -270,7 +270,8 @@ def test_tf_decoded_by_the_sdk_places_each_map_within_2_cells_and_half_a_degree(
     sdk_fleet: dict,
 ) -> None:
     assert sdk_fleet["tf"] is not None
-    ros2_truth.assert_tf_places_maps(sdk_fleet["tf"], sdk_fleet["maps"], anchor="r1")
+    anchor = sdk_fleet["statuses"]["r1"]["global"]["anchor"]
+    ros2_truth.assert_tf_places_maps(sdk_fleet["tf"], sdk_fleet["maps"], anchor=anchor)
 
 
 def test_a_late_transient_local_sdk_subscriber_gets_the_map_from_the_cache(

@@ -1,4 +1,4 @@
-"""Fusion (33)-(37): the entropy filter, and fuse_maps on the real intel split pair."""
+"""Fusion (33)-(37): the entropy filter, fuse_maps and the layers on the real intel split pair."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from pgvd.fusion import entropy, fuse, fuse_many, fuse_maps
-from pgvd.grid import Grid, logodds_to_probability, relative_matrix
+from pgvd.fusion import entropy, fuse, fuse_layers, fuse_many, fuse_maps, warp_layer
+from pgvd.grid import Grid, logodds_to_probability, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.transform import warp
 
@@ -143,3 +143,37 @@ def test_fuse_maps_names_a_bad_matrix() -> None:
     nan[0, 2] = np.nan
     with pytest.raises(ValueError, match="matrix must be a finite 3x3 array, got NaN"):
         fuse_maps(a, a, nan, np.zeros((3, 3)))
+
+
+def test_layers_without_a_blur_fuse_as_fuse_maps(shared: Path) -> None:
+    """Shifted by whole cells and exact, B's layer is B itself: the two fusions agree bit
+    for bit, and the layer holds only the cells B knows."""
+    d = shared / "maps/intel_split_gt"
+    a, b = read_map(d / "intel_partA.yaml"), read_map(d / "intel_partB.yaml")
+    m = rigid_matrix(0.0, 37.0, -52.0)
+    layer = warp_layer(b, m, np.zeros((3, 3)))
+    fused = fuse_layers(a, [layer])
+    pair = fuse_maps(a, b, m, np.zeros((3, 3)))
+    assert fused.origin == pair.origin
+    np.testing.assert_array_equal(fused.logodds, pair.logodds)
+    known = np.argwhere(b.logodds != 0)
+    assert layer.corner == (37 + known[:, 1].min(), -52 + known[:, 0].min())
+    assert layer.bounds == (37, -52, 37 + b.shape[1] - 1, -52 + b.shape[0] - 1)
+
+
+def test_a_map_that_knows_nothing_leaves_the_base_as_it_was(shared: Path) -> None:
+    a = read_map(shared / "maps/intel_split_gt/intel_partA.yaml")
+    blank = Grid(np.zeros((40, 60), np.float32), a.resolution)
+    layer = warp_layer(blank, rigid_matrix(0.3, -20.0, 10.0), np.diag([1.0, 1.0, 1e-4]))
+    assert layer.logodds.size == 0
+    fused = fuse_layers(a, [layer])
+    assert fused.shape[0] > a.shape[0] and fused.shape[1] > a.shape[1]  # the canvas holds it
+    assert np.count_nonzero(fused.logodds) == np.count_nonzero(a.logodds)
+    assert fuse_layers(a, []) is a
+
+
+def test_fuse_layers_names_a_resolution_that_differs() -> None:
+    a = Grid(np.zeros((8, 8), np.float32), 0.05)
+    layer = warp_layer(Grid(np.ones((8, 8), np.float32), 0.1), np.eye(3), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match=r"resolutions differ \(0.05 vs 0.1\)"):
+        fuse_layers(a, [layer])

@@ -105,6 +105,7 @@ def sample_messages() -> list:
         MapTiles("fleet", "r1", 4, g, delta, base_version=3),
         Manifest("fleet", "r1", 3, g, {0: checksum(cells), 3: 7}),
         Manifest("fleet", "r1", 4, g, {1: 9}, base_version=3, digest=2**64 - 1),
+        Manifest("fleet", "r1", 5, g, {1: 9}, base_version=4, digest=7, first_epoch=2**32 - 1),
         Link("fleet", "r1", "r1", "r2", 3, 4, True, np.eye(3), np.eye(3) * 0.5, 0.93),
         Link(
             "fleet",
@@ -224,6 +225,45 @@ def test_a_links_lifecycle_is_checked_strictly(trust, reason, why):
 
 
 @given(
+    robot=ids, version=versions, first=st.integers(0, 2**32 - 1), delta=st.booleans(),
+    tiles=st.dictionaries(st.integers(0, 3), st.integers(0, 2**32 - 1), max_size=4),
+)  # fmt: skip
+def test_manifest_with_a_first_epoch_round_trips(robot, version, first, delta, tiles):
+    g = Geometry((20, 30), 0.05, (1.0, -2.0, 0.1), 16)
+    since = {"base_version": version - 1, "digest": 3} if delta and version else {}
+    msg = Manifest("f", robot, version, g, tiles, **since, first_epoch=first)
+    assert decode(encode(msg, KEY), KEY) == msg
+
+
+def manifest_body(*trailing) -> list:
+    bitmap = bytes(1)  # 4 tiles of 20x30 at 16, none listed
+    return [KIND_MANIFEST, "f", "r1", 3, [20, 30, 0.05, 0, 0, 0, 16], bitmap, None, None,
+            *trailing]  # fmt: skip
+
+
+def test_a_manifest_without_a_first_epoch_is_read_as_not_saying():
+    msg = decode(raw(manifest_body()))
+    assert isinstance(msg, Manifest) and msg.first_epoch is None
+    assert decode(raw(manifest_body(9))).first_epoch == 9
+
+
+@pytest.mark.parametrize(
+    ("trailing", "reason", "why"),
+    [
+        ((2**32,), "value", "first_epoch must be a 32-bit unsigned integer"),
+        ((-1,), "value", "first_epoch must be a 32-bit unsigned integer"),
+        ((1.5,), "schema", "field 'first_epoch' has the wrong type float"),
+        ((None,), "schema", "field 'first_epoch' has the wrong type NoneType"),
+        ((True,), "schema", "field 'first_epoch' has the wrong type bool"),
+        ((1, 2), "schema", "manifest message has 1 unknown trailing fields"),
+    ],
+)
+def test_a_manifests_first_epoch_is_checked_strictly(trailing, reason, why):
+    with refused(reason, why):
+        decode(raw(manifest_body(*trailing)))
+
+
+@given(
     robot=ids,
     seq=versions,
     counters=st.dictionaries(
@@ -323,8 +363,8 @@ def raw_bytes(body: bytes) -> bytes:
 
 
 def test_wrong_schema_version():
-    with refused("schema", r"unsupported schema version 1 \(this decoder speaks 2\)"):
-        decode(raw(heartbeat(), schema=1))
+    with refused("schema", r"unsupported schema version 2 \(this decoder speaks 3\)"):
+        decode(raw(heartbeat(), schema=2))
 
 
 def test_truncated_message():

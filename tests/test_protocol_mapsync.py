@@ -59,14 +59,17 @@ grids = st.tuples(
 )  # fmt: skip
 
 
+first_epochs = st.none() | st.integers(0, 2**32 - 1)
+
+
 @settings(max_examples=60)
-@given(spec=grids, order=st.randoms(use_true_random=False), keyed=st.booleans())
-def test_full_map_round_trips_in_any_order(spec, order, keyed):
+@given(spec=grids, order=st.randoms(use_true_random=False), keyed=st.booleans(), first=first_epochs)
+def test_full_map_round_trips_in_any_order(spec, order, keyed, first):
     h, w, ts, density, seed = spec
     key = KEY if keyed else None
     q = random_quantised(np.random.default_rng(seed), (h, w), density)
     tiles, manifest = encode_map(
-        "f", "r1", 7, as_grid(q), key, max_message_bytes=1500, tile_size=ts
+        "f", "r1", 7, as_grid(q), key, max_message_bytes=1500, tile_size=ts, first_epoch=first
     )
     wires = [*tiles, manifest]
     order.shuffle(wires)
@@ -75,28 +78,33 @@ def test_full_map_round_trips_in_any_order(spec, order, keyed):
     assert grid is not None and reasm.missing() == []
     assert np.array_equal(quantise_grid(grid), q)
     assert grid.resolution == 0.05 and grid.origin == (1.5, -3.0, 0.2)
-    assert reasm.version == 7
+    assert reasm.version == 7 and reasm.first_epoch == first
 
 
 @settings(max_examples=40)
-@given(spec=grids, order=st.randoms(use_true_random=False), steps=st.integers(1, 5))
-def test_deltas_rebuild_every_version(spec, order, steps):
+@given(
+    spec=grids, order=st.randoms(use_true_random=False), steps=st.integers(1, 5),
+    first=first_epochs,
+)  # fmt: skip
+def test_deltas_rebuild_every_version(spec, order, steps, first):
     h, w, ts, density, seed = spec
     rng = np.random.default_rng(seed)
     q = random_quantised(rng, (h, w), density)
     reasm = MapReassembler("r1")
-    tiles, manifest = encode_map("f", "r1", 1, as_grid(q), tile_size=ts, max_message_bytes=1500)
+    tiles, manifest = encode_map(
+        "f", "r1", 1, as_grid(q), tile_size=ts, max_message_bytes=1500, first_epoch=first
+    )
     deliver(reasm, [*tiles, manifest])
     for version in range(2, 2 + steps):
         new = mutate(rng, q)
         tiles, manifest = encode_map(
             "f", "r1", version, as_grid(new), since=as_grid(q), base_version=version - 1,
-            tile_size=ts, max_message_bytes=1500,
+            tile_size=ts, max_message_bytes=1500, first_epoch=first,
         )  # fmt: skip
         wires = [*tiles, manifest]
         order.shuffle(wires)
         deliver(reasm, wires)
-        assert reasm.version == version
+        assert reasm.version == version and reasm.first_epoch == first
         assert np.array_equal(reasm.quantised, new)
         q = new
 

@@ -1,0 +1,222 @@
+"""Global-map rebuild time with the fusion cache warm against cold, at 8 and 16 robots.
+
+Usage::
+
+    python3 -m bench globalmap [--robots 8 16] [--logs intel freiburg-079] [--repeat 3]
+                               [--shared ../shared] [--out bench/results]
+
+Each robot's map is its segment of a development building's log, rendered as the agents
+render it (:class:`agent.sources.CarmenSource`, 0.1 m, the fleet bench's segments and
+random frames), first from 90 % of the segment's scans.  Robots are linked to the next
+two (a chain with triangles, so the pose graph solves cycles) by their true transforms,
+each with the covariance ``diag(1 px^2, 1 px^2, (0.3 deg)^2)``.  Rebuilds
+(:func:`agent.globalmap.build_components`, the worker's ``_rebuild``), CPU time of this
+process on one thread, median of ``--repeat``:
+
+* ``in turn``: every map fused into the growing canvas in turn with
+  :func:`pgvd.fusion.fuse_maps`, the rebuild before the cache, as a baseline;
+* ``cold``: every map warped into the anchor's pixels and the layers fused, empty cache;
+* ``new version``: the cache warm and one robot (a different one each repeat) at its next
+  map version, the rest of its scans added, its links unchanged (a new minor version within
+  its registration epoch): that robot's map alone is warped again;
+* ``unchanged``: the cache warm, the same inputs (a preview rebuilt beside no new map).
+
+The ratios to ``cold`` in the same run are what to compare across machines.  Also
+reported: the bytes of layers the cache holds, the peak memory Python and numpy allocate
+during one rebuild in turn and one cold (tracemalloc: scipy's FFT work buffers are not
+counted), and the fused map's cells.  Writes
+``globalmap.md`` and ``globalmap.json`` in ``--out``.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from agent.fusecache import LayerCache  # noqa: E402
+from agent.globalmap import build_components  # noqa: E402
+from agent.links import LinkRecord  # noqa: E402
+from agent.scenario import random_frames, segments  # noqa: E402
+from agent.sources import CarmenSource, SourceSpec  # noqa: E402
+from pgvd.fusion import fuse_maps  # noqa: E402
+from pgvd.integrate import integrate_scan  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+RESOLUTION = 0.1
+COVARIANCE = np.diag([1.0, 1.0, math.radians(0.3) ** 2])
+#: Each robot is linked to this many robots after it.
+NEIGHBOURS = 2
+#: The share of its segment's scans a robot's first map version holds.
+FIRST_VERSION_SHARE = 0.9
+
+
+class Fleet:
+    """``n`` robots' maps of ``log`` and their true links to the next robots.
+
+    Each map holds the first :data:`FIRST_VERSION_SHARE` of its segment's scans at version
+    1; :meth:`next_version` adds the rest, as the robot's next minor version (same canvas,
+    so its links hold).
+    """
+
+    def __init__(self, log: Path, n: int) -> None:
+        self.sources, to_pixel = {}, {}
+        for i, (seg, frame) in enumerate(zip(segments(n), random_frames(n, 7), strict=True)):
+            robot = f"r{i + 1:02d}"
+            src = CarmenSource(SourceSpec("carmen", log, seg), frame, RESOLUTION, math.inf)
+            self.sources[robot] = src
+            to_pixel[robot] = np.asarray(src.describe()["world_to_pixel"])
+            self._integrate(robot, int(FIRST_VERSION_SHARE * len(src.scans)))
+        self.maps = {r: (1, s.grid()) for r, s in self.sources.items()}
+        robots = sorted(self.maps)
+        self.links = [
+            LinkRecord(
+                a, 1, b, 1, True, to_pixel[a] @ np.linalg.inv(to_pixel[b]), COVARIANCE, 0.9, a
+            )
+            for i, a in enumerate(robots)
+            for b in robots[i + 1 : i + 1 + NEIGHBOURS]
+        ]
+
+    def _integrate(self, robot: str, cursor: int) -> None:
+        src = self.sources[robot]
+        for scan in src.scans[src.cursor : cursor]:
+            integrate_scan(src.logodds, scan, src.map_frame)
+        src.cursor = max(src.cursor, cursor)
+
+    def next_version(self, robot: str) -> None:
+        """``robot``'s map with every scan of its segment, at the next version."""
+        self._integrate(robot, len(self.sources[robot].scans))
+        self.maps[robot] = (self.maps[robot][0] + 1, self.sources[robot].grid())
+
+
+def cpu_seconds(run: Callable[[], object]) -> float:
+    t = time.process_time()
+    run()
+    return time.process_time() - t
+
+
+def peak_mb(run: Callable[[], object]) -> float:
+    """Peak of the memory Python and numpy allocate during ``run`` (tracemalloc), MB."""
+    tracemalloc.start()
+    try:
+        run()
+        return tracemalloc.get_traced_memory()[1] / 1e6
+    finally:
+        tracemalloc.stop()
+
+
+def bench_fleet(log: Path, n: int, repeat: int) -> dict:
+    """The four rebuilds of the module's docstring on ``n`` robots of ``log``."""
+    fleet = Fleet(log, n)
+    maps, links = fleet.maps, fleet.links
+    robots = sorted(maps)
+    cache = LayerCache()
+    in_turn = [cpu_seconds(lambda: build_components(maps, links, fuse_maps)) for _ in range(repeat)]
+    cold = [cpu_seconds(lambda: build_components(maps, links)) for _ in range(repeat)]
+    build_components(maps, links, layers=cache)
+    new_version = []
+    for k in range(repeat):
+        fleet.next_version(robots[1 + (k * 5 + 2) % (n - 1)])  # spread out, not the anchor
+        warps = cache.warps
+        new_version.append(cpu_seconds(lambda: build_components(maps, links, layers=cache)))
+        assert cache.warps - warps == 1, "a new version of one robot re-warped others"
+    unchanged = [
+        cpu_seconds(lambda: build_components(maps, links, layers=cache)) for _ in range(repeat)
+    ]
+    (comp,) = build_components(maps, links, layers=cache)
+    peaks = {
+        "in_turn": peak_mb(lambda: build_components(maps, links, fuse_maps)),
+        "cold": peak_mb(lambda: build_components(maps, links)),
+    }
+    med = {
+        name: float(np.median(v))
+        for name, v in (
+            ("in_turn", in_turn),
+            ("cold", cold),
+            ("new_version", new_version),
+            ("unchanged", unchanged),
+        )
+    }
+    return {
+        "log": log.name.split("-corrected")[0],
+        "robots": n,
+        "members": len(comp.members),
+        "map_cells": int(np.mean([g.logodds.size for _, g in maps.values()])),
+        "fused_shape": list(comp.grid.shape),
+        "layers_mb": cache.held_bytes() / 1e6,
+        "peak_mb": peaks,
+        "cpu_s": med,
+        "ratio_to_cold": {k: v / med["cold"] for k, v in med.items()},
+    }
+
+
+def table(rows: list[dict]) -> str:
+    out = [
+        "| log | robots | in turn (s) | cold (s) | new version (s) | unchanged (s) "
+        "| new version / cold | unchanged / cold | cold / in turn | layers held (MB) "
+        "| peak in turn / cold (MB) | fused map |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        s, q = r["cpu_s"], r["ratio_to_cold"]
+        out.append(
+            f"| {r['log']} | {r['robots']} | {s['in_turn']:.2f} | {s['cold']:.2f} "
+            f"| {s['new_version']:.3f} | {s['unchanged']:.3f} | {q['new_version']:.3f} "
+            f"| {q['unchanged']:.3f} | {s['cold'] / s['in_turn']:.2f} | {r['layers_mb']:.1f} "
+            f"| {r['peak_mb']['in_turn']:.0f} / {r['peak_mb']['cold']:.0f} "
+            f"| {r['fused_shape'][0]} x {r['fused_shape'][1]} |"
+        )
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--robots", type=int, nargs="+", default=[8, 16])
+    ap.add_argument("--logs", nargs="+", default=["intel", "freiburg-079"])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--shared", type=Path, default=SHARED)
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    args = ap.parse_args(argv)
+    logs = [args.shared / "logs" / f"{name}-corrected.log.gz" for name in args.logs]
+    missing = next((p for p in logs if not p.is_file()), None)
+    if missing is not None:
+        print(f"globalmap: no log {missing}", file=sys.stderr)
+        return 2
+    if args.repeat < 1 or min(args.robots) < 2:
+        print("globalmap: --repeat must be >= 1 and --robots >= 2", file=sys.stderr)
+        return 2
+    rows = []
+    for log in logs:
+        for n in args.robots:
+            rows.append(bench_fleet(log, n, args.repeat))
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
+    command = "python3 -m bench globalmap " + " ".join(
+        [f"--robots {' '.join(map(str, args.robots))}", f"--logs {' '.join(args.logs)}",
+         f"--repeat {args.repeat}"]
+    )  # fmt: skip
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "globalmap.json").write_text(json.dumps(rows, indent=2) + "\n")
+    (args.out / "globalmap.md").write_text(
+        "# Global-map rebuild: the fusion cache warm against cold\n\n"
+        f"`{command}`: CPU seconds of one rebuild on one thread, median of {args.repeat}; "
+        "see `bench/globalmap.py` for the fleets and the four rebuilds.\n\n"
+        f"{table(rows)}\n"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
