@@ -38,6 +38,7 @@ from agent import actions as act
 from agent.failpoints import failpoint
 from agent.globalmap import Component, FuseFn
 from agent.inbox import MAX_BYTES, Inbox, map_tag, offer_or_drop
+from agent.memory import fix_mmap_threshold
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
 from agent.persister import Persister
@@ -131,6 +132,7 @@ class Agent:
         register: RegisterFn | None = None,
         fuse: FuseFn | None = None,
     ) -> None:
+        fix_mmap_threshold()  # before the first merge: its arrays then never fragment the heap
         self.opts = opts
         self.state = StateDir(opts.state_dir)
         self.out_dir = Path(opts.out_dir or opts.state_dir)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.memory import release_free_memory
+from agent.memory import fix_mmap_threshold, release_free_memory
 
 ROOT = Path(__file__).resolve().parents[1]
 # 100 MB of arrays below glibc's mmap threshold (so they live on the heap), all freed but the
@@ -83,3 +83,36 @@ def test_a_blur_on_another_canvas_holds_no_geometry_of_the_last_one(shared: Path
     alone = peak_of_blur(None)
     after_another = peak_of_blur(image[:500, :520])
     assert after_another <= alone * 1.02, (after_another, alone)
+
+
+# Where a 1.5 MB array lands once a larger one was freed: glibc then raised its threshold past
+# it, and without a fixed one the array comes from the heap, among whatever the heap holds.
+PLACEMENT = """
+import sys
+import numpy as np
+from agent.memory import fix_mmap_threshold
+
+if sys.argv[1] == "fixed":
+    assert fix_mmap_threshold()
+np.ones(1 << 19).sum()  # a 4 MB array, mapped and freed
+array = np.ones(3 << 16)  # 1.5 MB
+with open("/proc/self/maps") as f:
+    heap = [l.split()[0] for l in f if l.rstrip().endswith("[heap]")]
+lo, hi = (int(x, 16) for x in heap[0].split("-"))
+print(lo <= array.ctypes.data < hi)
+"""
+
+
+@pytest.mark.skipif(not fix_mmap_threshold(), reason="this C library has no mallopt")
+def test_a_fixed_mmap_threshold_keeps_large_arrays_off_the_heap() -> None:
+    """A merge's arrays mapped on their own are unmapped when freed; from the heap they leave
+    holes the next job's arrays may not fit, and the peak RSS grows (see agent.memory)."""
+    in_heap = {}
+    for mode in ("fixed", "default"):
+        out = subprocess.run(
+            [sys.executable, "-c", PLACEMENT, mode],
+            cwd=ROOT, capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert out.returncode == 0, out.stderr
+        in_heap[mode] = out.stdout.strip()
+    assert in_heap == {"fixed": "False", "default": "True"}
