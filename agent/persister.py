@@ -63,7 +63,6 @@ class Persister:
         self._peers: dict[str, _PeerOp] = {}
         self._links: tuple[LinkRecord, ...] | None = None
         self._closing = False
-        self._busy = False
         self._thread = threading.Thread(target=self._run, name="pgvd-persist", daemon=True)
 
     def start(self) -> None:
@@ -92,11 +91,6 @@ class Persister:
             self._links = records
             self._ready.notify()
 
-    def pending(self) -> int:
-        """Writes queued and not yet done (the one in progress included)."""
-        with self._ready:
-            return self._count()
-
     def close(self, timeout: float = 10.0) -> bool:
         """Write what is pending, then stop; False if that took longer than ``timeout`` s."""
         with self._ready:
@@ -109,7 +103,7 @@ class Persister:
         return not self._thread.is_alive()
 
     def _count(self) -> int:
-        return len(self._own) + len(self._peers) + (self._links is not None) + self._busy
+        return len(self._own) + len(self._peers) + (self._links is not None)
 
     def _run(self) -> None:
         while True:
@@ -131,14 +125,7 @@ class Persister:
         """Write the most urgent pending item; False if nothing was written."""
         with self._ready:
             job = self._take()
-            if job is None:
-                return False
-            self._busy = True
-        try:
-            return job()
-        finally:
-            with self._ready:
-                self._busy = False
+        return job is not None and job()
 
     def _take(self) -> Callable[[], bool] | None:
         """The next write, own versions first; a peer's or the links' leaves the queue now."""
