@@ -12,11 +12,11 @@ Where the C library has no ``malloc_trim`` (musl, macOS) only the caches go.
 The trim cannot lower the peak: a merge's or a rebuild's arrays that came from the heap leave
 it fragmented, and the next job's arrays are placed above the holes. :func:`fix_mmap_threshold`
 keeps every allocation of :data:`MMAP_THRESHOLD` or more out of the heap, mapped and unmapped
-on its own. ``python3 -m bench fleet --robots 8 16`` (the environment variable
-``MALLOC_MMAP_THRESHOLD_`` standing in for it, one run each on a shared machine): peak RSS per
-agent 263 -> 231 MB at 8 robots and 253 -> 228 MB at 16, private memory 155 -> 115 and
-147 -> 119 MB, for ~10-20 % more CPU (pages mapped and zeroed anew). At 128 KB, glibc's
-starting value, RSS was about the same (215 and 226 MB) and the CPU ~40 % more at 16.
+on its own. ``python3 -m bench fleet --robots 16``, two runs each on a shared machine, the
+agent without and with it: peak RSS per agent 253-261 -> 241-242 MB, private memory 147-155
+-> 124-128 MB; CPU per agent within the runs' spread (3.7-4.4 s without, 4.0-4.2 s with:
+pages are mapped and zeroed anew). A 1 MB threshold saved no more memory (228-239 MB) for
+more CPU (4.2-4.7 s), as did glibc's starting 128 KB (5.2 s).
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ def _find_malloc_trim() -> Callable[[int], int] | None:
 _MALLOC_TRIM = _find_malloc_trim()
 
 #: Bytes from which glibc maps an allocation on its own (it starts at 128 KB and raises it,
-#: up to 32 MB, after each large free): a 350 x 330 map's float32 array stays on the heap,
-#: a global map's canvases and polar bins are mapped.
-MMAP_THRESHOLD = 1 << 20
+#: up to 32 MB, after each large free): a merge's arrays of a few MB stay on the heap, the
+#: rotation blur's polar bins of a global map (~10 MB each) are mapped.
+MMAP_THRESHOLD = 8 << 20
 #: ``mallopt``'s parameter number for it (``M_MMAP_THRESHOLD`` in ``<malloc.h>``).
 _M_MMAP_THRESHOLD = -3
 

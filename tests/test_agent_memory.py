@@ -85,7 +85,7 @@ def test_a_blur_on_another_canvas_holds_no_geometry_of_the_last_one(shared: Path
     assert after_another <= alone * 1.02, (after_another, alone)
 
 
-# Where a 1.5 MB array lands once a larger one was freed: glibc then raised its threshold past
+# Where a 12 MB array lands once a larger one was freed: glibc then raised its threshold past
 # it, and without a fixed one the array comes from the heap, among whatever the heap holds.
 PLACEMENT = """
 import sys
@@ -94,8 +94,8 @@ from agent.memory import fix_mmap_threshold
 
 if sys.argv[1] == "fixed":
     assert fix_mmap_threshold()
-np.ones(1 << 19).sum()  # a 4 MB array, mapped and freed
-array = np.ones(3 << 16)  # 1.5 MB
+np.ones(3 << 20).sum()  # a 24 MB array, mapped and freed
+array = np.ones(3 << 19)  # 12 MB
 with open("/proc/self/maps") as f:
     heap = [l.split()[0] for l in f if l.rstrip().endswith("[heap]")]
 lo, hi = (int(x, 16) for x in heap[0].split("-"))
