@@ -9,7 +9,8 @@ Reported:
 
 - RSS and CPU of every agent over time (``soak.png``);
 - memory growth after warm-up: mean RSS over the last minute against the mean over the
-  minute after warm-up (the first quarter of the run); the target is under 10 %. The maps
+  minute after warm-up (the first quarter of the run, or of the agent's time in it for a
+  late joiner, :func:`rss_growth`); the target is under 10 %. The maps
   themselves grow while the robots explore, so some growth is the data, not a leak;
 - messages dropped, by reason, summed over agents (a clean run drops none);
 - update-to-agreement lag: for each new version of a robot's map, the seconds from its
@@ -22,13 +23,14 @@ Reported:
   sources each map alternates between two fixed variants, so no link evidence changes
   materially: any move is jitter. Reported for all consecutive maps, and for those whose
   links were the same candidates (a pure function of them: the move must be zero);
-- anchor changes: consecutive global maps of an agent whose anchor differs; a *jump* is one
-  whose previous map merged several robots and whose previous anchor is still a member (the
-  merged frame moved under robots that stayed); the others followed their anchor's departure
-  or a lone robot's first merge. The target under churn is 0 jumps;
+- the merged frame after warm-up (:func:`anchor_changes`, :func:`unchanged_moves`): how often
+  the anchor of an agent's merged map changed though the anchor's map was still held and only
+  lone robots joined (a jump, target 0), and the largest move of the robots whose own map did
+  not change between consecutive global maps with the same anchor, above all across a join or
+  a leave (target <= 1 cell and <= 0.1 deg);
 - churn (``--churn``): a quarter into the run the last robot leaves (SIGTERM), half-way a new
-  robot joins with the lowest id, ``r0`` (anchoring at the lowest id would move the merged
-  frame to it), three quarters in the one that left comes back. The sources hold still after
+  robot joins, with an id lower than all others (:data:`JOINER`), three quarters in the one
+  that left comes back. The sources hold still after
   each change until the running agents agree (at most :data:`CHURN_HOLD` s), so that the
   seconds each change takes to reach agreement can be measured; the robots each agent holds
   just before each change show whether a departed robot was forgotten (``--forget-after``
@@ -178,33 +180,59 @@ def _own_component(status: dict) -> dict | None:
 
 
 def _record_placements(history: dict[str, list], statuses: dict[str, dict | None], now: float):
-    """Append each agent's own component when its global map changed (new digest)."""
+    """Append each agent's own component when its global map changed (new digest), with the
+    robots of the agent's other merged maps (two or more members) at the last poll that saw
+    it (:func:`anchor_changes`)."""
     for robot, status in statuses.items():
         comp = status and _own_component(status)
         if not comp or "transforms" not in comp:
             continue
         seen = history.setdefault(robot, [])
+        others = [
+            r
+            for c in status["components"]
+            if c is not comp and len(c["members"]) > 1
+            for r in c["members"]
+        ]
         if seen and seen[-1]["digest"] == comp["digest"]:
+            # the other merged maps just before the next change: a merge is told from a jump
+            seen[-1]["others"] = others
             continue
-        links = comp.get("evidence", [])
         seen.append(
             {
                 "t": now,
                 "digest": comp["digest"],
-                "members": comp["members"],
                 "anchor": comp["anchor"],
+                "members": comp["members"],
+                "versions": comp["versions"],
                 "transforms": comp["transforms"],
-                "links": links,
+                "links": comp.get("evidence", []),
+                "others": others,
             }
         )
 
 
+#: The id of the robot that joins under churn: lower than every other robot's ``r1``...
+#: ``rN``, so that a rule anchoring the merged frame at the lowest id would move the frame
+#: when it joins (the jump :func:`anchor_changes` counts).
+JOINER = "r0"
+
+
+def robot_ids(robots: int, churn: bool) -> list[str]:
+    """The ids of the declared sources, in order: ``r1``...``rN``, then the joiner if churn."""
+    return [f"r{i + 1}" for i in range(robots)] + ([JOINER] if churn else [])
+
+
 def _churn_plan(robots: int, minutes: float) -> list[tuple[float, str, str]]:
-    """(second, leave|join|return, robot): the last robot leaves, a new one of the lowest id
-    joins, the one that left returns."""
+    """(second, leave|join|return, robot): the last robot leaves, :data:`JOINER` joins, the
+    one that left returns."""
     total = minutes * 60
-    last, new = f"r{robots}", "r0"
-    return [(total / 4, "leave", last), (total / 2, "join", new), (3 * total / 4, "return", last)]
+    last = f"r{robots}"
+    return [
+        (total / 4, "leave", last),
+        (total / 2, "join", JOINER),
+        (3 * total / 4, "return", last),
+    ]
 
 
 def soak(
@@ -217,9 +245,9 @@ def soak(
 ) -> dict:
     """Run the fleet for ``minutes``; the raw time series and events.
 
-    With ``churn``, the robot of a ``join`` event is the last of ``sources.agents``, under the
-    id the event gives it, and is started only then; ``leave`` stops a robot with SIGTERM and
-    ``return`` restarts it.
+    The sources of ``sources.agents`` are robots :func:`robot_ids`.  With ``churn``, the robot
+    of a ``join`` event is the last of them and is started only then; ``leave`` stops a robot
+    with SIGTERM and ``return`` restarts it.
     """
     series: dict[str, list[tuple[float, float, float]]] = {}
     published: dict[tuple[str, int], float] = {}
@@ -232,9 +260,9 @@ def soak(
     plan = sorted(churn or [])
     joiners = {r for _, kind, r in plan if kind == "join"}
     with LocalFleet("soak", workdir / "fleet", agent_args or []) as fleet:
-        agents = sources.agents(workdir)
-        names = [f"r{i + 1}" for i in range(len(agents) - len(joiners))] + sorted(joiners)
-        declared = list(zip(names, agents, strict=True))
+        started = sources.agents(workdir)
+        ids = robot_ids(len(started) - len(joiners), bool(joiners))
+        declared = list(zip(ids, started, strict=True))
         later = {r: a for r, a in declared if r in joiners}
         for robot, (source, args) in declared:
             if robot not in joiners:
@@ -366,17 +394,69 @@ def jumps(history: dict[str, list], shape_of) -> dict[str, dict[str, float]]:
     return out
 
 
-def anchor_moves(history: dict[str, list]) -> dict[str, int]:
-    """Consecutive global maps of an agent whose anchor differs: ``changes`` in all, and
-    ``jumps``, those whose previous map merged several robots and whose previous anchor is
-    still a member (the merged frame moved although the robot that anchored it stayed; a
-    robot alone has no merged frame to keep)."""
-    out = {"changes": 0, "jumps": 0}
+def anchor_changes(history: dict[str, list], since: float = 0.0) -> dict:
+    """Changes of the anchor of an agent's merged map between its consecutive global maps.
+
+    Only a merged map (two or more members) has a frame to keep.  When its anchor changed, at
+    ``since`` s into the run or later, the change is one of:
+
+    - ``left``: the earlier anchor is no longer a member (its robot was forgotten, or the
+      merged map split): the frame had to move;
+    - ``merged``: a robot of another merged map (at the last poll before) is now a member:
+      two frames became one, and one of them had to give way;
+    - ``jumps``: neither: the earlier anchor's map is still held in the merged map and only
+      lone robots joined it, yet the frame moved (the target is none).  Each is listed in
+      ``jumped`` as ``[agent, second, anchor before, anchor after]``.
+
+    Changes before ``since`` (the merged map forming while robots start) are not counted: a
+    global map that is a pure function of the maps held cannot keep the frame of a partial
+    merged map when an older robot joins it.
+    """
+    out: dict = {"jumps": 0, "left": 0, "merged": 0, "jumped": []}
+    for agent, maps in sorted(history.items()):
+        for prev, cur in itertools.pairwise(maps):
+            if cur["t"] < since or len(prev["members"]) < 2 or prev["anchor"] == cur["anchor"]:
+                continue
+            if prev["anchor"] not in cur["members"]:
+                out["left"] += 1
+            elif set(cur["members"]) & set(prev["others"]):
+                out["merged"] += 1
+            else:
+                out["jumps"] += 1
+                out["jumped"].append([agent, round(cur["t"], 1), prev["anchor"], cur["anchor"]])
+    return out
+
+
+def unchanged_moves(history: dict[str, list], shape_of, since: float = 0.0) -> dict:
+    """Largest move of a robot whose map did not change, between consecutive global maps.
+
+    Over every pair of consecutive global maps of an agent with the same anchor, at ``since``
+    s into the run or later: the robots other than the anchor held at the same version in
+    both, their placement's move in cells (over the robot's canvas corners) and degrees.
+    ``all``: every such pair; ``membership_changed``: those where robots joined or left in
+    between, the churn that must not move the others (the target is <= 1 cell, <= 0.1 deg).
+    """
+    out = {k: {"cells": 0.0, "deg": 0.0, "pairs": 0} for k in ("all", "membership_changed")}
     for maps in history.values():
         for prev, cur in itertools.pairwise(maps):
-            if prev["anchor"] != cur["anchor"]:
-                out["changes"] += 1
-                out["jumps"] += len(prev["members"]) > 1 and prev["anchor"] in cur["members"]
+            if cur["t"] < since or prev["anchor"] != cur["anchor"]:
+                continue
+            kinds = ["all"] + (["membership_changed"] if prev["members"] != cur["members"] else [])
+            same = [
+                r
+                for r in cur["members"]
+                if r in prev["members"]
+                and r != cur["anchor"]
+                and prev["versions"][r] == cur["versions"][r]
+            ]
+            for robot in same:
+                m0, m1 = prev["transforms"][robot], cur["transforms"][robot]
+                cells, deg = placement_move(m0, m1, shape_of(robot))
+                for k in kinds:
+                    out[k]["cells"] = max(out[k]["cells"], round(cells, 3))
+                    out[k]["deg"] = max(out[k]["deg"], round(deg, 4))
+            for k in kinds:
+                out[k]["pairs"] += bool(same)
     return out
 
 
@@ -399,15 +479,21 @@ def lags(published: dict[tuple[str, int], float], agreed: list[tuple[float, dict
     return out
 
 
+def rss_growth(rows: list[tuple[float, float, float]]) -> float:
+    """Memory growth of one agent after its warm-up, in %: its mean RSS over its last minute
+    against the mean over the minute after the first quarter of its own samples' span (an
+    agent that joins late warms up after it started, not a quarter into the run)."""
+    t, _, rss = np.array(rows).T
+    warm = t[0] + (t[-1] - t[0]) / 4
+    after_warm = rss[(t >= warm) & (t < warm + 60)]
+    at_warm = after_warm.mean() if after_warm.size else rss[-1]
+    tail = rss[t >= t[-1] - 60].mean()
+    return float((tail - at_warm) / at_warm * 100)
+
+
 def summarise(run: dict, minutes: float, shape_of=lambda robot: (DEFAULT_SIDE,) * 2) -> dict:
     warm = minutes * 60 / 4
-    growth = {}
-    for robot, rows in run["series"].items():
-        t, _, rss = np.array(rows).T
-        after_warm = rss[(t >= warm) & (t < warm + 60)]
-        at_warm = after_warm.mean() if after_warm.size else rss[-1]
-        tail = rss[t >= t[-1] - 60].mean()
-        growth[robot] = float((tail - at_warm) / at_warm * 100)
+    growth = {robot: rss_growth(rows) for robot, rows in run["series"].items()}
     cpu = {
         robot: float((rows[-1][1] - rows[0][1]) / max(rows[-1][0] - rows[0][0], 1e-9) * 100)
         for robot, rows in run["series"].items()
@@ -439,7 +525,8 @@ def summarise(run: dict, minutes: float, shape_of=lambda robot: (DEFAULT_SIDE,) 
         "drops": run["drops"],
         "dead": run["dead"],
         "jumps": jumps(run["history"], shape_of),
-        "anchor": anchor_moves(run["history"]),
+        "anchor_changes": anchor_changes(run["history"], warm),
+        "unchanged_moves": unchanged_moves(run["history"], shape_of, warm),
         "global_maps_per_agent": {r: len(h) for r, h in sorted(run["history"].items())},
         "churn": run["changes"],
         "robots_held_max": {r: max(c for _, c in rows) for r, rows in sorted(run["held"].items())},
@@ -507,7 +594,8 @@ def main() -> None:
     agent_args = ["--forget-after", f"{args.forget_after:g}"]
     with tempfile.TemporaryDirectory(prefix="pgvd-soak-") as tmp:
         run = soak(sources, args.minutes, Path(tmp), args.settle, plan, agent_args)
-    summary = summarise(run, args.minutes, lambda robot: sources.shape(int(robot[1:]) - 1))
+    ids = robot_ids(args.robots, args.churn)
+    summary = summarise(run, args.minutes, lambda robot: sources.shape(ids.index(robot)))
     name = f"soak-{args.sources}" + ("-churn" if args.churn else "")
     args.out.mkdir(parents=True, exist_ok=True)
     raw = {"series": run["series"], "published": [[*k, v] for k, v in run["published"].items()]}
@@ -540,8 +628,17 @@ def main() -> None:
         f"(cells over the robot's canvas corners, degrees): {summary['jumps']['all']}; "
         f"of those whose links were the same candidates: {summary['jumps']['same_links']} "
         "(target <= 1 cell and <= 0.1 deg where the link evidence did not change)",
-        f"- anchor changes between consecutive global maps of an agent: "
-        f"{summary['anchor']} (jumps: the previous anchor still a member; target 0)",
+        f"- anchor changes of an agent's merged map after warm-up: "
+        f"{ {k: v for k, v in summary['anchor_changes'].items() if k != 'jumped'} } "
+        "(jumps: the anchor's map still held and only lone robots joined, yet the frame "
+        "moved, target 0; left: the anchor's robot left the merged map; merged: two merged "
+        f"maps joined); the jumps (agent, s, from, to): "
+        f"{summary['anchor_changes']['jumped'] or 'none'}",
+        f"- largest move of robots whose map did not change, between consecutive global maps "
+        f"with the same anchor after warm-up (cells over the robot's canvas corners, degrees): "
+        f"{summary['unchanged_moves']['all']}; of those where robots joined or left in "
+        f"between: {summary['unchanged_moves']['membership_changed']} "
+        "(target <= 1 cell and <= 0.1 deg)",
         f"- global maps seen per agent: {summary['global_maps_per_agent']}",
         f"- churn (event, seconds into the run, seconds to agreement among running agents "
         f"with the sources held for at most {CHURN_HOLD:g} s, robots each agent held just "

@@ -56,6 +56,8 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import splu
 from scipy.special import gammaincinv
 
 from pgvd.grid import matrix_to_pose, rigid_matrix
@@ -76,6 +78,13 @@ class Link(Protocol):
     def matrix(self) -> np.ndarray: ...
     @property
     def covariance(self) -> np.ndarray: ...
+
+
+#: Unknowns from which the normal equations are solved by a sparse LU rather than a dense
+#: one.  A pose graph's normal matrix holds a 3x3 block per node and per link, so its dense
+#: LU costs (3n)^3 whatever the links; below this size that dense LU is the faster
+#: (``python3 -m bench posegraph`` measures both).
+SPARSE_FROM = 96
 
 
 @dataclass(frozen=True)
@@ -280,39 +289,63 @@ def _jacobians(x: np.ndarray, e: _Edges) -> tuple[np.ndarray, np.ndarray]:
     return ja, jb
 
 
-def _normal_equations(x: np.ndarray, e: _Edges, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``H = sum w J^T Omega J`` (3n x 3n) and ``g = sum w J^T Omega r`` over all nodes."""
-    n = len(x)
+def _block_matrix(
+    n: int, e: _Edges, ja: np.ndarray, jb: np.ndarray, omega: np.ndarray
+) -> sparse.csr_array:
+    """``sum_k J_k^T Omega_k J_k`` over the edges, (3n x 3n) sparse: one 3x3 block per node
+    and one per pair of linked nodes, whatever the number of nodes.  ``ja``, ``jb`` are
+    the edges' Jacobians (:func:`_jacobians`).
+
+    The blocks are summed in edge order (:func:`solve` sorts the edges by content), so the
+    same edges give the same matrix bit for bit.
+    """
+    three = np.arange(3)
+    rows, cols, vals = [], [], []
+    for i, ji in ((e.ia, ja), (e.ib, jb)):
+        jit_omega = ji.transpose(0, 2, 1) @ omega
+        for k, jk in ((e.ia, ja), (e.ib, jb)):
+            block = jit_omega @ jk
+            rows.append(np.broadcast_to((3 * i)[:, None, None] + three[None, :, None], block.shape))
+            cols.append(np.broadcast_to((3 * k)[:, None, None] + three[None, None, :], block.shape))
+            vals.append(block)
+    coo = sparse.coo_array(
+        (np.concatenate(vals, None), (np.concatenate(rows, None), np.concatenate(cols, None))),
+        shape=(3 * n, 3 * n),
+    )
+    return coo.tocsr()
+
+
+def _normal_equations(
+    x: np.ndarray, e: _Edges, w: np.ndarray
+) -> tuple[sparse.csr_array, np.ndarray]:
+    """``H = sum w J^T Omega J`` (3n x 3n, sparse) and ``g = sum w J^T Omega r`` over all
+    nodes."""
     r = _residuals(x, e)
     ja, jb = _jacobians(x, e)
     wo = w[:, None, None] * e.info
     wor = (wo @ r[:, :, None])[:, :, 0]
-    h = np.zeros((n, n, 3, 3))
-    g = np.zeros((n, 3))
+    g = np.zeros((len(x), 3))
     for i, ji in ((e.ia, ja), (e.ib, jb)):
-        jit = ji.transpose(0, 2, 1)
-        np.add.at(g, i, (jit @ wor[:, :, None])[:, :, 0])
-        for k, jk in ((e.ia, ja), (e.ib, jb)):
-            np.add.at(h, (i, k), jit @ wo @ jk)
-    return h.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n), g.ravel()
+        np.add.at(g, i, (ji.transpose(0, 2, 1) @ wor[:, :, None])[:, :, 0])
+    return _block_matrix(len(x), e, ja, jb, wo), g.ravel()
 
 
-def _edge_rows(x: np.ndarray, e: _Edges) -> np.ndarray:
-    """Each edge's Jacobian as a (3, 3n) row block, (m, 3, 3n)."""
-    n = len(x)
-    ja, jb = _jacobians(x, e)
-    rows = np.zeros((len(e.z), 3, n, 3))
-    m = np.arange(len(e.z))
-    rows[m, :, e.ia] = ja
-    rows[m, :, e.ib] += jb
-    return rows.reshape(len(e.z), 3, 3 * n)
+def _solve(h: sparse.csr_array, rhs: np.ndarray) -> np.ndarray:
+    """``h^-1 rhs``: dense LU below :data:`SPARSE_FROM` unknowns, sparse LU (SuperLU,
+    single-threaded and deterministic) from there on."""
+    if h.shape[0] < SPARSE_FROM:
+        return np.linalg.solve(h.toarray(), rhs)
+    return splu(sparse.csc_array(h)).solve(np.asarray(rhs, dtype=np.float64))
 
 
-def _damped_solve(h: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+def _damped_solve(h: sparse.csr_array, rhs: np.ndarray) -> np.ndarray:
     """``h^-1 rhs`` with a tiny damping: unknowns no weighted link constrains stay at 0
     (their rows are empty) instead of making ``h`` singular."""
-    damping = 1e-12 * (1.0 + np.abs(np.diag(h)).max(initial=0.0))
-    return np.linalg.solve(h + damping * np.eye(len(h)), rhs)
+    size = h.shape[0]
+    damping = 1e-12 * (1.0 + np.abs(h.diagonal()).max(initial=0.0))
+    diagonal = np.arange(size)
+    damped = h + sparse.csr_array((np.full(size, damping), (diagonal, diagonal)), h.shape)
+    return _solve(damped, rhs)
 
 
 def _gauss_newton(x: np.ndarray, e: _Edges, w: np.ndarray, steps: int, free: slice) -> np.ndarray:
@@ -323,10 +356,10 @@ def _gauss_newton(x: np.ndarray, e: _Edges, w: np.ndarray, steps: int, free: sli
     all carry zero weight where they are instead of making the system singular.
     """
     x = x.copy()
+    idx = (np.arange(3 * len(x)).reshape(-1, 3)[1:, free]).ravel()
     for _ in range(steps):
         h, g = _normal_equations(x, e, w)
-        idx = (np.arange(3 * len(x)).reshape(-1, 3)[1:, free]).ravel()
-        dx = _damped_solve(h[np.ix_(idx, idx)], -g[idx])
+        dx = _damped_solve(h[idx][:, idx], -g[idx])
         x.reshape(-1)[idx] += dx
         if np.abs(dx).max(initial=0.0) < 1e-9:
             break
@@ -339,15 +372,20 @@ def _chordal_headings(n: int, e: _Edges, w: np.ndarray) -> np.ndarray:
     ``psi_b = psi_a + psi_z`` is linear in unit complex numbers, ``z_b = z_a u``; solving
     it unconstrained and normalising is the usual initialisation of pose graphs (no
     starting point needed, so an outlier on a spanning tree does not bias the start).
+    Each link is one row with two entries, so the system is sparse like the pose graph's.
     """
-    u = np.exp(1j * e.z[:, 2])
+    m = len(e.z)
     weight = np.sqrt(w * e.info[:, 2, 2])
-    a = np.zeros((len(u), n), dtype=complex)
-    a[np.arange(len(u)), e.ib] = 1.0
-    a[np.arange(len(u)), e.ia] -= u
-    a *= weight[:, None]
-    rhs = -a[:, 0]  # the anchor's z is 1
-    real = np.block([[a[:, 1:].real, -a[:, 1:].imag], [a[:, 1:].imag, a[:, 1:].real]])
+    u = np.exp(1j * e.z[:, 2]) * weight
+    rows = np.concatenate([np.arange(m), np.arange(m)])
+    cols = np.concatenate([e.ib, e.ia])
+    a = sparse.csr_array((np.concatenate([weight + 0j, -u]), (rows, cols)), shape=(m, n))
+    rhs = -a[:, [0]].toarray()[:, 0]  # the anchor's z is 1
+    free = a[:, 1:]
+    real = sparse.vstack(
+        [sparse.hstack([free.real, -free.imag]), sparse.hstack([free.imag, free.real])],
+        format="csr",
+    )
     sol = _damped_solve(real.T @ real, real.T @ np.concatenate([rhs.real, rhs.imag]))
     z = np.concatenate([[1.0 + 0j], sol[: n - 1] + 1j * sol[n - 1 :]])
     return np.where(np.abs(z) > 1e-12, np.angle(z), 0.0)
@@ -417,12 +455,16 @@ def _maximal(n: int, e: _Edges, keep: np.ndarray, params: PoseGraphParams) -> np
 def _sandwich_covariances(x: np.ndarray, e: _Edges) -> np.ndarray:
     """First-order covariance of the placements, ``A Sigma A^T`` with
     ``A = H^-1 J^T Omega`` the estimator's sensitivity to each link, ``Sigma`` the
-    links' own covariances (eq. (4) through the least squares).  (n, 3, 3)."""
+    links' own covariances (eq. (4) through the least squares).  Summed over the links,
+    that is ``H^-1 M H^-1`` with ``M = sum J^T Omega Sigma Omega J``, as sparse as ``H``.
+    (n, 3, 3)."""
     n = len(x)
     h, _ = _normal_equations(x, e, np.ones(len(e.z)))
-    hinv = np.linalg.inv(h[3:, 3:])
-    sens = hinv @ _edge_rows(x, e)[:, :, 3:].transpose(0, 2, 1) @ e.info
-    out = np.tensordot(sens @ e.cov, sens, axes=([0, 2], [0, 2]))
+    spread = _block_matrix(n, e, *_jacobians(x, e), e.info @ e.cov @ e.info)
+    # every block of H^-1 is needed: a dense inverse, which a sparse LU's solve of 3n
+    # right-hand sides is slower than at any size this fleet reaches
+    hinv = np.linalg.inv(h[3:][:, 3:].toarray())
+    out = hinv @ (spread[3:][:, 3:] @ hinv)
     covs = np.zeros((n, 3, 3))
     for i in range(1, n):
         block = out[3 * i - 3 : 3 * i, 3 * i - 3 : 3 * i]

@@ -13,14 +13,19 @@ from numpy.linalg import inv
 
 from agent.book import FleetBook
 from agent.links import EPOCH_SHIFT, LinkRecord
+from agent.trust import WITHDRAWN
 from agent.worker import (
+    APART,
     CHECKS_PREVIEW_SHARE,
     PREVIEW_SHARE,
     RESOLVE_AFTER,
     FusionWorker,
     GlobalState,
     Registration,
+    _current_pairs,
+    _joins,
     _registration,
+    _rejection_stands,
     merge_registration,
     placements,
     predict,
@@ -701,3 +706,112 @@ def test_a_link_records_soundness_is_judged_once(monkeypatch) -> None:
     assert not h.worker.step(now=0.1)  # r1-r3 added: a new Chains, only it judged
     assert sorted(judged) == [("r1", "r2"), ("r1", "r3"), ("r2", "r3")]
     assert h.globals[-1].settled and h.globals[-1].components[0].members == ("r1", "r2", "r3")
+
+
+def _far_chain(h: Harness) -> None:
+    """r1 - r2 - r3 linked, each 50 m (500 px) beyond the last: r1 and r3 100 m apart."""
+    for r in ("r1", "r2", "r3"):
+        h.book.put_map(r, V(1), tiny(int(r[1])))
+    h.book.add_link(_link("r1", "r2", rigid_matrix(0.0, 500.0, 0.0)))
+    h.book.add_link(_link("r2", "r3", rigid_matrix(0.0, 500.0, 0.0)))
+
+
+def test_a_pair_placed_apart_is_not_checked_and_rejected_if_it_was_before() -> None:
+    h = Checking("r3", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
+    _rejected_in_epoch_0(h, "r1", "r3")
+    _far_chain(h)
+    assert h.worker.step(now=0.0)
+    assert h.checked == [] and h.calls == []
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r3") and not rec.accepted and rec.reason == APART
+    np.testing.assert_allclose(rec.matrix, rigid_matrix(0.0, 1000.0, 0.0), atol=1e-9)
+    assert h.worker.counters.snapshot()["counts"] == {"checks_skipped": 1}
+
+
+def test_a_first_rejection_of_a_pair_placed_apart_is_searched() -> None:
+    """As a check's: the chain may be wrong on a bridge, and the search finds the true link."""
+    h = Checking("r3", None)
+    _far_chain(h)
+    assert h.worker.step(now=0.0)
+    assert h.checked == [] and len(h.calls) == 1 and [ln.accepted for ln in h.links] == [True]
+    assert h.worker.counters.snapshot()["counts"] == {"checks_skipped": 1, "searches": 1}
+
+
+def _placed_apart_in_epoch_1(h: Harness, links: list[tuple[str, str]]) -> None:
+    """r1-r4 accepted in epoch 0; in epoch 1, ``links`` place r1..r4 50 m (500 px) apart
+    in a row, r1 and r4 150 m."""
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(0), tiny(i))
+    old = LinkRecord("r1", V(0), "r4", V(0), True, np.eye(3), np.eye(3) * 0.1, 0.9, "r9")
+    h.book.add_link(old)
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in links:
+        shift = 500.0 * (int(b[1]) - int(a[1]))
+        h.book.add_link(_link(a, b, rigid_matrix(0.0, shift, 0.0)))
+
+
+def test_an_accepted_pair_placed_apart_by_current_triangles_is_withdrawn_unchecked() -> None:
+    """Epoch 1's links join r1 and r4 over triangles: the pair's own older link, which
+    stands in meanwhile, does not hold the rejection back."""
+    h = Checking("r4", None)
+    _placed_apart_in_epoch_1(
+        h, [("r1", "r2"), ("r1", "r3"), ("r2", "r3"), ("r2", "r4"), ("r3", "r4")]
+    )
+    assert h.worker.step(now=0.0)
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r4") and rec.state == WITHDRAWN and rec.reason.endswith(APART)
+    assert h.checked == [] and h.calls == []
+    assert h.worker.counters.snapshot()["counts"] == {"checks_skipped": 1}
+
+
+def test_an_accepted_pair_placed_apart_over_a_bridge_is_withdrawn_after_a_search() -> None:
+    """Over a chain of bridges (and the pair's older link, which closes a lone cycle with
+    them) no rejection may stand: the search decides, and contradicts the link."""
+    h = Checking("r4", None)
+    _placed_apart_in_epoch_1(h, [("r1", "r2"), ("r2", "r3"), ("r3", "r4")])
+
+    def no_overlap(a: Grid, b: Grid) -> Registration:
+        h.calls.append((0, 0))
+        return Registration(False, np.eye(3), np.zeros((3, 3)), 0.0, "no overlap")
+
+    h.worker.register = no_overlap
+    assert h.worker.step(now=0.0)
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r4") and rec.state == WITHDRAWN and len(h.calls) == 1
+
+
+def test_a_rejection_rests_on_current_links_only() -> None:
+    """r1-r2-r3-r1 of epoch 1 and r3-r4 of epoch 0 (r4 moved on to epoch 1): r1-r2 placed
+    apart is rejected at once, r1-r4 (only over r4's older link) needs a search."""
+    h = Checking("r2", None)
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(0), tiny(i))
+    h.book.add_link(LinkRecord("r3", V(0), "r4", V(0), True, *_far(1), 0.9, "r9"))
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    for a, b in [("r1", "r3"), ("r2", "r3")]:
+        h.book.add_link(_link(a, b, _far(int(b[1]) - int(a[1]))[0]))
+    h.book.add_link(_link("r1", "r2", _far(1)[0]))
+    snap = h.book.snapshot()
+    kept = h.worker._solved_for(snap, "r1", "r4")[1]
+    joins = _joins(_current_pairs(snap, kept))
+    assert _rejection_stands(joins, snap.links, "r1", "r2")
+    assert not _rejection_stands(joins, snap.links, "r1", "r4")
+
+
+def _far(steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """A link's matrix and covariance, ``steps`` times 50 m along x."""
+    return rigid_matrix(0.0, 500.0 * steps, 0.0), np.eye(3) * 0.1
+
+
+@pytest.mark.parametrize("me, at_once", [("r2", False), ("r8", True)])
+def test_whose_turn_a_pair_is_counts_the_robots_alive_before_their_maps(me, at_once) -> None:
+    """Of eight robots up, r2 and r8 hold only each other's maps so far: r8 registers the pair
+    at once, as every agent of the fleet reckons, and r2 waits for its link."""
+    h = Harness(me)
+    h.book.set_alive({f"r{i}" for i in range(1, 9)})
+    h.book.put_map("r2", V(1), tiny(2))
+    h.book.put_map("r8", V(1), tiny(8))
+    assert h.worker.step(now=0.0) == at_once
+    assert len(h.calls) == int(at_once)

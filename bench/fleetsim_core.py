@@ -1,0 +1,189 @@
+"""The agent's core run in simulated time: its clock, its CPU meter and its global-map rebuilds.
+
+:class:`agent.worker.FusionWorker` reads the ``time`` module for its registration and rebuild
+durations (they set its timeouts and preview gaps); :func:`simulated_core` gives it a
+:class:`SimClock` instead, and wraps :func:`agent.worker.build_components` in
+:class:`Rebuilds`, for the length of a simulation, then puts both back.  The core itself is
+not changed: this module only wraps it from the bench's side.
+
+CPU is charged as follows (:class:`Meter`): a worker's step costs the real CPU seconds
+(``time.thread_time``) the core spent in it, minus what the simulation's stand-ins spent, plus
+what those stand-ins charge (a drawn registration's measured cost, :mod:`bench.fleetsim_merges`;
+a rebuild's cost).  A rebuild runs the real :func:`agent.globalmap.build_components` on the
+robots' real maps: for the first rebuild of two maps or more and then at a sample of the
+distinct inputs (every ``every``-th by their hash, up to ``budget`` per run) with the real
+fusion, its measured CPU charged; for the others with the same pose graph but no fusion
+(each component's map is its anchor's), charged the real pose-graph CPU plus the sampled
+rebuilds' CPU per map (over those of two maps or more) times the maps.  Any two agents
+holding the same maps and links get the same global maps (fleet invariant 2), so a rebuild
+of inputs seen before returns the same components at the same charged cost without running
+again.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import time
+from collections import OrderedDict
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import agent.sources
+import agent.worker
+from agent.globalmap import build_components
+from agent.sources import SourceSpec
+
+#: Distinct rebuild inputs remembered (their components hold fused maps).
+MEMO_SIZE = 64
+
+
+class SimClock:
+    """Stands in for the ``time`` module in :mod:`agent.worker`: every clock reads ``now``."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    thread_time = time = perf_counter = monotonic
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+@dataclass
+class Meter:
+    """Simulated CPU: what stand-ins charged, and the real CPU they spent meanwhile."""
+
+    clock: SimClock
+    charged: float = 0.0
+    excluded: float = 0.0
+    #: Wall seconds per CPU second of the job at hand (> 1 when agents share cores).
+    stretch: float = 1.0
+
+    def charge(self, seconds: float) -> None:
+        """A stand-in's cost: ``seconds`` of CPU, the worker busy ``stretch`` times longer."""
+        self.charged += seconds
+        self.clock.now += seconds * self.stretch
+
+    @contextlib.contextmanager
+    def excluding(self) -> Iterator[None]:
+        """Real CPU spent in the block is the simulation's, not the agent's."""
+        t0 = time.thread_time()
+        try:
+            yield
+        finally:
+            self.excluded += time.thread_time() - t0
+
+
+def _identity(ln) -> tuple[object, ...]:
+    """What tells a link record from another in a simulation: its key and who decided it
+    on which versions, with what.  (:func:`agent.links.preference` tells them apart by the
+    bits of their matrices too, ten times the cost; a simulated decider reaches one matrix
+    for one pair of versions.)"""
+    return (*ln.key, ln.revision, ln.decided_by, ln.version_a, ln.version_b, ln.accepted, ln.state)
+
+
+def _no_fusion(base, other, matrix, covariance):
+    """A fusion that keeps the base map: the rebuilds not sampled (module docstring)."""
+    del other, matrix, covariance
+    return base
+
+
+@dataclass
+class Rebuilds:
+    """:func:`agent.globalmap.build_components` with sampling and memo (module docstring)."""
+
+    meter: Meter
+    every: int = 8
+    budget: int = 12
+    #: (maps, real CPU s) of each rebuild run with the real fusion.
+    samples: list[tuple[int, float]] = field(default_factory=list)
+    #: charged CPU s of every rebuild asked for, by every agent.
+    charged: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._memo: OrderedDict[bytes, tuple[list, float]] = OrderedDict()
+
+    def _fused(self) -> list[tuple[int, float]]:
+        """The samples that fused maps (a lone robot's rebuild fuses none)."""
+        return [(n, s) for n, s in self.samples if n > 1]
+
+    def per_map(self) -> float:
+        """Real rebuild CPU seconds per map, from the samples that fused (0 before any)."""
+        fused = self._fused()
+        maps = sum(n for n, _ in fused)
+        return sum(s for _, s in fused) / maps if maps else 0.0
+
+    def __call__(self, maps, links, fuse=None, params=None, sound=None, layers=None, firsts=None):
+        with self.meter.excluding():
+            signature = hashlib.sha256(
+                repr(
+                    (
+                        sorted((r, v) for r, (v, _) in maps.items()),
+                        sorted(_identity(ln) for ln in links),
+                        sorted((firsts or {}).items()),
+                    )
+                ).encode()
+            ).digest()
+            held = self._memo.get(signature)
+            if held is None:
+                held = self._build(signature, maps, links, fuse, params, sound, layers, firsts)
+        self._memo[signature] = held
+        self._memo.move_to_end(signature)
+        while len(self._memo) > MEMO_SIZE:
+            self._memo.popitem(last=False)
+        self.charged.append(held[1])
+        self.meter.charge(held[1])
+        return held[0]
+
+    def _build(
+        self, signature, maps, links, fuse, params, sound, layers, firsts
+    ) -> tuple[list, float]:
+        # A sampled rebuild runs with the asking agent's layer cache, so its CPU is a warm
+        # rebuild's where the agent's own last build left layers to reuse.
+        real = (len(maps) > 1 and not self._fused()) or (
+            len(self.samples) < self.budget and signature[0] % self.every == 0
+        )
+        t0 = time.thread_time()
+        comps = build_components(
+            maps,
+            links,
+            fuse if real else _no_fusion,
+            params,
+            sound,
+            layers=layers if real else None,
+            firsts=firsts,
+        )
+        cpu = time.thread_time() - t0
+        if real:
+            self.samples.append((len(maps), cpu))
+            return comps, cpu
+        return comps, cpu + self.per_map() * len(maps)
+
+
+def _shared_scans(load):
+    """``load`` (:func:`agent.sources.load_scans`), read once per run whatever the segment."""
+
+    @lru_cache(maxsize=4)
+    def whole(kind, path, topic):
+        return load(SourceSpec(kind, path, topic=topic))
+
+    return lambda spec: whole(spec.kind, spec.path, spec.topic)
+
+
+@contextlib.contextmanager
+def simulated_core(rebuilds: Rebuilds) -> Iterator[None]:
+    """Run :mod:`agent.worker` on ``rebuilds.meter``'s clock with ``rebuilds``, and read each
+    log once for all robots (:func:`agent.sources.load_scans`, memoised)."""
+    saved = (agent.worker.time, agent.worker.build_components, agent.sources.load_scans)
+    agent.worker.time = rebuilds.meter.clock
+    agent.worker.build_components = rebuilds
+    agent.sources.load_scans = _shared_scans(saved[2])
+    try:
+        yield
+    finally:
+        agent.worker.time, agent.worker.build_components, agent.sources.load_scans = saved
