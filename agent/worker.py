@@ -65,6 +65,7 @@ from agent.trust import (
     CONFIRMED,
     IN_MAP,
     Verdict,
+    carried_verdict,
     clean_reason,
     first_verdict,
     holds,
@@ -499,17 +500,22 @@ class FusionWorker:
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
             tuple(_identity(ln) for ln in snap.links),
+            self._own_group(snap),
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
-        # would take CPU from the registrations the settled map waits for.
+        # would take CPU from the registrations the settled map waits for.  But a preview
+        # that places another robot with this agent's own is what its user waits for: on
+        # replayed logs such a link waited 3-14 s behind the preview gap to be shown.  It
+        # comes after ``preview_interval`` at most (a robot joins its group once).
         checks_only = bool(snap.needed) and all(k in checkable for k in snap.needed)
         maps_moved = self._built is None or signature[0] != self._built[0]
+        gap = self.preview_gap(checks_only, maps_moved)
+        if self._built is not None and signature[2] != self._built[2]:
+            gap = self.preview_interval
         if (
             snap.maps
             and signature != self._built
-            and (
-                snap.settled or now - self._rebuilt_at >= self.preview_gap(checks_only, maps_moved)
-            )
+            and (snap.settled or now - self._rebuilt_at >= gap)
         ):
             self._built = signature  # a failing rebuild is not retried until inputs change
             self._rebuilt_at = now
@@ -524,6 +530,11 @@ class FusionWorker:
                     self._rebuild_seconds, cpu,
                 )  # fmt: skip
         return False
+
+    def _own_group(self, snap: Snapshot) -> tuple[str, ...]:
+        """The robots the accepted links place with this agent's own."""
+        pairs = [ln.pair for ln in snap.links if ln.accepted]
+        return next((g for g in components(snap.maps, pairs) if self.me in g), ())
 
     def preview_gap(self, checks_only: bool = False, maps_moved: bool = True) -> float:
         """Seconds between two previews: ``preview_interval``, or more if rebuilds are slow.
@@ -604,21 +615,24 @@ class FusionWorker:
             res = Registration(False, *_REJECTED, 0.0, f"registration failed: {exc}")
         self.merges += 1
         self.merge_seconds += clock.elapsed()[0]
-        verdict = self._first_verdict(snap, a, b, res)
+        verdict = self._first_verdict(snap, a, b, res, searched=how == "searched")
         base = LinkRecord(a, va, b, vb, False, res.matrix, res.covariance, res.score, self.me)
         self._record(base, res, verdict, how, clock)
         if how == "searched" and res.accepted:
-            self._carry_forward(a, va, b, vb, res.matrix)
+            self._carry_forward(a, va, b, vb, res)
 
     @property
     def min_margin(self) -> float:
-        """The high bar (:mod:`agent.trust`): the merge's own ``min_margin``."""
+        """The merge's own bar ``min_margin`` (below :data:`agent.trust.HIGH_BAR`)."""
         from pgvd.params import DecisionParams
 
         return DecisionParams.min_margin
 
-    def _first_verdict(self, snap: Snapshot, a: str, b: str, res: Registration) -> Verdict:
-        """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`),
+    def _first_verdict(
+        self, snap: Snapshot, a: str, b: str, res: Registration, searched: bool = False
+    ) -> Verdict:
+        """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`;
+        ``searched``: by a full search, whose accept below the high bar is provisional),
         confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
         previous = next((ln for ln in snap.links if ln.pair == (a, b)), None)
         grid_b = snap.maps[b][1]
@@ -630,6 +644,7 @@ class FusionWorker:
             self.min_margin,
             None if previous is None else previous.state,
             previous is not None and holds(previous.matrix, res.matrix, grid_b),
+            searched,
         )
         if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
             m = f"{res.margin:.2f}"
@@ -675,7 +690,7 @@ class FusionWorker:
             res.reason,
             self.min_margin,
         )
-        if verdict.state == CONFIRMED:
+        if verdict.proposed:
             res, verdict = self._promotion(held, grid_a, grid_b, verdict)
         if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
             why = f"on a cycle of accepted links: {verdict.reason}"
@@ -737,15 +752,18 @@ class FusionWorker:
         if self.book.add_link(rec):
             self.on_link(rec)
 
-    def _carry_forward(self, a: str, va: int, b: str, vb: int, matrix: np.ndarray) -> None:
-        """Check a search's transform on the maps that superseded its inputs meanwhile.
+    def _carry_forward(self, a: str, va: int, b: str, vb: int, found: Registration) -> None:
+        """Check a search's accepted transform on the maps that superseded its inputs
+        meanwhile.
 
         While robots map, a search (seconds on a loaded machine) often ends after either
         map started a new epoch: its link is of no use any more, and the pair would be
         searched again from scratch.  The robots' pixel frames stay the same within a
         source's canvas, so the transform found is a prediction for the new maps as good
         as a chain's, and a check (tens of milliseconds) may confirm it.  Only a
-        confirmation is taken; anything else leaves the pair to its next turn.
+        confirmation is taken; anything else leaves the pair to its next turn.  A search's
+        provisional accept (below :data:`agent.trust.HIGH_BAR`) is confirmed only where the
+        check holds at its pose: that is its re-check on a newer version.
         """
         held_a, held_b = self.book.map_of(a), self.book.map_of(b)
         if self.check is None or held_a is None or held_b is None:
@@ -757,14 +775,17 @@ class FusionWorker:
         clock = _Clock.start()
         self.counters.add("checks")
         try:
-            res = self.check(grid_a, grid_b, matrix)
+            res = self.check(grid_a, grid_b, found.matrix)
         except Exception as exc:  # as in _register: the pair's next turn will search it
             log.warning("check of %s v%d / %s v%d failed: %s", a, na, b, nb, exc)
             return
-        if res is None or not res.accepted:
+        if res is None:
+            return
+        held = holds(found.matrix, res.matrix, grid_b)
+        verdict = carried_verdict(found.margin, res.accepted, res.margin, held, self.min_margin)
+        if verdict is None:
             return
         self.counters.add("checks_confirmed")
-        verdict = first_verdict(True, res.margin, True, res.reason, self.min_margin)
         base = LinkRecord(a, na, b, nb, False, res.matrix, res.covariance, res.score, self.me)
         self._record(base, res, verdict, "carried forward", clock)
 
