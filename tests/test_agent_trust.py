@@ -62,6 +62,18 @@ def test_a_search_accept_below_the_high_bar_is_provisional_until_re_checked() ->
     assert trust.carried_verdict(high, False, 0.3, True, bar) is None
 
 
+def test_the_high_bar_is_where_the_development_bench_puts_1_bad_winner_in_1000() -> None:
+    from bench.studies.acceptance import margins
+    from bench.studies.ceiling import read_run
+    from bench.studies.greyzone import tail_bar
+
+    merge = Path(__file__).resolve().parents[1] / "bench" / "results" / "merge.json"
+    classes = margins(read_run(merge, fields=())["records"])
+    bad = [m for c in ("wrong", "negative") for _, m in classes[c]]
+    assert round(tail_bar(bad, trust.GREY_FLOOR), 2) == trust.HIGH_BAR
+    assert max(bad) < trust.HIGH_BAR
+
+
 def test_a_new_epoch_confirms_a_held_link_and_withdraws_a_contradicted_one() -> None:
     bar = 0.57
     held = trust.first_verdict(False, 0.3, True, "", bar, trust.ACCEPTED, held=True)
