@@ -71,6 +71,7 @@ from agent.trust import (
     holds,
     in_grey_zone,
     promotion_verdict,
+    provisional,
     recheck_verdict,
 )
 from pgvd.grid import Grid
@@ -646,22 +647,41 @@ class FusionWorker:
             previous is not None and holds(previous.matrix, res.matrix, grid_b),
             searched,
         )
-        if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
+        if verdict.state == CANDIDATE and self._on_cycle(
+            snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
+        ):
             m = f"{res.margin:.2f}"
             return Verdict(CONFIRMED, f"on a cycle of accepted links: margin {m}")
         return verdict
 
-    def _on_cycle(self, snap: Snapshot, a: str, b: str, matrix: np.ndarray) -> bool:
+    def _on_cycle(
+        self, snap: Snapshot, a: str, b: str, matrix: np.ndarray, provisional: bool = False
+    ) -> bool:
         """Whether accepted links of the current epochs already place ``b`` on ``a`` where
-        ``matrix`` does (:func:`agent.trust.holds`): the pose closes a consistent cycle."""
+        ``matrix`` does (:func:`agent.trust.holds`): the pose closes a consistent cycle.
+
+        ``provisional``: the pose is a search's provisional accept, and the other pairs'
+        provisional accepts count as links too: two or more searches that each cleared the
+        merge's bar and agree around a cycle are unlikely to be wrong alike.
+        """
         if self.check is None:
             return False
         chains = self._chains_of(snap)
+        if provisional:
+            snap = replace(snap, links=[self._as_accepted(ln, (a, b)) for ln in snap.links])
+            chains = Chains(snap.maps, snap.links)
         group = next((g for g in chains.groups if a in g and b in g), None)
         if group is None or not _current_chain(snap, group):
             return False
         predicted = predict(chains.solved()[0], a, b)
         return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
+
+    def _as_accepted(self, ln: LinkRecord, pair: tuple[str, str]) -> LinkRecord:
+        """``ln`` as a link in the map if it is a provisional accept of another pair than
+        ``pair`` (:func:`agent.trust.provisional`), else ``ln``."""
+        if ln.pair == pair or not provisional(ln.state, ln.margin, self.min_margin):
+            return ln
+        return replace(ln, accepted=True, state=CONFIRMED)
 
     def _recheck(self, snap: Snapshot, held: LinkRecord) -> None:
         """Check a candidate again at its pose on the newer versions of its maps
@@ -692,7 +712,9 @@ class FusionWorker:
         )
         if verdict.proposed:
             res, verdict = self._promotion(held, grid_a, grid_b, verdict)
-        if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
+        if verdict.state == CANDIDATE and self._on_cycle(
+            snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
+        ):
             why = f"on a cycle of accepted links: {verdict.reason}"
             verdict = Verdict(CONFIRMED, why, verdict.holds)
         revision = held.revision + 1
