@@ -488,7 +488,14 @@ class FusionWorker:
             robots,
             snap.alive,
         )
-        if due:
+        # A preview that places another robot with this agent's own is what its user
+        # waits for: on replayed logs such a link waited 3-17 s, behind the preview gap
+        # and behind the registrations of robots that keep mapping, to be shown.  It comes
+        # first, after ``preview_interval`` at most (a robot joins the group once).
+        own = self._own_group(snap)
+        regrouped = self._built is not None and own != self._built[2]
+        show_first = regrouped and now - self._rebuilt_at >= self.preview_interval
+        if due and not show_first:
             # Checks first: they take tens of milliseconds, and each link they add may
             # turn a pair waiting for a full search into one more check.  Deferred checks
             # last among them: the links the others add may let their rejection stand.
@@ -501,18 +508,13 @@ class FusionWorker:
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
             tuple(_identity(ln) for ln in snap.links),
-            self._own_group(snap),
+            own,
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
-        # would take CPU from the registrations the settled map waits for.  But a preview
-        # that places another robot with this agent's own is what its user waits for: on
-        # replayed logs such a link waited 3-14 s behind the preview gap to be shown.  It
-        # comes after ``preview_interval`` at most (a robot joins its group once).
+        # would take CPU from the registrations the settled map waits for.
         checks_only = bool(snap.needed) and all(k in checkable for k in snap.needed)
         maps_moved = self._built is None or signature[0] != self._built[0]
-        gap = self.preview_gap(checks_only, maps_moved)
-        if self._built is not None and signature[2] != self._built[2]:
-            gap = self.preview_interval
+        gap = self.preview_interval if regrouped else self.preview_gap(checks_only, maps_moved)
         if (
             snap.maps
             and signature != self._built
@@ -530,7 +532,7 @@ class FusionWorker:
                     len(snap.maps), len(snap.links), "settled" if snap.settled else "preview",
                     self._rebuild_seconds, cpu,
                 )  # fmt: skip
-        return False
+        return bool(due)  # registrations put off for the preview
 
     def _own_group(self, snap: Snapshot) -> tuple[str, ...]:
         """The robots the accepted links place with this agent's own."""

@@ -701,3 +701,16 @@ def test_a_link_records_soundness_is_judged_once(monkeypatch) -> None:
     assert not h.worker.step(now=0.1)  # r1-r3 added: a new Chains, only it judged
     assert sorted(judged) == [("r1", "r2"), ("r1", "r3"), ("r2", "r3")]
     assert h.globals[-1].settled and h.globals[-1].components[0].members == ("r1", "r2", "r3")
+
+
+def test_a_robot_newly_placed_with_the_agents_own_is_shown_before_more_registrations() -> None:
+    h = Harness("r1")
+    h.book.put_map("r1", V(1), tiny(1))
+    assert not h.worker.step(now=0.0) and len(h.globals) == 1  # r1 alone
+    h.book.put_map("r2", V(1), tiny(2))
+    assert h.worker.step(now=5.0) and len(h.calls) == 1  # r1-r2 linked
+    h.book.put_map("r2", V(2), tiny(3))  # a new epoch: r1-r2 is due again at once
+    assert h.worker.step(now=5.1)
+    assert len(h.calls) == 1 and len(h.globals) == 2  # shown first, registration put off
+    assert h.globals[-1].components[0].members == ("r1", "r2")
+    assert h.worker.step(now=5.2) and len(h.calls) == 2
