@@ -77,6 +77,12 @@ IN_MAP = frozenset({ACCEPTED, CONFIRMED})
 #: merge's bar, is 1 in 150).  No bad winner reaches it: 0 of 163, below 1.8 % at 95 %
 #: confidence by count alone, the tail's 0.1 % resting on the fit.
 HIGH_BAR = 0.89
+#: Seconds a provisional accept's two maps must stay unchanged before the agent that decided
+#: it confirms it on the merge's own bar (:func:`quiet_verdict`).  Finished maps (a saved
+#: map, a robot parked, a replay's last version) bring no newer version to re-check on, and
+#: holding their link back for ever would do worse than a one-shot ``pgvd merge``.  Twice
+#: the 5 s map interval of gmapping and slam_toolbox: a robot still mapping re-checks first.
+QUIET_S = 10.0
 #: Lowest margin of the grey zone, the merge's own (:class:`pgvd.params.DecisionParams`):
 #: below it, on the development bench, almost no right pose is worth keeping
 #: (``python3 -m bench greyzone`` prints the counts).
@@ -153,6 +159,16 @@ def provisional(state: str, margin: float | None, min_margin: float) -> bool:
     :data:`HIGH_BAR` waiting for its re-check: a candidate whose margin clears ``min_margin``
     (a grey-zone candidate's never does)."""
     return state == CANDIDATE and margin is not None and margin >= min_margin
+
+
+def quiet_verdict(margin: float | None, quiet_s: float) -> Verdict:
+    """A provisional accept whose maps stayed unchanged for ``quiet_s`` (:data:`QUIET_S`):
+    confirmed on the merge's own bar, as a one-shot merge of the same two maps would be."""
+    m = _margin_text(margin)
+    return Verdict(
+        CONFIRMED,
+        f"provisional accept unchallenged on unchanged maps for {quiet_s:.0f} s: margin {m}",
+    )
 
 
 def searched_accept(margin: float | None, min_margin: float, why: str = "") -> Verdict:

@@ -69,6 +69,7 @@ from agent.trust import (
     CANDIDATE,
     CONFIRMED,
     IN_MAP,
+    QUIET_S,
     Verdict,
     carried_verdict,
     clean_reason,
@@ -77,6 +78,7 @@ from agent.trust import (
     in_grey_zone,
     promotion_verdict,
     provisional,
+    quiet_verdict,
     recheck_verdict,
 )
 from pgvd.grid import Grid
@@ -478,6 +480,10 @@ class FusionWorker:
         self._rebuilt_at = -np.inf
         #: Seconds between rebuilds of a global map still waiting for links, at least.
         self.preview_interval = 3.0
+        #: Seconds a provisional accept of this agent's waits on unchanged maps (:meth:`_quiet`).
+        self.quiet_s = QUIET_S
+        #: When each of this agent's provisional accepts on the maps held was first seen.
+        self._quiet_since: dict[tuple[object, ...], float] = {}
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
         self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
@@ -559,6 +565,8 @@ class FusionWorker:
             others = any(k in checkable and k not in self._deferred for k in due[1:])
             self._register(snap, due[0], may_defer=others)
             return True
+        if not due and self._quiet(snap, now):
+            return True
         signature = (
             tuple(sorted((r, v, snap.firsts.get(r)) for r, (v, _) in snap.maps.items())),
             # the candidate used, not only its key: a preferred candidate arriving for a
@@ -589,6 +597,31 @@ class FusionWorker:
                     self._rebuild_seconds, cpu,
                 )  # fmt: skip
         return bool(due)  # registrations put off for the preview
+
+    def _quiet(self, snap: Snapshot, now: float) -> bool:
+        """Confirm one of this agent's provisional accepts whose maps have not changed for
+        :attr:`quiet_s` (:func:`agent.trust.quiet_verdict`); True if one was.
+
+        Only the agent that decided the accept confirms it, so the fleet publishes one
+        record for it; the record, not the clock, is what every agent's global map follows.
+        """
+        versions = {r: v for r, (v, _) in snap.maps.items()}
+        waiting = {
+            (_identity(ln), ln.version_a, ln.version_b): ln
+            for ln in snap.links
+            if ln.decided_by == self.me
+            and provisional(ln.state, ln.margin, self.min_margin)
+            and (ln.version_a, ln.version_b) == (versions.get(ln.a), versions.get(ln.b))
+        }
+        self._quiet_since = {k: self._quiet_since.get(k, now) for k in waiting}
+        ripe = [waiting[k] for k, t in self._quiet_since.items() if now - t >= self.quiet_s]
+        if not ripe:
+            return False
+        held = min(ripe, key=lambda ln: ln.pair)
+        res = Registration(True, held.matrix, held.covariance, held.score, "", held.margin)
+        base = replace(held, revision=held.revision + 1)
+        self._record(base, res, quiet_verdict(held.margin, self.quiet_s), "quiet", _Clock.start())
+        return True
 
     def _own_group(self, snap: Snapshot) -> tuple[str, ...]:
         """The robots the accepted links place with this agent's own."""
@@ -1014,4 +1047,6 @@ class FusionWorker:
             "built %d components, %d maps warped: %.2f s, %.2f s CPU",
             len(components), layers.warps - warps, *clock.elapsed(),
         )  # fmt: skip
-        self.on_global(GlobalState(components, snap.settled, time.time()))
+        # an own provisional accept still waiting on quiet maps may yet enter the map
+        settled = snap.settled and not self._quiet_since
+        self.on_global(GlobalState(components, settled, time.time()))

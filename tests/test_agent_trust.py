@@ -381,3 +381,24 @@ def test_a_first_try_at_the_high_bar_enters_at_once(intel_pair) -> None:
     assert agents["r1"].globals[-1].components[0].digest == (
         agents["r2"].globals[-1].components[0].digest
     )
+
+
+def test_a_first_try_below_the_high_bar_on_maps_that_stay_unchanged_enters_after_the_quiet(
+    intel_pair,
+) -> None:
+    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2)
+    r1 = agents["r1"]
+    r1.step(now=0.5 + trust.QUIET_S - 1.0)  # not yet quiet long enough
+    assert r1.record("r1", "r2").state == trust.CANDIDATE and not r1.joined("r1", "r2")
+    assert not r1.globals[-1].settled  # its own provisional accept may still enter
+    r1.step(now=0.5 + trust.QUIET_S)
+    quiet = r1.links[-1]
+    assert quiet.state == trust.CONFIRMED and quiet.revision == 1, quiet
+    assert "unchanged maps" in quiet.reason
+    assert np.array_equal(quiet.matrix, r1.links[0].matrix)
+    agents["r2"].book.add_link(quiet)
+    agents["r2"].step(now=20.0)  # r2 decided nothing: it confirms nothing, it follows r1
+    assert len(agents["r2"].links) == 0
+    digests = {tuple(c.digest for c in a.globals[-1].components) for a in agents.values()}
+    assert all(a.joined("r1", "r2") and a.globals[-1].settled for a in agents.values())
+    assert len(digests) == 1, digests
