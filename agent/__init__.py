@@ -12,7 +12,8 @@ Modules, by what they hold:
 - :mod:`agent.book` -- the latest map of each robot and the links, shared between threads;
 - :mod:`agent.wire` -- the thin adapter over :mod:`protocol`;
 - :mod:`agent.sources` -- ``carmen:`` log replay and ``map:`` file following;
-- :mod:`agent.state` -- atomic persistence in ``--state-dir``;
+- :mod:`agent.state` -- atomic persistence in ``--state-dir``; :mod:`agent.persister` -- the
+  thread that writes it, own versions first and durably, peers' maps newest only;
 - :mod:`agent.fetching`, :mod:`agent.status` -- the core's fetch timers and status pieces;
 - :mod:`agent.keys`, :mod:`agent.zenoh_config`, :mod:`agent.counters`, :mod:`agent.inbox`;
 - :mod:`agent.launcher`, :mod:`agent.evaluate`, :mod:`agent.scenario` -- local fleets, their

@@ -22,7 +22,8 @@ from protocol.errors import REASONS
 #: ``stale_version`` -- older than the version held;
 #: ``bad_link`` -- a link that breaks the agent's rules (not rigid, bad covariance);
 #: ``own_map_unencodable`` -- this robot's own map is beyond the wire's limits;
-#: ``overload`` -- the receive queue is full (counted by :func:`agent.inbox.offer_or_drop`).
+#: ``overload`` -- the receive queue is full (counted by :func:`agent.inbox.offer_or_drop`);
+#: ``superseded`` -- queued tiles of a version a newer one superseded (:mod:`agent.inbox`).
 RULE_REASONS = (
     "foreign_fleet",
     "unexpected_kind",
@@ -32,6 +33,7 @@ RULE_REASONS = (
     "bad_link",
     "own_map_unencodable",
     "overload",
+    "superseded",
 )
 
 

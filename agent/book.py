@@ -46,7 +46,8 @@ class Snapshot:
     #: The keys of ``needed`` whose link is held: candidates to check again at their pose.
     rechecks: frozenset[LinkKey] = frozenset()
     #: :attr:`agent.links.LinkRecord.identity` of ``links``, and of the accepted ones: what
-    #: a worker's rebuilds and chains depend on, made once per change of the book.
+    #: a worker's rebuilds and chains depend on, made once per change of the book.  A copy
+    #: with other ``links`` (``dataclasses.replace``) keeps these of the book's links.
     link_ids: tuple[tuple[object, ...], ...] = ()
     accepted_ids: tuple[tuple[object, ...], ...] = ()
 

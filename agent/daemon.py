@@ -2,13 +2,22 @@
 
 The core decides; this module moves bytes and time and carries out what the core asks. Threads:
 
-- Zenoh callback threads only count bytes and enqueue raw payloads, because Zenoh runs a
-  subscriber's callbacks one at a time and a slow one delays every later sample; queryables
-  answer from bytes prepared in advance, or encode just the few tiles a fetch names (at most 256);
-- the main thread (:meth:`Agent.run`) feeds the core what arrived, the source's new maps and the
-  time, and carries out its actions: publish, fetch, persist, wake the fusion worker;
+- Zenoh callback threads only count bytes and enqueue raw payloads (with a map message's
+  authenticated robot and version, so that tiles a newer version superseded leave the queue
+  undecoded, :mod:`agent.inbox`), because Zenoh runs a subscriber's callbacks one at a time and
+  a slow one delays every later sample; queryables answer from bytes prepared in advance, or
+  encode just the few tiles a fetch names (at most 256);
+- the receiving thread decodes what arrived (pure Python for deltas: most of an agent's
+  receiving time) outside the core's lock, then feeds it to the core;
+- the main thread (:meth:`Agent.run`) feeds the core membership changes, the source's new maps
+  and the time, and is never behind a decode or a disk write;
+- the persisting thread (:mod:`agent.persister`) writes the state directory: own versions
+  durably, each reported to the core, which publishes it only then; peers' maps newest only;
 - the fusion worker (:mod:`agent.worker`) registers pairs and rebuilds the global maps, and
-  reports both to the core from its own thread (one lock serialises the core's calls).
+  reports both to the core from its own thread.
+
+One lock serialises the core's calls; each thread carries out the actions of its own calls
+(publish, fetch, hand a write to the persisting thread, wake the fusion worker).
 """
 
 from __future__ import annotations
@@ -28,9 +37,11 @@ import zenoh
 from agent import actions as act
 from agent.failpoints import failpoint
 from agent.globalmap import Component, FuseFn
-from agent.inbox import MAX_BYTES, Inbox, offer_or_drop
+from agent.inbox import MAX_BYTES, Inbox, map_tag, offer_or_drop
+from agent.memory import fix_mmap_threshold
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
+from agent.persister import Persister
 from agent.pose import Pose
 from agent.ros2_io import RosMapSubscription, declare_node
 from agent.sources import RosTopicSource, SourceSpec, make_source
@@ -92,6 +103,8 @@ class AgentOptions:
 
 
 BLOCK, REMOTE = zenoh.CongestionControl.BLOCK, zenoh.Locality.REMOTE
+#: Membership changes queued at most for the main thread (one per liveliness token change).
+MAX_EVENTS = 4096
 
 
 def _now() -> Instant:
@@ -119,14 +132,23 @@ class Agent:
         register: RegisterFn | None = None,
         fuse: FuseFn | None = None,
     ) -> None:
+        fix_mmap_threshold()  # before the first merge: its arrays then never fragment the heap
         self.opts = opts
         self.state = StateDir(opts.state_dir)
         self.out_dir = Path(opts.out_dir or opts.state_dir)
-        # Bounded in count and bytes; what does not fit is dropped as "overload".
+        # Bounded in count and bytes; what does not fit is dropped as "overload". Messages go
+        # to the receiving thread, membership changes to the main thread.
         self.inbox = Inbox(max_bytes=opts.inbox_bytes)
+        self.events = Inbox(max_items=MAX_EVENTS)
         self.node = FleetNode(opts.node_options(), _now())
         self.counters, self.keys = self.node.counters, self.node.keys
-        self._lock = threading.Lock()  # the main thread and the fusion worker call the core
+        self._lock = threading.Lock()  # every thread that calls the core takes it
+        self.persister = Persister(
+            self.state,
+            opts.robot,
+            lambda robot, version: self._call(self.node.on_persisted, robot, version, _now()),
+            self.counters,
+        )
         self._status_bytes = b"{}"
         self.session: zenoh.Session | None = None  # while run() serves
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -165,19 +187,25 @@ class Agent:
         data = sample.payload.to_bytes()
         self.counters.add("bytes_received", len(data))
         self.counters.add("messages_received")
-        offer_or_drop(self.inbox, ("message", str(sample.key_expr), data), self.counters)
+        self._enqueue(str(sample.key_expr), data)
 
     def _on_reply(self, reply: zenoh.Reply) -> None:
         if reply.ok is not None:
             data = reply.ok.payload.to_bytes()
             self.counters.add("bytes_received", len(data))
-            offer_or_drop(self.inbox, ("message", str(reply.ok.key_expr), data), self.counters)
+            self._enqueue(str(reply.ok.key_expr), data)
+
+    def _enqueue(self, key: str, data: bytes) -> None:
+        """Queue a payload for the receiving thread, tagged if it is an authentic map message
+        published (or answered) under its own robot's key."""
+        tag = map_tag(self.node.inbound, self.keys, key, data)
+        offer_or_drop(self.inbox, ("message", key, data), self.counters, tag)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         robot = self.keys.robot_of(str(sample.key_expr), "alive")
         if robot is not None:
             up = b"1" if sample.kind == zenoh.SampleKind.PUT else b"0"
-            offer_or_drop(self.inbox, ("alive", robot, up), self.counters)
+            offer_or_drop(self.events, ("alive", robot, up), self.counters)
 
     def _answer_latest(self, query: zenoh.Query) -> None:
         params = query.parameters
@@ -218,12 +246,11 @@ class Agent:
                     mode = zenoh.ConsolidationMode.NONE
                     self.session.get(where, self._on_reply, consolidation=mode, timeout=5.0)
                 case act.PersistMap(robot, stored, point):
-                    self.state.save_map(robot, stored, point, durable=robot == self.opts.robot)
-                    self._call(self.node.on_persisted, robot, stored.version, _now())
+                    self.persister.save_map(robot, stored, point)
                 case act.PersistLinks(records):
-                    self.state.save_links(list(records))
+                    self.persister.save_links(records)
                 case act.ForgetMap(robot):
-                    self.state.forget_map(robot)
+                    self.persister.forget_map(robot)
                 case act.PersistGlobal(component):
                     _write_global(self.out_dir, component)
                 case act.WriteStatus():
@@ -284,12 +311,22 @@ class Agent:
             outputs = Outputs(self.opts.outputs, session, self.counters)
             stack.callback(outputs.close)
             log.info("agent %s up in fleet %s (pid %d)", me, self.opts.fleet, os.getpid())
+            self.persister.start()
             self.worker.start()
+            halt = threading.Event()
+            receiver = threading.Thread(
+                target=self._receive, args=(halt,), name="pgvd-receive", daemon=True
+            )
+            receiver.start()
             try:
                 self._loop(stop, outputs)
             finally:
+                halt.set()
+                receiver.join(timeout=0.2)  # a decode in progress is not waited for
                 self.worker.stop(timeout=0.5)
                 self._call(self.node.flush)
+                if not self.persister.close():
+                    log.error("state: writes still pending at shutdown")
         return 0
 
     def _tile_publisher(
@@ -334,7 +371,7 @@ class Agent:
 
     def _loop(self, stop: threading.Event, outputs: Outputs) -> None:
         while not stop.is_set():
-            self._drain_inbox(deadline=time.monotonic() + 0.1)
+            self._drain_events(deadline=time.monotonic() + 0.1)
             now = _now()
             src = self.source
             if src.step(now.mono):
@@ -354,13 +391,30 @@ class Agent:
             log.warning("source %s: %s", self.opts.source.path or self.opts.source.topic, error)
         self._source_error = error
 
-    def _drain_inbox(self, deadline: float) -> None:
+    def _drain_events(self, deadline: float) -> None:
+        """Feed the core the membership changes that come until ``deadline``."""
         while time.monotonic() < deadline:
-            item = self.inbox.get(timeout=0.05)
+            item = self.events.get(timeout=0.05)
             if item is None:
                 return
-            kind, key, data = item
-            if kind == "alive":
-                self._call(self.node.on_alive, key, data == b"1", _now())
-            else:
-                self._call(self.node.on_message, key, data, _now())
+            _, robot, up = item
+            self._call(self.node.on_alive, robot, up == b"1", _now())
+
+    def _receive(self, halt: threading.Event) -> None:
+        """The receiving thread: decode each queued message outside the core's lock, then
+        feed it to the core, until ``halt`` is set."""
+        while not halt.is_set():
+            item = self.inbox.get(timeout=0.1)
+            if item is None:
+                continue
+            _, key, data = item
+            try:
+                msg = self.node.read(key, data)
+                if halt.is_set():  # a decode outlasted the shutdown: the session may be gone
+                    return
+                if isinstance(msg, act.Drop):
+                    self._carry_out([msg])
+                else:
+                    self._call(self.node.on_decoded, key, msg, _now())
+            except Exception:  # a bug here must not leave the agent deaf
+                log.exception("receiving a message on %s failed", key)

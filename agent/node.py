@@ -3,7 +3,8 @@
 As h11 splits its ``Connection`` from the socket, :class:`FleetNode` holds every rule of the
 agent and its host (:class:`agent.daemon.Agent`) only moves bytes and time. The host feeds in
 
-- :meth:`FleetNode.on_message` -- a payload that arrived on a key (pushed, or a fetch's reply);
+- :meth:`FleetNode.on_message` -- a payload that arrived on a key (pushed, or a fetch's reply),
+  or :meth:`FleetNode.on_decoded` -- the same once :meth:`FleetNode.read` decoded it;
 - :meth:`FleetNode.on_alive` -- a robot's liveliness token appeared or went away;
 - :meth:`FleetNode.on_source` -- the robot's own source produced a new map;
 - :meth:`FleetNode.tick` -- time passed;
@@ -27,8 +28,8 @@ each with the time as an :class:`Instant`, and carries out the actions each call
 - link bookkeeping: links received or decided here are cached, published and persisted;
 - status: the JSON that ``pgvd status`` and ``status.json`` show.
 
-Calls must not overlap (the host serialises them); the ``answer_*`` methods read only
-thread-safe state and may run on Zenoh's query threads meanwhile.
+Calls must not overlap (the host serialises them); :meth:`FleetNode.read` and the
+``answer_*`` methods read only thread-safe state and may run on other threads meanwhile.
 """
 
 from __future__ import annotations
@@ -207,11 +208,23 @@ class FleetNode:
 
     def on_message(self, key: str, payload: bytes, now: Instant) -> list[Action]:
         """A payload that came on ``key``: a pushed message or a fetch's reply."""
-        sender = self.keys.robot_of(key) or key
+        msg = self.read(key, payload)
+        return [msg] if isinstance(msg, Drop) else self.on_decoded(key, msg, now)
+
+    def read(self, key: str, payload: bytes) -> wire.Message | Drop:
+        """``payload`` decoded and authenticated, or the Drop that refuses it.
+
+        Any thread, overlapping other calls: it reads only the fleet key and limits. A host
+        decodes on a thread of its own, then hands the message to :meth:`on_decoded`.
+        """
         try:
-            msg = self.inbound.decode(payload)
+            return self.inbound.decode(payload)
         except ProtocolError as exc:  # counted by what it broke: framing, auth, schema, ...
-            return [Drop(exc.reason, sender, str(exc))]
+            return Drop(exc.reason, self.keys.robot_of(key) or key, str(exc))
+
+    def on_decoded(self, key: str, msg: wire.Message, now: Instant) -> list[Action]:
+        """A message :meth:`read` from a payload that came on ``key``."""
+        sender = self.keys.robot_of(key) or key
         if msg.fleet != self.opts.fleet:
             return [Drop("foreign_fleet", sender, f"fleet {msg.fleet!r}")]
         if isinstance(msg, wire.Link):

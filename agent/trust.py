@@ -5,9 +5,17 @@ version, a right pose stays put and gains agreeing walls while a mirror or look-
 contradicted as more of the building appears, and links close cycles.  So a pair is not
 simply accepted or rejected on its first decision:
 
-- **accepted**: the first decision clears the high bar, the merge's acceptance statistic
-  ``margin >= min_margin`` (:mod:`pgvd.decision`).  On the development bench no negative or
-  wrong winner reaches it (``python -m bench.studies.greyzone``).
+- **accepted**: a first search's margin (:mod:`pgvd.decision`) clears the *high bar*
+  :data:`HIGH_BAR`, or a check confirms the pose the accepted links or known poses predict
+  (the prediction is the evidence a lone search lacks).
+- **provisional** (a candidate): a first search clears the merge's own bar
+  ``margin >= min_margin`` but not :data:`HIGH_BAR`.  On the development bench no negative or
+  wrong winner reaches ``min_margin`` (``python3 -m bench greyzone``), yet a fleet tries
+  many more bad pairs than that bench holds (every pair, at every epoch, on maps still
+  small), and near misses accepted just above it were shown wrong for seconds.  It enters
+  the global map once a re-check on a newer version of either map holds at its pose (the
+  search has already weighed every rival), or a later search finds it again at the same
+  pose, or it lies on a consistent cycle.
 - **candidate**: the best pose sits in the *grey zone*, ``GREY_FLOOR <= margin < min_margin``:
   right poses and mirror or look-alike ones both land there, and no threshold on one decision
   separates them.  A candidate does not enter the global map.  It is checked again at its own
@@ -29,7 +37,8 @@ simply accepted or rejected on its first decision:
   agree (:func:`promotion_verdict`).
 
   An accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the
-  same pose stays confirmed.
+  same pose stays confirmed; so does a candidate whose pair a new epoch's search accepts
+  at the same pose.
 - **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
   contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold or out
   of the check's basin).
@@ -61,6 +70,19 @@ STATES = (ACCEPTED, CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN)
 #: The states whose links enter the global map.
 IN_MAP = frozenset({ACCEPTED, CONFIRMED})
 
+#: The margin at or above which a first search's accept enters the global map at once.
+#: Derived from the development bench's bad winners (``python3 -m bench greyzone``: 53 wrong
+#: poses and 110 negatives, the largest margin 0.53): an exponential tail fitted to their
+#: margins above the grey floor gives 0.89 for a rate of 1 in 1,000 bad winners (0.57, the
+#: merge's bar, is 1 in 150).  No bad winner reaches it: 0 of 163, below 1.8 % at 95 %
+#: confidence by count alone, the tail's 0.1 % resting on the fit.
+HIGH_BAR = 0.89
+#: Seconds a provisional accept's two maps must stay unchanged before the agent that decided
+#: it confirms it on the merge's own bar (:func:`quiet_verdict`).  Finished maps (a saved
+#: map, a robot parked, a replay's last version) bring no newer version to re-check on, and
+#: holding their link back for ever would do worse than a one-shot ``pgvd merge``.  Twice
+#: the 5 s map interval of gmapping and slam_toolbox: a robot still mapping re-checks first.
+QUIET_S = 10.0
 #: Lowest margin of the grey zone, the merge's own (:class:`pgvd.params.DecisionParams`):
 #: below it, on the development bench, almost no right pose is worth keeping
 #: (``python3 -m bench greyzone`` prints the counts).
@@ -86,11 +108,16 @@ MARGIN_GAIN = 0.08
 
 @dataclass(frozen=True)
 class Verdict:
-    """A decision on a link: its ``state``, why, and how many re-checks its pose held."""
+    """A decision on a link: its ``state``, why, and how many re-checks its pose held.
+
+    ``proposed``: a confirmation that stands only once a full search agrees
+    (:func:`promotion_verdict`).
+    """
 
     state: str
     reason: str
     holds: int = 0
+    proposed: bool = False
 
 
 def clean_reason(text: str, limit: int = 400) -> str:
@@ -127,6 +154,33 @@ def _margin_text(margin: float | None) -> str:
     return "none" if margin is None or not np.isfinite(margin) else f"{margin:.2f}"
 
 
+def provisional(state: str, margin: float | None, min_margin: float) -> bool:
+    """Whether a link of ``state`` and ``margin`` is a search's accept below
+    :data:`HIGH_BAR` waiting for its re-check: a candidate whose margin clears ``min_margin``
+    (a grey-zone candidate's never does)."""
+    return state == CANDIDATE and margin is not None and margin >= min_margin
+
+
+def quiet_verdict(margin: float | None, quiet_s: float) -> Verdict:
+    """A provisional accept whose maps stayed unchanged for ``quiet_s`` (:data:`QUIET_S`):
+    confirmed on the merge's own bar, as a one-shot merge of the same two maps would be."""
+    m = _margin_text(margin)
+    return Verdict(
+        CONFIRMED,
+        f"provisional accept unchallenged on unchanged maps for {quiet_s:.0f} s: margin {m}",
+    )
+
+
+def searched_accept(margin: float | None, min_margin: float, why: str = "") -> Verdict:
+    """A search's accept: :data:`ACCEPTED` at or above :data:`HIGH_BAR`, else a provisional
+    :data:`CANDIDATE`.  An unscored accept (``margin`` None: a registration that reports no
+    margin) cannot be graded and is taken at its word."""
+    m = _margin_text(margin)
+    if margin is None or margin >= HIGH_BAR:
+        return Verdict(ACCEPTED, f"{why}margin {m} clears {HIGH_BAR}")
+    return Verdict(CANDIDATE, f"{why}provisional: margin {m} clears {min_margin}, not {HIGH_BAR}")
+
+
 def first_verdict(
     accepted: bool,
     margin: float | None,
@@ -135,6 +189,7 @@ def first_verdict(
     min_margin: float,
     previous: str | None = None,
     held: bool = False,
+    searched: bool = False,
 ) -> Verdict:
     """The state of a pair's first decision in its epochs.
 
@@ -144,12 +199,18 @@ def first_verdict(
     margin : the acceptance statistic at the best pose, None or NaN when none was scored.
     has_pose : the decision holds a finite rigid pose.
     reason : the merge's or check's words.
-    min_margin : the high bar.
+    min_margin : the merge's bar.
     previous : the state of the pair's link of an earlier epoch, if any.
     held : the pose is that earlier link's, within the hold (:func:`holds`).
+    searched : the decision is a full search's, with no prediction behind it: its accept
+        must clear :data:`HIGH_BAR` to enter the global map at once.
     """
     was_in = previous in IN_MAP
     m = _margin_text(margin)
+    if accepted and held and (was_in or previous == CANDIDATE):
+        return Verdict(CONFIRMED, f"found again at the same pose: margin {m}")
+    if accepted and searched:
+        return searched_accept(margin, min_margin)
     if accepted:
         return Verdict(ACCEPTED, f"margin {m} clears {min_margin}")
     if has_pose and in_grey_zone(margin, min_margin):
@@ -162,6 +223,30 @@ def first_verdict(
     if was_in:
         return Verdict(WITHDRAWN, f"contradicted by a new epoch: {reason or f'margin {m}'}")
     return Verdict(REJECTED, reason or f"margin {m} below the grey zone")
+
+
+def carried_verdict(
+    found_margin: float | None,
+    accepted: bool,
+    margin: float | None,
+    held: bool,
+    min_margin: float,
+) -> Verdict | None:
+    """The state of a search's accepted pose (of margin ``found_margin``) checked on newer
+    versions of its maps, or None: nothing is taken.
+
+    ``accepted``, ``margin``, ``held``: the check's outcome, its margin and whether its
+    refined pose is the search's within the hold.  A provisional accept is confirmed only
+    where the check holds at its pose: that is its re-check.
+    """
+    if not accepted:
+        return None
+    m = _margin_text(margin)
+    if searched_accept(found_margin, min_margin).state == ACCEPTED:
+        return Verdict(ACCEPTED, f"margin {m} clears {min_margin}")
+    if held:
+        return Verdict(CONFIRMED, f"provisional accept holds on a newer version: margin {m}")
+    return None
 
 
 def recheck_verdict(
@@ -179,11 +264,16 @@ def recheck_verdict(
     ``held_holds``, ``held_margin``, ``first_margin``: the candidate's count of holds, its
     last margin and its first decision's; ``accepted``, ``margin``, ``held``: the re-check's
     outcome, its margin and whether the refined pose stayed within the hold of the
-    candidate's.
+    candidate's.  A provisional accept (:func:`provisional`) whose re-check accepts at its
+    pose is confirmed outright: its search weighed every rival.  Any other confirmation is
+    only ``proposed``.
     """
     m = _margin_text(margin)
+    n = held_holds + 1
+    if accepted and held and provisional(CANDIDATE, held_margin, min_margin):
+        return Verdict(CONFIRMED, f"provisional accept holds on a newer version: margin {m}", n)
     if accepted:  # the refined pose stands out on its own, held or not
-        return Verdict(CONFIRMED, f"re-check clears the bar: margin {m}", held_holds + 1)
+        return Verdict(CONFIRMED, f"re-check clears the bar: margin {m}", n, proposed=True)
     if margin is None or not np.isfinite(margin) or margin < GREY_FLOOR:
         return Verdict(REJECTED, f"contradicted: {reason or f'margin {m}'}", held_holds)
     if not held:
@@ -191,10 +281,10 @@ def recheck_verdict(
     floor = -np.inf if held_margin is None else held_margin - MARGIN_SLACK
     if margin < floor:
         return Verdict(CANDIDATE, f"margin fell: {m} < {_margin_text(held_margin)}", held_holds)
-    n = held_holds + 1
     gain = margin - (margin if first_margin is None else first_margin)
     if n >= HOLDS_TO_CONFIRM and gain >= MARGIN_GAIN:
-        return Verdict(CONFIRMED, f"pose held on {n} newer versions: margin {m}, +{gain:.2f}", n)
+        why = f"pose held on {n} newer versions: margin {m}, +{gain:.2f}"
+        return Verdict(CONFIRMED, why, n, proposed=True)
     return Verdict(CANDIDATE, f"pose held {n}/{HOLDS_TO_CONFIRM}: margin {m}, {gain:+.2f}", n)
 
 
@@ -218,7 +308,7 @@ def promotion_verdict(
     if accepted:
         if held:
             return Verdict(CONFIRMED, f"a search confirms the pose: margin {m}", proposed.holds)
-        return Verdict(ACCEPTED, f"a search found another pose: margin {m} clears {min_margin}")
+        return searched_accept(margin, min_margin, "a search found another pose: ")
     if not held or not in_grey_zone(margin, min_margin):
         return Verdict(REJECTED, f"contradicted by a search: {reason or f'margin {m}'}")
     gain = margin - (margin if first_margin is None else first_margin)

@@ -31,6 +31,7 @@ from protocol import (
     dequantise,
     encode,
     encode_map,
+    peek_map,
     quantise_grid,
 )
 from protocol.messages import DEFAULT_TILE_SIZE
@@ -39,7 +40,7 @@ MAP_MESSAGES = (MapTiles, Manifest)
 #: Peers tracked at most: a flood of invented robot ids cannot exhaust memory.
 MAX_PEERS = 256
 
-__all__ = ["MAP_MESSAGES", "Inbound", "Link", "Outbound", "encode_link", "link_record"]
+__all__ = ["MAP_MESSAGES", "Inbound", "Link", "Message", "Outbound", "encode_link", "link_record"]
 
 
 def on_the_wire(grid: Grid) -> Grid:
@@ -205,6 +206,11 @@ class Inbound:
     def decode(self, data: bytes) -> Message:
         """Decode and authenticate one payload; raises only ProtocolError."""
         return decode(data, self.key, self.limits)
+
+    def peek(self, data: bytes) -> tuple[bool, str, int] | None:
+        """``(is_tiles, robot, version)`` of an authentic map message, or None
+        (:func:`protocol.codec.peek_map`: cheap, nothing is decompressed)."""
+        return peek_map(data, self.key, self.limits)
 
     def feed(self, msg: MapTiles | Manifest) -> tuple[int, Grid, int | None] | None:
         """Feed a map message; ``(version, grid, first epoch)`` when a version completes.

@@ -68,12 +68,16 @@ from agent.trust import (
     CANDIDATE,
     CONFIRMED,
     IN_MAP,
+    QUIET_S,
     Verdict,
+    carried_verdict,
     clean_reason,
     first_verdict,
     holds,
     in_grey_zone,
     promotion_verdict,
+    provisional,
+    quiet_verdict,
     recheck_verdict,
 )
 from pgvd.grid import Grid
@@ -474,6 +478,10 @@ class FusionWorker:
         self._rebuilt_at = -np.inf
         #: Seconds between rebuilds of a global map still waiting for links, at least.
         self.preview_interval = 3.0
+        #: Seconds a provisional accept of this agent's waits on unchanged maps (:meth:`_quiet`).
+        self.quiet_s = QUIET_S
+        #: When each of this agent's provisional accepts on the maps held was first seen.
+        self._quiet_since: dict[tuple[object, ...], float] = {}
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
         self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
@@ -540,7 +548,14 @@ class FusionWorker:
             robots,
             snap.alive,
         )
-        if due:
+        # A preview that places another robot with this agent's own is what its user
+        # waits for: on replayed logs such a link waited 3-17 s, behind the preview gap
+        # and behind the registrations of robots that keep mapping, to be shown.  It comes
+        # first, after ``preview_interval`` at most (a robot joins the group once).
+        own = self._own_group(snap)
+        regrouped = self._built is not None and own != self._built[2]
+        show_first = regrouped and now - self._rebuilt_at >= self.preview_interval
+        if due and not show_first:
             # Checks first: they take tens of milliseconds, and each link they add may
             # turn a pair waiting for a full search into one more check.  Deferred checks
             # last among them: the links the others add may let their rejection stand.
@@ -548,22 +563,24 @@ class FusionWorker:
             others = any(k in checkable and k not in self._deferred for k in due[1:])
             self._register(snap, due[0], may_defer=others)
             return True
+        if not due and self._quiet(snap, now):
+            return True
         signature = (
             tuple(sorted((r, v, snap.firsts.get(r)) for r, (v, _) in snap.maps.items())),
             # the candidate used, not only its key: a preferred candidate arriving for a
             # key (another agent's, or a liar's) changes the global map
             snap.link_ids,
+            own,
         )
         # An unsettled map is only a preview: rebuilding it on every link of a round
         # would take CPU from the registrations the settled map waits for.
         checks_only = bool(snap.needed) and all(k in checkable for k in snap.needed)
         maps_moved = self._built is None or signature[0] != self._built[0]
+        gap = self.preview_interval if regrouped else self.preview_gap(checks_only, maps_moved)
         if (
             snap.maps
             and signature != self._built
-            and (
-                snap.settled or now - self._rebuilt_at >= self.preview_gap(checks_only, maps_moved)
-            )
+            and (snap.settled or now - self._rebuilt_at >= gap)
         ):
             self._built = signature  # a failing rebuild is not retried until inputs change
             self._rebuilt_at = now
@@ -577,7 +594,37 @@ class FusionWorker:
                     len(snap.maps), len(snap.links), "settled" if snap.settled else "preview",
                     self._rebuild_seconds, cpu,
                 )  # fmt: skip
-        return False
+        return bool(due)  # registrations put off for the preview
+
+    def _quiet(self, snap: Snapshot, now: float) -> bool:
+        """Confirm one of this agent's provisional accepts whose maps have not changed for
+        :attr:`quiet_s` (:func:`agent.trust.quiet_verdict`); True if one was.
+
+        Only the agent that decided the accept confirms it, so the fleet publishes one
+        record for it; the record, not the clock, is what every agent's global map follows.
+        """
+        versions = {r: v for r, (v, _) in snap.maps.items()}
+        waiting = {
+            (ln.identity, ln.version_a, ln.version_b): ln
+            for ln in snap.links
+            if ln.decided_by == self.me
+            and provisional(ln.state, ln.margin, self.min_margin)
+            and (ln.version_a, ln.version_b) == (versions.get(ln.a), versions.get(ln.b))
+        }
+        self._quiet_since = {k: self._quiet_since.get(k, now) for k in waiting}
+        ripe = [waiting[k] for k, t in self._quiet_since.items() if now - t >= self.quiet_s]
+        if not ripe:
+            return False
+        held = min(ripe, key=lambda ln: ln.pair)
+        res = Registration(True, held.matrix, held.covariance, held.score, "", held.margin)
+        base = replace(held, revision=held.revision + 1)
+        self._record(base, res, quiet_verdict(held.margin, self.quiet_s), "quiet", _Clock.start())
+        return True
+
+    def _own_group(self, snap: Snapshot) -> tuple[str, ...]:
+        """The robots the accepted links place with this agent's own."""
+        pairs = [ln.pair for ln in snap.links if ln.accepted]
+        return next((g for g in components(snap.maps, pairs) if self.me in g), ())
 
     def preview_gap(self, checks_only: bool = False, maps_moved: bool = True) -> float:
         """Seconds between two previews: ``preview_interval``, or more if rebuilds are slow.
@@ -658,21 +705,24 @@ class FusionWorker:
             res = Registration(False, *_REJECTED, 0.0, f"registration failed: {exc}")
         self.merges += 1
         self.merge_seconds += clock.elapsed()[0]
-        verdict = self._first_verdict(snap, a, b, res)
+        verdict = self._first_verdict(snap, a, b, res, searched=how == "searched")
         base = LinkRecord(a, va, b, vb, False, res.matrix, res.covariance, res.score, self.me)
         self._record(base, res, verdict, how, clock)
         if how == "searched" and res.accepted:
-            self._carry_forward(a, va, b, vb, res.matrix)
+            self._carry_forward(a, va, b, vb, res)
 
     @property
     def min_margin(self) -> float:
-        """The high bar (:mod:`agent.trust`): the merge's own ``min_margin``."""
+        """The merge's own bar ``min_margin`` (below :data:`agent.trust.HIGH_BAR`)."""
         from pgvd.params import DecisionParams
 
         return DecisionParams.min_margin
 
-    def _first_verdict(self, snap: Snapshot, a: str, b: str, res: Registration) -> Verdict:
-        """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`),
+    def _first_verdict(
+        self, snap: Snapshot, a: str, b: str, res: Registration, searched: bool = False
+    ) -> Verdict:
+        """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`;
+        ``searched``: by a full search, whose accept below the high bar is provisional),
         confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
         previous = next((ln for ln in snap.links if ln.pair == (a, b)), None)
         grid_b = snap.maps[b][1]
@@ -684,23 +734,43 @@ class FusionWorker:
             self.min_margin,
             None if previous is None else previous.state,
             previous is not None and holds(previous.matrix, res.matrix, grid_b),
+            searched,
         )
-        if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
+        if verdict.state == CANDIDATE and self._on_cycle(
+            snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
+        ):
             m = f"{res.margin:.2f}"
             return Verdict(CONFIRMED, f"on a cycle of accepted links: margin {m}")
         return verdict
 
-    def _on_cycle(self, snap: Snapshot, a: str, b: str, matrix: np.ndarray) -> bool:
+    def _on_cycle(
+        self, snap: Snapshot, a: str, b: str, matrix: np.ndarray, provisional: bool = False
+    ) -> bool:
         """Whether accepted links of the current epochs already place ``b`` on ``a`` where
-        ``matrix`` does (:func:`agent.trust.holds`): the pose closes a consistent cycle."""
+        ``matrix`` does (:func:`agent.trust.holds`): the pose closes a consistent cycle.
+
+        ``provisional``: the pose is a search's provisional accept, and the other pairs'
+        provisional accepts count as links too: two or more searches that each cleared the
+        merge's bar and agree around a cycle are unlikely to be wrong alike.
+        """
         if self.check is None:
             return False
         chains = self._chains_of(snap)
+        if provisional:
+            snap = replace(snap, links=[self._as_accepted(ln, (a, b)) for ln in snap.links])
+            chains = Chains(snap.maps, snap.links)
         group = next((g for g in chains.groups if a in g and b in g), None)
         if group is None or not _current_chain(snap, group):
             return False
         predicted = predict(chains.solved()[0], a, b)
         return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
+
+    def _as_accepted(self, ln: LinkRecord, pair: tuple[str, str]) -> LinkRecord:
+        """``ln`` as a link in the map if it is a provisional accept of another pair than
+        ``pair`` (:func:`agent.trust.provisional`), else ``ln``."""
+        if ln.pair == pair or not provisional(ln.state, ln.margin, self.min_margin):
+            return ln
+        return replace(ln, accepted=True, state=CONFIRMED)
 
     def _recheck(self, snap: Snapshot, held: LinkRecord) -> None:
         """Check a candidate again at its pose on the newer versions of its maps
@@ -729,9 +799,11 @@ class FusionWorker:
             res.reason,
             self.min_margin,
         )
-        if verdict.state == CONFIRMED:
+        if verdict.proposed:
             res, verdict = self._promotion(held, grid_a, grid_b, verdict)
-        if verdict.state == CANDIDATE and self._on_cycle(snap, a, b, res.matrix):
+        if verdict.state == CANDIDATE and self._on_cycle(
+            snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
+        ):
             why = f"on a cycle of accepted links: {verdict.reason}"
             verdict = Verdict(CONFIRMED, why, verdict.holds)
         revision = held.revision + 1
@@ -791,15 +863,18 @@ class FusionWorker:
         if self.book.add_link(rec):
             self.on_link(rec)
 
-    def _carry_forward(self, a: str, va: int, b: str, vb: int, matrix: np.ndarray) -> None:
-        """Check a search's transform on the maps that superseded its inputs meanwhile.
+    def _carry_forward(self, a: str, va: int, b: str, vb: int, found: Registration) -> None:
+        """Check a search's accepted transform on the maps that superseded its inputs
+        meanwhile.
 
         While robots map, a search (seconds on a loaded machine) often ends after either
         map started a new epoch: its link is of no use any more, and the pair would be
         searched again from scratch.  The robots' pixel frames stay the same within a
         source's canvas, so the transform found is a prediction for the new maps as good
         as a chain's, and a check (tens of milliseconds) may confirm it.  Only a
-        confirmation is taken; anything else leaves the pair to its next turn.
+        confirmation is taken; anything else leaves the pair to its next turn.  A search's
+        provisional accept (below :data:`agent.trust.HIGH_BAR`) is confirmed only where the
+        check holds at its pose: that is its re-check on a newer version.
         """
         held_a, held_b = self.book.map_of(a), self.book.map_of(b)
         if self.check is None or held_a is None or held_b is None:
@@ -811,14 +886,17 @@ class FusionWorker:
         clock = _Clock.start()
         self.counters.add("checks")
         try:
-            res = self.check(grid_a, grid_b, matrix)
+            res = self.check(grid_a, grid_b, found.matrix)
         except Exception as exc:  # as in _register: the pair's next turn will search it
             log.warning("check of %s v%d / %s v%d failed: %s", a, na, b, nb, exc)
             return
-        if res is None or not res.accepted:
+        if res is None:
+            return
+        held = holds(found.matrix, res.matrix, grid_b)
+        verdict = carried_verdict(found.margin, res.accepted, res.margin, held, self.min_margin)
+        if verdict is None:
             return
         self.counters.add("checks_confirmed")
-        verdict = first_verdict(True, res.margin, True, res.reason, self.min_margin)
         base = LinkRecord(a, na, b, nb, False, res.matrix, res.covariance, res.score, self.me)
         self._record(base, res, verdict, "carried forward", clock)
 
@@ -967,4 +1045,6 @@ class FusionWorker:
             "built %d components, %d maps warped: %.2f s, %.2f s CPU",
             len(components), layers.warps - warps, *clock.elapsed(),
         )  # fmt: skip
-        self.on_global(GlobalState(components, snap.settled, time.time()))
+        # an own provisional accept still waiting on quiet maps may yet enter the map
+        settled = snap.settled and not self._quiet_since
+        self.on_global(GlobalState(components, settled, time.time()))

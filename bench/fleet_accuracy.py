@@ -17,7 +17,9 @@ reports per building and N (:mod:`bench.fleet_history`):
   robot at the end) that every agent places right at the end;
 - per pair, the delay from its true overlap first reaching ``--min-overlap`` to both
   robots' own agents showing them rightly placed together, in seconds and in registration
-  epochs.
+  epochs, split at the moment the links decided anywhere in the fleet first joined them
+  (read from the agents' logs): the time the decision took, and the time the global maps
+  took to show it.
 
 What sampling can miss: a global map that an agent replaced within one poll (0.1 s) is
 never seen, so a wrong placement shown for less than that may go uncounted and the
@@ -277,6 +279,9 @@ def run_case(building: Building, n: int, seed: int, settings: Settings, workdir:
         dead = sorted(r for r, a in fleet.agents.items() if not a.alive())
     end = time.time() - t0
     overlaps = overlap_history(growing, rec.progress)
+    links = [
+        event for r in robots for event in fh.link_events(_log_lines(workdir / r / "agent.log"), t0)
+    ]
     truth = growing.truth()
     case = {
         "building": building.name,
@@ -291,10 +296,23 @@ def run_case(building: Building, n: int, seed: int, settings: Settings, workdir:
             "world_to_pixel": {r: m.tolist() for r, m in truth.world_to_pixel.items()},
             "shapes": {r: list(s) for r, s in truth.shapes.items()},
         },
-        "history": {"maps": rec.maps, "progress": rec.progress, "overlaps": overlaps},
+        "history": {
+            "maps": rec.maps,
+            "progress": rec.progress,
+            "overlaps": overlaps,
+            "links": sorted(links, key=lambda e: e["t"]),
+        },
     }
     case["summary"] = summarise(case, truth, settings)
     return case
+
+
+def _log_lines(path: Path) -> list[str]:
+    """The lines of an agent's log; none if it never wrote one."""
+    try:
+        return path.read_text(errors="replace").splitlines()
+    except FileNotFoundError:
+        return []
 
 
 def _run_duration(growing: GrowingMaps) -> float:
@@ -332,8 +350,9 @@ def summarise(case: Mapping, truth: fh.Truth, settings: Settings) -> dict:
     overlapping = sorted({r for pair in pairs for r in pair})
     right = fh.placed_right_at_end(hist["maps"], robots, truth, tol)
     delays = fh.pair_delays(
-        hist["maps"], hist["progress"], hist["overlaps"], truth, tol, settings.min_overlap
-    )
+        hist["maps"], hist["progress"], hist["overlaps"], truth, tol, settings.min_overlap,
+        hist.get("links", ()),
+    )  # fmt: skip
     return {
         "global_maps_seen": len(hist["maps"]),
         "wrong_spells": spells,
@@ -367,14 +386,17 @@ def table(cases: Sequence[Mapping]) -> str:
         "| building | N | seed | agreed after (s) | global maps seen | wrong placements shown "
         "| robots ever wrong | longest wrong (s) | wrong at end | overlapping robots placed "
         "right at end | pairs reaching overlap | placed together | delay s (median / max) "
-        "| delay epochs (median / max) |"
+        "| delay epochs (median / max) | of which deciding / showing s (median) |"
     )
-    lines = [head, "|" + "---|" * 14]
+    lines = [head, "|" + "---|" * 15]
     for c in cases:
         s = c["summary"]
         placed = [d for d in s["delays"] if d["seconds"] is not None]
         secs = [d["seconds"] for d in placed]
         eps = [d["epochs"] for d in placed]
+        split = [d for d in placed if d.get("linked_at") is not None]
+        deciding = [d["linked_at"] - d["overlap_at"] for d in split]
+        showing = [d["placed_at"] - d["linked_at"] for d in split]
         frac = s["placed_right_fraction"]
         agreed = "NO" if c["agreed_s"] is None else c["agreed_s"]
         lines.append(
@@ -385,9 +407,13 @@ def table(cases: Sequence[Mapping]) -> str:
             f"| {len(s['placed_right_at_end'])}/{len(s['overlapping_robots'])}"
             f"{'' if frac is None else f' ({frac:.0%})'} "
             f"| {len(s['delays'])} | {len(placed)} | {_median_max(secs, '.1f')} "
-            f"| {_median_max(eps, '.0f')} |"
+            f"| {_median_max(eps, '.0f')} | {_median(deciding)} / {_median(showing)} |"
         )
     return "\n".join(lines)
+
+
+def _median(values: Sequence[float]) -> str:
+    return f"{float(np.median(values)):.1f}" if values else "-"
 
 
 def _median_max(values: Sequence[float], fmt: str) -> str:
@@ -419,7 +445,9 @@ def markdown(cases: Sequence[Mapping], argv: Sequence[str], settings: Settings, 
         "Delay: from a pair's true overlap first reaching that threshold (as the segments "
         "grew) to both robots' own agents showing the two rightly placed together, in seconds "
         "and in registration epochs both robots began meanwhile; negative when the fleet "
-        "placed them before the overlap reached the threshold.  A global map replaced within "
+        "placed them before the overlap reached the threshold.  Deciding: until the links "
+        "decided anywhere (the agents' logs) first joined the pair; showing: from then until "
+        "both robots' agents showed it.  A global map replaced within "
         "one poll is not seen; replay cursors come with the status, about once a second.\n\n"
         "![placements over time](fleet-accuracy.png)\n"
     )

@@ -8,7 +8,10 @@ Pure functions on a recorded history, for :mod:`bench.fleet_accuracy`.  A histor
 - *progress*: ``{"t", "robot", "cursor", "epochs"}`` whenever a robot's replay cursor or its
   count of registration epochs changed;
 - *overlaps*: ``{"t", "pair", "overlap"}``, the true overlap of two robots' maps as their
-  segments grow (:func:`agent.evaluate.true_overlap`).
+  segments grow (:func:`agent.evaluate.true_overlap`);
+- *links*: ``{"t", "agent", "pair", "state", "margin", "how"}``, every link decision the
+  agents logged (:func:`link_events`), to tell the time a decision took from the time its
+  global map took to show it.
 
 A robot is *placed* on an agent when it shares a component of that agent's global map with
 another robot; its placement is *wrong* when its transform to the anchor is off the truth
@@ -18,14 +21,25 @@ largest displacement of its canvas corners in cells).
 
 from __future__ import annotations
 
+import re
+import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from agent.evaluate import link_error, true_matrix
+from agent.trust import IN_MAP
+from pgvd.posegraph import components
 
 UNPLACED, RIGHT, WRONG = "unplaced", "right", "wrong"
+#: A link decision as an agent logs it (:meth:`agent.links.LinkRecord.logfmt` and the worker's
+#: ``how=`` and ``seconds=``), after the log's local time and robot.
+LINK_LINE = re.compile(
+    r"^(?P<when>\d{4}-\d\d-\d\d \d\d:\d\d:\d\d),(?P<ms>\d{3}) (?P<agent>\S+) INFO "
+    r"link pair=(?P<a>[^/\s]+)/(?P<b>\S+) versions=\S+ outcome=(?P<state>\w+) "
+    r"margin=(?P<margin>\S+) .* how=(?P<how>[\w ]+?) seconds="
+)
 
 
 @dataclass(frozen=True)
@@ -177,16 +191,19 @@ def pair_delays(
     truth: Truth,
     tol: Tolerance,
     threshold: float,
+    links: Sequence[Mapping] = (),
 ) -> list[dict]:
     """For each pair whose true overlap reached ``threshold``: how long until placed together.
 
     Returns
     -------
     list of dict
-        ``{"pair", "overlap_at", "placed_at", "seconds", "epochs"}``: ``seconds`` is
-        ``placed_at - overlap_at`` (negative when the fleet placed them together before the
-        overlap reached the threshold; None if never), ``epochs`` the registration epochs
-        both robots began in between (:mod:`agent.links`), negative likewise.
+        ``{"pair", "overlap_at", "placed_at", "seconds", "epochs", "linked_at"}``:
+        ``seconds`` is ``placed_at - overlap_at`` (negative when the fleet placed them
+        together before the overlap reached the threshold; None if never), ``epochs`` the
+        registration epochs both robots began in between (:mod:`agent.links`), negative
+        likewise; ``linked_at`` when the ``links`` decided anywhere joined them
+        (:func:`linked_at`), None if never or without ``links``.
     """
     out = []
     for pair in sorted({o["pair"] for o in overlaps}):
@@ -208,6 +225,7 @@ def pair_delays(
                 "placed_at": placed,
                 "seconds": None if placed is None else placed - start,
                 "epochs": epochs,
+                "linked_at": linked_at(links, a, b),
             }
         )
     return out
@@ -222,3 +240,39 @@ def placed_right_at_end(
         last = held
     shown = [placements(comps, truth, tol) for comps in last.values()]
     return {r: bool(shown) and all(s.get(r) == RIGHT for s in shown) for r in robots}
+
+
+def link_events(lines: Iterable[str], t0: float) -> list[dict]:
+    """The link decisions of an agent's log lines (:data:`LINK_LINE`; other lines are
+    skipped), their times in seconds since ``t0`` (a POSIX time; the log is in local time)."""
+    out = []
+    for line in lines:
+        m = LINK_LINE.match(line)
+        if m is None:
+            continue
+        when = time.mktime(time.strptime(m["when"], "%Y-%m-%d %H:%M:%S")) + int(m["ms"]) / 1e3
+        out.append(
+            {
+                "t": round(when - t0, 3),
+                "agent": m["agent"],
+                "pair": f"{m['a']}-{m['b']}",
+                "state": m["state"],
+                "margin": None if m["margin"] == "none" else float(m["margin"]),
+                "how": m["how"],
+            }
+        )
+    return out
+
+
+def linked_at(links: Sequence[Mapping], a: str, b: str) -> float | None:
+    """First time the links in the global map, as decided anywhere in the fleet (each pair's
+    latest decision standing), joined ``a`` and ``b``: when the fleet had decided them."""
+    state: dict[tuple[str, str], bool] = {}
+    for ln in sorted(links, key=lambda ln: ln["t"]):
+        pair = tuple(ln["pair"].split("-"))
+        state[pair] = ln["state"] in IN_MAP  # type: ignore[index]
+        robots = {r for p in state for r in p} | {a, b}
+        joined = components(robots, [p for p, inside in state.items() if inside])
+        if any(a in g and b in g for g in joined):
+            return ln["t"]
+    return None

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pgvd.agreement import local_agreement, map_agreement
+from pgvd.agreement import local_agreements, map_agreement
 from pgvd.decision import Decision, Scored, decide, restate, shifted
 from pgvd.hypotheses import Hypothesis
 from pgvd.overlay import Agreement
@@ -20,24 +20,34 @@ from pgvd.walls import WallMap
 def score_hypothesis(
     m: np.ndarray, fine_a: WallMap, fine_b: WallMap, params: MergeParams, res: float
 ) -> Scored:
-    """The pose ``m`` (B->A pixels, ``res`` m a cell) with its drift-tolerant overlay counts.
+    """The pose ``m`` (B->A pixels, ``res`` m a cell) with its drift-tolerant overlay counts
+    (:func:`score_hypotheses` of that pose alone)."""
+    return score_hypotheses([m], fine_a, fine_b, params, res)[0]
+
+
+def score_hypotheses(
+    ms: list[np.ndarray], fine_a: WallMap, fine_b: WallMap, params: MergeParams, res: float
+) -> list[Scored]:
+    """The poses ``ms`` (B->A pixels, ``res`` m a cell) with their drift-tolerant overlay
+    counts.
 
     Counted on subsamples of ``params.refinement.refine_points`` walls, each
-    ``distortion_block`` square re-aligned by up to ``drift_shift`` (``params.decision``,
-    :func:`pgvd.agreement.local_agreement`); the rigid overlay when that is 0.
+    ``distortion_block`` square re-aligned by up to ``drift_shift`` first (``params.decision``,
+    :func:`pgvd.agreement.local_agreements`: all poses in one pass); the rigid overlay when
+    that is 0.
     """
     points, decision = params.refinement.refine_points, params.decision
     if decision.drift_shift <= 0:
-        return Scored(m, map_agreement(fine_a, fine_b, m, max_points=points))
-    agreement = local_agreement(
+        return [Scored(m, map_agreement(fine_a, fine_b, m, max_points=points)) for m in ms]
+    agreements = local_agreements(
         fine_a,
         fine_b,
-        m,
+        ms,
         block=decision.distortion_block / res,
         max_shift=decision.drift_shift / res,
         max_points=points,
     )
-    return Scored(m, agreement)
+    return [Scored(m, agreement) for m, agreement in zip(ms, agreements, strict=True)]
 
 
 def weigh(
@@ -48,17 +58,14 @@ def weigh(
     The rivals are the other poses of ``scored`` (farther than
     ``rival_distance`` or 2 degrees from the best) and the best pose shifted by
     ``probe_shifts`` times that distance along A's axes (``params.decision``),
-    scored by :func:`score_hypothesis`; ``res`` is the cell size (m).
+    scored by :func:`score_hypotheses`; ``res`` is the cell size (m).
     """
     rival_px = params.decision.rival_distance / res
     centre = fine_b.walls.mean(axis=0)
     weight, noise = params.decision.disagreement_weight, params.decision.margin_noise
     first = decide(scored, weight, centre, px=rival_px, noise=noise)
     steps = tuple(s * rival_px for s in params.decision.probe_shifts)
-    probes = [
-        score_hypothesis(m, fine_a, fine_b, params, res)
-        for m in shifted(first.winner.matrix, steps)
-    ]
+    probes = score_hypotheses(shifted(first.winner.matrix, steps), fine_a, fine_b, params, res)
     return decide(scored, weight, centre, px=rival_px, probes=probes, noise=noise)
 
 
@@ -93,7 +100,7 @@ def decide_finalists(
 ) -> tuple[int, Decision, np.ndarray]:
     """The decision among finalists already refined on a subsample, and the winner refined.
 
-    Each pose is scored by :func:`score_hypothesis` (each square of the overlap
+    Each pose is scored by :func:`score_hypotheses` (each square of the overlap
     re-aligned by up to ``params.decision.drift_shift`` first: a drifted map has no
     single rigid fit) and the best is weighed against its rivals
     (:func:`weigh`).  The winner is then refined on all its wall cells,
@@ -118,7 +125,7 @@ def decide_finalists(
         The index of the winner in ``refined``, the decision of the refined winner
         and its B->A pixel matrix.
     """
-    scored = [score_hypothesis(m, fine_a, fine_b, params, res) for m in refined]
+    scored = score_hypotheses(refined, fine_a, fine_b, params, res)
     decision = weigh(scored, fine_a, fine_b, params, res)
     index = next(i for i, s in enumerate(scored) if s is decision.winner)
     matrix = final_refinement(decision.winner.matrix, fine_a, fine_b, params)

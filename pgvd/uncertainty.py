@@ -187,6 +187,11 @@ def release_caches() -> None:
     """
     _polar_geometry.cache_clear()
     _blurred_totals.cache_clear()
+    _CACHED_KEY.clear()
+
+
+#: The key of :func:`_polar_geometry`'s one cached entry, if any (:func:`rotation_blur`).
+_CACHED_KEY: set[tuple[object, ...]] = set()
 
 
 @lru_cache(maxsize=1)
@@ -284,21 +289,29 @@ def rotation_blur(
         min(math.ceil(2 * math.pi * _BINS_PER_SIGMA / sigma_psi), math.ceil(2 * math.pi * r_max))
     )
     key = ((h, w), (round(cx, 6), round(cy, 6)), n_theta)
+    if key not in _CACHED_KEY:
+        # another canvas: the cached geometry and totals go before the new ones are built,
+        # not after, which held both at once (~20 MB more on a 550 x 550 global map)
+        release_caches()
+        _CACHED_KEY.add(key)
     idx, wts, totals, n_rings = _polar_geometry(*key)
     # nearest-bin splat and read each add the variance of a uniform bin (1/12 bin^2)
     sigma_bins = round(math.sqrt(max((sigma_psi * n_theta / (2 * math.pi)) ** 2 - 1 / 6, 0)), 9)
     if sigma_bins == 0:  # under a bin's own quantisation: scipy would divide by 0
         return img.copy()
-    sums = np.bincount(idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=totals.size)
-    sums = ndimage.gaussian_filter1d(
-        sums.astype(np.float32).reshape(n_rings, n_theta),
-        sigma_bins,
-        axis=1,
-        mode="wrap",
-        truncate=3.0,
+    # The bins outnumber the pixels ~10 to 1 (rings half a pixel apart, one bin per pixel at
+    # r_max): each array of them is ~10 MB on a 550 x 550 global map, so as few are alive at
+    # once as can be. The float64 counts go as soon as they are float32.
+    binned = np.bincount(idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=totals.size)
+    binned = binned.astype(np.float32)
+    polar = ndimage.gaussian_filter1d(
+        binned.reshape(n_rings, n_theta), sigma_bins, axis=1, mode="wrap", truncate=3.0
     ).ravel()
+    del binned
     norm = _blurred_totals(*key, sigma_bins)
-    polar = np.divide(sums, norm, out=np.zeros_like(norm), where=norm > 1e-6)
+    empty = norm <= 1e-6
+    polar[empty] = 0.0
+    np.divide(polar, norm, out=polar, where=~empty)
     return np.einsum("ij,ij->i", polar[idx], wts).reshape(h, w)
 
 

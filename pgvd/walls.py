@@ -156,13 +156,24 @@ class WallMap:
         A point agrees within ``tolerance`` of a wall here and disagrees on a
         free cell farther than ``2 tolerance`` from every wall.
         """
+        agree, disagree = self.count_each(points, tolerance, np.zeros(len(points), np.intp))
+        return int(agree[0]), int(disagree[0])
+
+    def count_each(
+        self, points: np.ndarray, tolerance: float, owner: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`count` of the points of each owner: (agree, disagree), int arrays indexed
+        by ``owner`` (ints from 0, one a point), as long as its largest value plus one."""
         dist, _ = self.nearest(points, 2 * tolerance + 1e-9)
         ij = np.rint(points).astype(np.int64)
         h, w = self.free.shape
         inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
         free = np.zeros(len(points), bool)
         free[inside] = self.free[ij[inside, 1], ij[inside, 0]]
-        return int(np.sum(dist <= tolerance)), int(np.sum(free & ~np.isfinite(dist)))
+        n = int(owner.max()) + 1 if owner.size else 1
+        agree = np.bincount(owner[dist <= tolerance], minlength=n)
+        disagree = np.bincount(owner[free & ~np.isfinite(dist)], minlength=n)
+        return agree, disagree
 
 
 Walls = cKDTree | WallMap

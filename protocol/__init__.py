@@ -79,7 +79,7 @@ Wire layout (:mod:`protocol.codec`, schema version 3)
 """
 
 from protocol.auth import ReplayGuard
-from protocol.codec import SCHEMA_VERSION, decode, encode
+from protocol.codec import SCHEMA_VERSION, decode, encode, peek_map
 from protocol.errors import REASONS, ProtocolError
 from protocol.fetch import MAX_FETCH_TILES, TileFetch, fetch_parameters, parse_fetch
 from protocol.limits import Limits
@@ -122,6 +122,7 @@ __all__ = [
     "encode_map",
     "fetch_parameters",
     "parse_fetch",
+    "peek_map",
     "quantise",
     "quantise_grid",
 ]

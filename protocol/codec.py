@@ -189,6 +189,53 @@ def decode(data: bytes, key: bytes | None = None, limits: Limits = Limits()) -> 
     ProtocolError
         On any malformed, oversized, corrupted, unauthenticated or invalid input.
     """
+    covered = _open(data, key, limits)
+    try:
+        body = msgpack.unpackb(
+            covered[HEADER_BYTES:], raw=False, strict_map_key=True, use_list=True
+        )
+    except Exception as exc:  # msgpack raises a zoo of types on bad input
+        raise ProtocolError(
+            f"malformed msgpack body: {type(exc).__name__}", reason="schema"
+        ) from None
+    if not isinstance(body, list) or not body:
+        raise ProtocolError("message body must be a non-empty array", reason="schema")
+    kind = body[0]
+    entry = None if isinstance(kind, bool) or not isinstance(kind, int) else _PARSERS.get(kind)
+    if entry is None:
+        raise ProtocolError(f"unknown message kind {kind!r}", reason="schema")
+    name, parser = entry
+    return parser(_Fields(body[1:], name), limits)
+
+
+def peek_map(
+    data: bytes,
+    key: bytes | None = None,
+    limits: Limits = Limits(),  # noqa: B008
+) -> tuple[bool, str, int] | None:
+    """``(is_tiles, robot, version)`` of a map message, or None for any other payload.
+
+    Authenticated like :func:`decode`, but only the first fields of the body are read and
+    nothing is decompressed: a receiver can tell which queued tiles a newer version
+    supersedes at the cost of the trailer's check. None says nothing about validity:
+    :func:`decode` still decides.
+    """
+    try:
+        covered = _open(data, key, limits)
+        unpacker = msgpack.Unpacker(raw=False, strict_map_key=True)
+        unpacker.feed(covered[HEADER_BYTES:])
+        if unpacker.read_array_header() < 4:
+            return None
+        kind, _, robot, version = (unpacker.unpack() for _ in range(4))
+    except Exception:  # whatever is wrong, decode() will say what
+        return None
+    if not all(type(v) is t for v, t in ((kind, int), (robot, str), (version, int))):
+        return None  # bool is an int subclass: an exact type check refuses it
+    return (kind == KIND_TILES, robot, version) if kind in (KIND_TILES, KIND_MANIFEST) else None
+
+
+def _open(data: bytes, key: bytes | None, limits: Limits) -> bytes:
+    """The bytes a message's trailer covers, header included, once framing and trailer hold."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"message must be bytes, got {type(data).__name__}", reason="framing")
     data = bytes(data)
@@ -212,23 +259,7 @@ def decode(data: bytes, key: bytes | None = None, limits: Limits = Limits()) -> 
     flags = data[3]
     if flags & ~FLAG_MAC:
         raise ProtocolError(f"unknown flags 0x{flags:02x}", reason="schema")
-    covered = unseal(data, bool(flags & FLAG_MAC), key)
-    try:
-        body = msgpack.unpackb(
-            covered[HEADER_BYTES:], raw=False, strict_map_key=True, use_list=True
-        )
-    except Exception as exc:  # msgpack raises a zoo of types on bad input
-        raise ProtocolError(
-            f"malformed msgpack body: {type(exc).__name__}", reason="schema"
-        ) from None
-    if not isinstance(body, list) or not body:
-        raise ProtocolError("message body must be a non-empty array", reason="schema")
-    kind = body[0]
-    entry = None if isinstance(kind, bool) or not isinstance(kind, int) else _PARSERS.get(kind)
-    if entry is None:
-        raise ProtocolError(f"unknown message kind {kind!r}", reason="schema")
-    name, parser = entry
-    return parser(_Fields(body[1:], name), limits)
+    return unseal(data, bool(flags & FLAG_MAC), key)
 
 
 class _Fields:

@@ -195,6 +195,7 @@ ADMISSION = {
 ELSEWHERE = {
     "own_map_unencodable": "test_an_own_map_beyond_the_wire_is_dropped_and_nothing_goes_out",
     "overload": "tests/test_agent_inbox.py::test_the_agent_counts_what_does_not_fit_as_overload",
+    "superseded": "tests/test_agent_inbox.py::test_queued_tiles_of_a_superseded_version_dropped",
 }
 
 

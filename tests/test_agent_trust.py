@@ -37,6 +37,43 @@ def test_the_first_decision_is_accepted_candidate_or_rejected_by_its_margin() ->
     assert trust.first_verdict(False, 0.3, False, "no pose", bar).state == trust.REJECTED
 
 
+def test_a_search_accept_below_the_high_bar_is_provisional_until_re_checked() -> None:
+    bar, high = 0.57, trust.HIGH_BAR
+    assert trust.first_verdict(True, high, True, "", bar, searched=True).state == trust.ACCEPTED
+    first = trust.first_verdict(True, 0.58, True, "", bar, searched=True)
+    assert first.state == trust.CANDIDATE and first.reason.startswith("provisional"), first
+    assert trust.provisional(first.state, 0.58, bar)
+    assert not trust.provisional(trust.CANDIDATE, 0.41, bar)  # a grey-zone candidate
+    # a check at the pose the accepted links predict needs no high bar
+    assert trust.first_verdict(True, 0.58, True, "", bar).state == trust.ACCEPTED
+    # its re-check on a newer version confirms it outright where the pose holds ...
+    held = trust.recheck_verdict(0, 0.58, 0.58, True, 0.75, True, "", bar)
+    assert (held.state, held.proposed) == (trust.CONFIRMED, False), held
+    # ... and only proposes a confirmation, for a search to agree with, where it moved
+    moved = trust.recheck_verdict(0, 0.58, 0.58, True, 0.75, False, "", bar)
+    assert (moved.state, moved.proposed) == (trust.CONFIRMED, True), moved
+    # found again at the same pose by a new epoch's search
+    again = trust.first_verdict(True, 0.6, True, "", bar, trust.CANDIDATE, True, searched=True)
+    assert again.state == trust.CONFIRMED
+    # carried forward: a check of the search's pose on newer maps
+    assert trust.carried_verdict(0.6, True, 0.8, True, bar).state == trust.CONFIRMED
+    assert trust.carried_verdict(0.6, True, 0.8, False, bar) is None
+    assert trust.carried_verdict(high, True, 0.8, False, bar).state == trust.ACCEPTED
+    assert trust.carried_verdict(high, False, 0.3, True, bar) is None
+
+
+def test_the_high_bar_is_where_the_development_bench_puts_1_bad_winner_in_1000() -> None:
+    from bench.studies.acceptance import margins
+    from bench.studies.ceiling import read_run
+    from bench.studies.greyzone import tail_bar
+
+    merge = Path(__file__).resolve().parents[1] / "bench" / "results" / "merge.json"
+    classes = margins(read_run(merge, fields=())["records"])
+    bad = [m for c in ("wrong", "negative") for _, m in classes[c]]
+    assert round(tail_bar(bad, trust.GREY_FLOOR), 2) == trust.HIGH_BAR
+    assert max(bad) < trust.HIGH_BAR
+
+
 def test_a_new_epoch_confirms_a_held_link_and_withdraws_a_contradicted_one() -> None:
     bar = 0.57
     held = trust.first_verdict(False, 0.3, True, "", bar, trust.ACCEPTED, held=True)
@@ -72,10 +109,12 @@ def test_a_proposed_confirmation_stands_only_where_a_search_agrees() -> None:
     proposed = trust.Verdict(trust.CONFIRMED, "re-check clears the bar", 1)
     agrees = trust.promotion_verdict(proposed, True, 0.7, True, 0.2, "", bar)
     assert (agrees.state, agrees.holds) == (trust.CONFIRMED, 1)
-    # the search accepts another pose: a link of its own, the candidate's pose dropped
-    assert trust.promotion_verdict(proposed, True, 0.7, False, 0.2, "", bar).state == (
+    # the search accepts another pose: a first try of its own, the candidate's pose dropped
+    assert trust.promotion_verdict(proposed, True, 0.9, False, 0.2, "", bar).state == (
         trust.ACCEPTED
     )
+    other = trust.promotion_verdict(proposed, True, 0.7, False, 0.2, "", bar)
+    assert other.state == trust.CANDIDATE and trust.provisional(other.state, 0.7, bar), other
     # a far rival the check could not see keeps the search in the grey zone
     grey = trust.promotion_verdict(proposed, False, 0.22, True, 0.19, "rival", bar)
     assert grey.state == trust.CANDIDATE and "+0.03" in grey.reason, grey
@@ -273,3 +312,93 @@ def test_a_check_blind_to_far_rivals_cannot_confirm_a_mirror_candidate(logs) -> 
     r1.worker.check = blind
     states = mirror_replay(logs["intel"], r1)
     assert trust.CONFIRMED not in states and trust.ACCEPTED not in states, states
+
+
+@pytest.fixture(scope="module")
+def intel_pair(logs) -> tuple[Grid, list[Grid], np.ndarray]:
+    """Two overlapping parts of intel, the second grown over two versions, and the true
+    B-pixel -> A-pixel matrix of the second version."""
+    from bench.data.pairs import random_frame, true_matrix
+
+    scans = logs["intel"]
+    rng = np.random.default_rng(7)
+    frame_a, frame_b = random_frame(rng), random_frame(rng)
+    (map_a,) = growing(scans, frame_a, scans[100:300], [scans[100:300]])
+    maps_b = growing(scans, frame_b, scans[200:450], [scans[200:400], scans[200:450]])
+    return map_a, maps_b, true_matrix(map_a, frame_a, maps_b[-1], frame_b)
+
+
+def searching_at(truth: np.ndarray, margin: float):
+    """A search that finds the true pose at ``margin``: where a first try's accept lands
+    decides whether it enters at once, whatever the merge would score on these maps."""
+    from agent.worker import Registration
+
+    cov = np.diag([0.25, 0.25, 1e-5])
+    return lambda a, b: Registration(True, truth, cov, 0.95, "accepted", margin)
+
+
+def pair_of_agents(intel_pair, margin: float) -> dict[str, Agent]:
+    """r1 and r2 holding the first versions; r1 decides the pair by ``searching_at``."""
+    map_a, maps_b, truth = intel_pair
+    agents = {me: Agent(me) for me in ("r1", "r2")}
+    agents["r1"].worker.register = searching_at(truth, margin)
+    for agent in agents.values():
+        agent.book.put_map("r1", V(1), map_a)
+        agent.book.put_map("r2", V(1), maps_b[0])
+        agent.step(now=0.0)  # r1 registers the pair (its turn); r2 waits for r1's link
+    (decided,) = agents["r1"].links
+    agents["r2"].book.add_link(decided)
+    agents["r2"].step(now=0.5)
+    return agents
+
+
+def test_a_first_try_below_the_high_bar_enters_only_once_a_newer_version_re_checks_it(
+    intel_pair,
+) -> None:
+    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2)
+    for agent in agents.values():
+        assert agent.record("r1", "r2").state == trust.CANDIDATE
+        assert not agent.joined("r1", "r2")
+    for agent in agents.values():
+        agent.book.put_map("r2", V(1, 1), intel_pair[1][1])
+        agent.step(now=1.0)  # r1 re-checks its pose with pgvd.verify, no search
+    rechecked = agents["r1"].links[-1]
+    assert rechecked.state == trust.CONFIRMED and rechecked.revision == 1, rechecked
+    agents["r2"].book.add_link(rechecked)
+    agents["r2"].step(now=1.5)
+    digests = set()
+    for agent in agents.values():
+        assert agent.joined("r1", "r2")
+        digests.add(tuple(c.digest for c in agent.globals[-1].components))
+    assert len(digests) == 1, digests
+
+
+def test_a_first_try_at_the_high_bar_enters_at_once(intel_pair) -> None:
+    agents = pair_of_agents(intel_pair, trust.HIGH_BAR)
+    for agent in agents.values():
+        assert agent.record("r1", "r2").state == trust.ACCEPTED
+        assert agent.joined("r1", "r2")
+    assert agents["r1"].globals[-1].components[0].digest == (
+        agents["r2"].globals[-1].components[0].digest
+    )
+
+
+def test_a_first_try_below_the_high_bar_on_maps_that_stay_unchanged_enters_after_the_quiet(
+    intel_pair,
+) -> None:
+    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2)
+    r1 = agents["r1"]
+    r1.step(now=0.5 + trust.QUIET_S - 1.0)  # not yet quiet long enough
+    assert r1.record("r1", "r2").state == trust.CANDIDATE and not r1.joined("r1", "r2")
+    assert not r1.globals[-1].settled  # its own provisional accept may still enter
+    r1.step(now=0.5 + trust.QUIET_S)
+    quiet = r1.links[-1]
+    assert quiet.state == trust.CONFIRMED and quiet.revision == 1, quiet
+    assert "unchanged maps" in quiet.reason
+    assert np.array_equal(quiet.matrix, r1.links[0].matrix)
+    agents["r2"].book.add_link(quiet)
+    agents["r2"].step(now=20.0)  # r2 decided nothing: it confirms nothing, it follows r1
+    assert len(agents["r2"].links) == 0
+    digests = {tuple(c.digest for c in a.globals[-1].components) for a in agents.values()}
+    assert all(a.joined("r1", "r2") and a.globals[-1].settled for a in agents.values())
+    assert len(digests) == 1, digests

@@ -815,3 +815,16 @@ def test_whose_turn_a_pair_is_counts_the_robots_alive_before_their_maps(me, at_o
     h.book.put_map("r8", V(1), tiny(8))
     assert h.worker.step(now=0.0) == at_once
     assert len(h.calls) == int(at_once)
+
+
+def test_a_robot_newly_placed_with_the_agents_own_is_shown_before_more_registrations() -> None:
+    h = Harness("r1")
+    h.book.put_map("r1", V(1), tiny(1))
+    assert not h.worker.step(now=0.0) and len(h.globals) == 1  # r1 alone
+    h.book.put_map("r2", V(1), tiny(2))
+    assert h.worker.step(now=5.0) and len(h.calls) == 1  # r1-r2 linked
+    h.book.put_map("r2", V(2), tiny(3))  # a new epoch: r1-r2 is due again at once
+    assert h.worker.step(now=5.1)
+    assert len(h.calls) == 1 and len(h.globals) == 2  # shown first, registration put off
+    assert h.globals[-1].components[0].members == ("r1", "r2")
+    assert h.worker.step(now=5.2) and len(h.calls) == 2

@@ -107,11 +107,40 @@ def test_delay_runs_from_the_overlap_threshold_until_both_agents_place_the_pair(
         "placed_at": 5.0,
         "seconds": 3.0,
         "epochs": (3 - 1) + (2 - 1),
+        "linked_at": None,
     }
     # a pair never placed has no delay; a pair that never reached the threshold is left out
     (never,) = fh.pair_delays(maps[:3], progress, overlaps, TRUTH, TOL, 0.3)
     assert never["placed_at"] is None and never["seconds"] is None and never["epochs"] is None
     assert fh.pair_delays(maps, progress, overlaps, TRUTH, TOL, 0.6) == []
+
+
+def test_link_decisions_are_read_from_the_agents_logs_and_join_pairs_over_chains() -> None:
+    import time
+
+    t0 = time.mktime(time.strptime("2026-12-04 23:40:10", "%Y-%m-%d %H:%M:%S"))
+    lines = [
+        "2026-12-04 23:40:17,992 r1 INFO robot r4 joined",
+        "2026-12-04 23:40:18,337 r1 INFO link pair=r1/r2 versions=1.0/1.0 outcome=candidate "
+        'margin=0.68 holds=0 by=r1 reason="provisional: margin 0.68" how=searched seconds=0.05',
+        "2026-12-04 23:40:19,500 r2 INFO link pair=r2/r3 versions=1.0/1.0 outcome=accepted "
+        'margin=0.92 holds=0 by=r2 reason="margin 0.92 clears 0.89" how=searched seconds=1.2',
+        "2026-12-04 23:40:20,000 r1 INFO link pair=r1/r2 versions=1.1/1.0 outcome=confirmed "
+        'margin=0.80 holds=1 by=r1 reason="holds" how=rechecked seconds=0.3',
+        "2026-12-04 23:40:21,250 r1 INFO link pair=r1/r3 versions=2.0/1.0 outcome=rejected "
+        'margin=none holds=0 by=r1 reason="no pose" how=carried forward seconds=0.1',
+    ]
+    events = fh.link_events(lines, t0)
+    assert [(e["t"], e["pair"], e["state"], e["how"]) for e in events] == [
+        (8.337, "r1-r2", "candidate", "searched"),
+        (9.5, "r2-r3", "accepted", "searched"),
+        (10.0, "r1-r2", "confirmed", "rechecked"),
+        (11.25, "r1-r3", "rejected", "carried forward"),
+    ]
+    assert events[0]["margin"] == 0.68 and events[-1]["margin"] is None
+    # a candidate does not join; its confirmation joins r1 to r3 over r2
+    assert fh.linked_at(events, "r1", "r2") == fh.linked_at(events, "r1", "r3") == 10.0
+    assert fh.linked_at(events, "r1", "r4") is None
 
 
 def test_timeline_colours_a_robot_by_what_all_agents_show() -> None:
@@ -226,6 +255,9 @@ def test_two_agents_report_what_their_status_files_say(tmp_path: Path, kind: str
     (delay,) = summary["delays"]
     assert right != ["r1", "r2"] or delay["placed_at"] is not None
     assert summary["global_maps_seen"] == len(hist["maps"]) >= 2
+    # the agents' logged decisions: the link that joined the pair came before it was shown
+    assert {e["agent"] for e in hist["links"]} <= {"r1", "r2"} and hist["links"]
+    assert delay["placed_at"] is None or delay["linked_at"] <= delay["placed_at"]
     fa.write_results([case], ["--test"], settings, case["wall_s"], tmp_path / "out", False)
     md = (tmp_path / "out" / "fleet-accuracy.md").read_text()
     assert f"| {building.name} | 2 | 7 |" in md

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pgvd.agreement import local_agreement, map_agreement
+from pgvd.agreement import local_agreement, local_agreements, map_agreement
 from pgvd.alignment import residual_distortion
 from pgvd.decision import Scored, decide, describe_rival, restate, same_pose, shifted
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
@@ -151,6 +151,27 @@ def test_local_agreement_forgives_drift_not_a_wrong_pose(shared, intel):
     for wrong in (rigid_matrix(0.0, 60.0, 0.0) @ truth, rigid_matrix(0.05, 0.0, 0.0) @ truth):
         off = local_agreement(fine_a, bent, wrong, block, shift, max_points=1500)
         assert evidence(off) < 0 < evidence(local), off
+
+
+def test_poses_scored_together_count_as_one_by_one(shared, intel):
+    # the decision scores its finalists and probes in one pass: the truth, poses off by a
+    # few cells, by 3 m and by 3 degrees, on the straight and on the bent map, with a lookup
+    # table for A as the merge has
+    fine_a, fine_b, truth = intel
+    b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
+    lookup_a = WallMap(
+        read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml").probability(),
+        0.65,
+        0.3,
+        lookup=True,
+    )
+    poses = [truth, *(rigid_matrix(0.0, dx, 0.0) @ truth for dx in (3.0, -7.0, 60.0))]
+    poses.append(rigid_matrix(0.05, 0.0, 0.0) @ truth)
+    for map_a, map_b in ((lookup_a, fine_b), (fine_a, _bent(fine_b, truth, b.probability(), 6))):
+        together = local_agreements(map_a, map_b, poses, 100.0, 10.0, max_points=1500)
+        alone = [local_agreement(map_a, map_b, m, 100.0, 10.0, max_points=1500) for m in poses]
+        assert together == alone
+        assert len({(ag.agree, ag.disagree) for ag in alone}) == len(poses)
 
 
 def test_a_contradicted_rival_counts_as_no_rival(intel):
