@@ -68,7 +68,8 @@ def _placement_errors(status: dict, w2p: dict, shapes: dict) -> dict[str, tuple[
 
 
 def _lie(honest: dict, shape_b: tuple[int, int], resolution: float) -> LinkRecord:
-    """The honest link of a pair, turned and shifted about B's centre in A, from ``r0``."""
+    """The honest link of a pair, turned and shifted about B's centre in A, from ``r0``, as a
+    re-decision of it (one revision later), so that it supersedes a link the fleet confirmed."""
     m = np.array(honest["matrix"])
     h, w = shape_b
     centre = (m @ np.array([(w - 1) / 2.0, (h - 1) / 2.0, 1.0]))[:2]
@@ -76,7 +77,7 @@ def _lie(honest: dict, shape_b: tuple[int, int], resolution: float) -> LinkRecor
     off[:2, 2] = centre - off[:2, :2] @ centre + np.array([LIE_M / resolution, 0.0])
     return LinkRecord(
         honest["a"], honest["version_a"], honest["b"], honest["version_b"], True,
-        off @ m, np.array(honest["covariance"]), 0.99, "r0",
+        off @ m, np.array(honest["covariance"]), 0.99, "r0", revision=honest["revision"] + 1,
     )  # fmt: skip
 
 
@@ -102,12 +103,13 @@ def attacked(tmp_path_factory: pytest.TempPathFactory) -> dict:
         honest = next(
             ln for ln in before["r1"]["links"] if (ln["a"], ln["b"]) == pair and ln["current"]
         )
-        honest["covariance"] = next(
-            r.covariance.tolist()
+        record = next(
+            r
             for r in StateDir(fleet.agents["r1"].state_dir).load_links()[0]
             if r.pair == pair and r.decided_by == honest["decided_by"]
             and (r.version_a, r.version_b) == (honest["version_a"], honest["version_b"])
         )  # fmt: skip
+        honest["covariance"], honest["revision"] = record.covariance.tolist(), record.revision
         lie = _lie(honest, shapes[pair[1]], grids[pair[1]].resolution)
         liar = [sys.executable, "tests/liar.py", "--fleet", "wl", "--key-file", str(key_file)]
         for a in fleet.agents.values():
