@@ -9,7 +9,10 @@ import pytest
 from hypothesis import settings
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from bench.data.pairs import MapPair
+    from pgvd.grid import Grid
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -41,3 +44,16 @@ def intel_split(shared: Path) -> MapPair:
     a = read_map(shared / "maps" / "intel_split_gt" / "intel_partA.yaml")
     b = read_map(shared / "maps" / "intel_split_gt" / "intel_partB.yaml")
     return MapPair(a, b, relative_matrix(a, b), 0.5, "intel-split")
+
+
+@pytest.fixture(scope="module")
+def halves(shared: Path) -> tuple[Grid, Grid, np.ndarray]:
+    """The two halves of intel_split_gt at 0.1 m, and their true B px -> A px matrix."""
+    from pgvd.grid import relative_matrix
+    from pgvd.io import read_map
+    from pgvd.transform import resample
+
+    d = shared / "maps" / "intel_split_gt"
+    a = resample(read_map(d / "intel_partA.yaml"), 0.1)
+    b = resample(read_map(d / "intel_partB.yaml"), 0.1)
+    return a, b, relative_matrix(a, b)

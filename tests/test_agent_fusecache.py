@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,23 +16,12 @@ from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import FusionWorker, Registration
 from pgvd.fusion import fuse_layers, warp_layer
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
-from pgvd.io import read_map
-from pgvd.transform import resample
 
 COV = np.diag([0.2, 0.2, 1e-5])
 
 
 def link(a: str, b: str, m: np.ndarray) -> LinkRecord:
     return LinkRecord(a, 1, b, 1, True, m, COV, 0.9, a)
-
-
-@pytest.fixture(scope="module")
-def halves(shared: Path) -> tuple[Grid, Grid, np.ndarray]:
-    """The two halves of intel_split_gt at 0.1 m, and their true B px -> A px matrix."""
-    d = shared / "maps" / "intel_split_gt"
-    a = resample(read_map(d / "intel_partA.yaml"), 0.1)
-    b = resample(read_map(d / "intel_partB.yaml"), 0.1)
-    return a, b, relative_matrix(a, b)
 
 
 def rolled(g: Grid, dx: int, dy: int) -> tuple[Grid, np.ndarray]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,10 +10,8 @@ import pytest
 from agent.globalmap import build_components, map_digest
 from agent.links import LinkRecord
 from pgvd.fusion import fuse_layers, fuse_maps, warp_layer
-from pgvd.grid import Grid, relative_matrix, rigid_matrix
-from pgvd.io import read_map
+from pgvd.grid import Grid, rigid_matrix
 from pgvd.posegraph import compose_transforms
-from pgvd.transform import resample
 
 
 def link(a: str, b: str, m: np.ndarray, score: float = 0.9, accepted: bool = True) -> LinkRecord:
@@ -53,15 +50,6 @@ def test_compose_transforms_walks_links_both_ways() -> None:
     mats, _ = compose_transforms("b", [link("a", "b", ab)])
     np.testing.assert_allclose(mats["a"], np.linalg.inv(ab))
     assert covs["c"][2, 2] == pytest.approx(2e-5)  # heading variances add along the path
-
-
-@pytest.fixture(scope="module")
-def halves(shared: Path) -> tuple[Grid, Grid, np.ndarray]:
-    """The two halves of intel_split_gt at 0.1 m, and their true B px -> A px matrix."""
-    d = shared / "maps" / "intel_split_gt"
-    a = resample(read_map(d / "intel_partA.yaml"), 0.1)
-    b = resample(read_map(d / "intel_partB.yaml"), 0.1)
-    return a, b, relative_matrix(a, b)
 
 
 def test_component_fuses_local_maps_in_a_fixed_order(halves: tuple) -> None:
