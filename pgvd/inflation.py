@@ -53,6 +53,7 @@ import numpy as np
 
 from pgvd.alignment import AlignmentFit, alignment_fit
 from pgvd.covariance import calibrated_covariance
+from pgvd.model_error import MODEL_ERROR_SCALE, model_error_covariance
 from pgvd.walls import WallMap
 
 #: Parameters of the pose (tx, ty, psi) of eq. (1): the degrees of freedom of the fit.
@@ -255,7 +256,11 @@ def inflated_covariance(
 
     :func:`pgvd.covariance.calibrated_covariance` of the point-to-line fit of B's
     walls on A's at ``matrix`` (:func:`pgvd.alignment.alignment_fit`), inflated
-    where that fit's evidence is thin (:func:`inflate`).  The merge, :mod:`pgvd.verify`
+    where that fit's evidence is thin (:func:`inflate`), plus the error a rigid fit
+    cannot see, the disagreement of the overlap's parts where a map is bent
+    (:func:`pgvd.model_error.model_error_covariance`, weighed by
+    :data:`pgvd.model_error.MODEL_ERROR_SCALE`).  The pose graph weighs the link by it
+    and the fused map blurs the transformed map with it (eqs. (4)-(8)).  The merge, :mod:`pgvd.verify`
     and an agent's candidate link all report this one, so that a link verified later
     carries the covariance its merge would have.
 
@@ -274,4 +279,8 @@ def inflated_covariance(
         3x3 covariance over ``(tx px, ty px, psi rad)`` about B's pixel origin.
     """
     fit = alignment_fit(fine_a.tree, fine_b.walls, matrix)
-    return inflate(calibrated_covariance(fit, resolution), fit, resolution)
+    cov = inflate(calibrated_covariance(fit, resolution), fit, resolution)
+    if fit is None:
+        return cov
+    bent = model_error_covariance(fine_a.tree, fine_b.walls, matrix)
+    return cov + MODEL_ERROR_SCALE * bent

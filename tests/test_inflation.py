@@ -21,6 +21,7 @@ from pgvd.inflation import (
 )
 from pgvd.io import read_map
 from pgvd.merge import MergeParams
+from pgvd.model_error import MODEL_ERROR_SCALE, model_error_covariance
 from pgvd.walls import WallMap
 
 PARAMS = MergeParams()
@@ -106,7 +107,8 @@ def test_the_merge_reports_the_inflated_fit(intel_split) -> None:
     b = WallMap(pair.b.probability(), PARAMS.occupied, PARAMS.free)
     fit = alignment_fit(a.tree, b.walls, pair.truth)
     res = pair.a.resolution
-    expected = inflate(calibrated_covariance(fit, res), fit, res)
+    bent = model_error_covariance(a.tree, b.walls, pair.truth)
+    expected = inflate(calibrated_covariance(fit, res), fit, res) + MODEL_ERROR_SCALE * bent
     assert inflated_covariance(a, b, pair.truth, res) == pytest.approx(expected)
 
 
