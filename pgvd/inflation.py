@@ -260,9 +260,9 @@ def inflated_covariance(
     cannot see, the disagreement of the overlap's parts where a map is bent
     (:func:`pgvd.model_error.model_error_covariance`, weighed by
     :data:`pgvd.model_error.MODEL_ERROR_SCALE`).  The pose graph weighs the link by it
-    and the fused map blurs the transformed map with it (eqs. (4)-(8)).  The merge, :mod:`pgvd.verify`
-    and an agent's candidate link all report this one, so that a link verified later
-    carries the covariance its merge would have.
+    and the fused map blurs the transformed map with it (eqs. (4)-(8)).  The merge,
+    :mod:`pgvd.verify` and an agent's candidate link all report this one, so that a link
+    verified later carries the covariance its merge would have.
 
     Parameters
     ----------
