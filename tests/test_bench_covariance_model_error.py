@@ -39,15 +39,12 @@ def _runs(scale: float, n: int = 300) -> tuple[dict[str, dict], dict[str, dict]]
     term and with it at weight 2."""
     rng = np.random.default_rng(3)
     errors = rng.multivariate_normal(np.zeros(3), BASE + scale * TERM, size=n)
-    names = [f"p{i:03d}" for i in range(n)]
     buildings = ["intel", "willow", "avz"]
-    before = {
-        k: _record(k, buildings[i % 3], BASE, e) for i, (k, e) in enumerate(zip(names, errors))
-    }
-    after = {
-        k: _record(k, buildings[i % 3], BASE + 2.0 * TERM, e)
-        for i, (k, e) in enumerate(zip(names, errors))
-    }
+    before, after = {}, {}
+    for i, e in enumerate(errors):
+        name, building = f"p{i:03d}", buildings[i % 3]
+        before[name] = _record(name, building, BASE, e)
+        after[name] = _record(name, building, BASE + 2.0 * TERM, e)
     return before, after
 
 
