@@ -1,7 +1,9 @@
 """The weight of the model-error term of the merge covariance, left out one building at a time.
 
-    python3 -m bench covariance_model_error --before BASE/merge.json --after NEW/merge.json \
-        --after-scale 1 [--out DIR]
+    python3 -m bench covariance_model_error choose --before BASE/merge.json \
+        --after NEW/merge.json --after-scale 1 [--out DIR]
+    python3 -m bench covariance_model_error reweigh --before BASE/merge.json \
+        --after NEW/merge.json --after-scale 1 --out RUN/merge.json
 
 Reads the pgvd records of two development merge bench runs (:mod:`bench.merge`) on the same
 pairs: ``--before`` reports the covariance without the model-error term of
@@ -16,8 +18,13 @@ The weight is chosen by maximum likelihood (Gaussian pose errors, ``c >= 0``).  
 development building is left out in turn: ``c`` is fitted on the others' poses and the
 building's own poses are scored with it (mean NEES against the chi2(3) band, share inside the
 95 % ellipsoid).  The weight the merge uses (:data:`pgvd.model_error.MODEL_ERROR_SCALE`) is the
-fit on every development building.  Writes ``covariance-model-error.md`` and ``.json`` to
-``--out`` (default: the directory of ``--after``).
+fit on every development building.  ``choose`` writes ``covariance-model-error.md`` and
+``.json`` to ``--out`` (default: the directory of ``--after``).
+
+``reweigh`` fits nothing: it writes the ``--after`` run with every pgvd covariance at the
+weight in use, ``Sigma_before + MODEL_ERROR_SCALE M``, as a run of the merge in use would
+have reported it (pairs whose outcomes differ keep their own).  That is how a held-out run
+made before the weight was chosen is read with it, without a second held-out merge run.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ from scipy.optimize import minimize_scalar
 from bench.covariance import consistency, nees
 from bench.studies.covariance_inflation import changed_outcomes, pgvd_records
 from bench.studies.covariance_wide import accepted_right, errors_and_covariances, groups
+from pgvd.model_error import MODEL_ERROR_SCALE
 
 #: Largest weight searched: far beyond where the term would dwarf the rest.
 MAX_SCALE = 1e3
@@ -173,24 +181,57 @@ def markdown(doc: dict, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def reweighed(
+    run: dict, before: dict[str, dict], after: dict[str, dict], after_scale: float, scale: float
+) -> dict:
+    """``run`` (the ``--after`` document) with each pgvd covariance of a pair whose outcome
+    both runs share at ``Sigma_before + scale M``."""
+    if not after_scale > 0:
+        raise ValueError(f"the weight of the --after run must be > 0, got {after_scale}")
+    changed = set(changed_outcomes(before, after))
+    for rec in run["records"]:
+        name = rec["pair"]
+        if rec["method"] != "pgvd" or name in changed or not rec["accepted"]:
+            continue
+        base = np.array(before[name]["result"]["covariance"], dtype=float)
+        term = (np.array(rec["result"]["covariance"], dtype=float) - base) / after_scale
+        rec["result"]["covariance"] = (base + scale * term).tolist()
+    return run
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--before", type=Path, required=True, help="merge.json without the term")
-    ap.add_argument("--after", type=Path, required=True, help="merge.json with it")
-    ap.add_argument(
-        "--after-scale", type=float, required=True, help="the term's weight in the --after run"
-    )
-    ap.add_argument("--out", type=Path, help="default: the directory of --after")
+    sub = ap.add_subparsers(dest="command", required=True)
+    for name, out_help in (
+        ("choose", "report directory (default: the directory of --after)"),
+        ("reweigh", "the reweighed run's merge.json"),
+    ):
+        c = sub.add_parser(name)
+        c.add_argument("--before", type=Path, required=True, help="merge.json without the term")
+        c.add_argument("--after", type=Path, required=True, help="merge.json with it")
+        c.add_argument(
+            "--after-scale", type=float, required=True, help="the term's weight in the --after run"
+        )
+        c.add_argument("--out", type=Path, required=name == "reweigh", help=out_help)
     args = ap.parse_args(argv)
     try:
         before, after = pgvd_records(args.before), pgvd_records(args.after)
-        doc = summary(before, after, args.after_scale)
+        if args.command == "reweigh":
+            run = json.loads(args.after.read_text())
+            run = reweighed(run, before, after, args.after_scale, MODEL_ERROR_SCALE)
+        else:
+            doc = summary(before, after, args.after_scale)
     except (OSError, ValueError, KeyError) as e:
         print(f"covariance_model_error: {e}", file=sys.stderr)
         return 2
+    if args.command == "reweigh":
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(run))
+        print(f"wrote {args.out}: pgvd covariances at weight {MODEL_ERROR_SCALE:g}")
+        return 0
     command = (
-        f"python3 -m bench covariance_model_error --before {args.before} --after {args.after} "
-        f"--after-scale {args.after_scale:g}"
+        f"python3 -m bench covariance_model_error choose --before {args.before} "
+        f"--after {args.after} --after-scale {args.after_scale:g}"
     )
     text = markdown(doc, command)
     out = args.out or args.after.parent
