@@ -5,7 +5,9 @@ information ``J^T J`` of the point-to-line fit (the ``r1, r2`` of eq. (7)) and t
 its residuals: it assumes one rigid pose explains both maps up to noise.  A map bent by
 odometry drift has no such pose; every part of the overlap pulls towards a pose of its own,
 and the pose the fit settles on is one weighting of them among many.  Its error then is the
-disagreement between the parts, which no amount of wall evidence averages away.
+disagreement between the parts, which no amount of wall evidence averages away.  Too
+narrow a covariance makes the pose graph trust such a link more than its error allows, and
+the fused map blur the transformed map too little (eqs. (4)-(8)).
 
 That disagreement shows in the fit's own residuals, on any building.  The overlap is cut
 into its four quadrants (B's matched wall cells, by where they land in A, about their mean
