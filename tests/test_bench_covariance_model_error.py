@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.studies.covariance_model_error import fit_scale, main, model_terms, reweighed, summary
+from bench.studies.covariance_model_error import fit_scale, main, model_terms, summary
 from pgvd.grid import rigid_matrix
 
 BASE = np.diag([1.0, 1.0, 1e-4])
@@ -58,12 +58,17 @@ def test_the_weight_errors_were_drawn_with_is_found(truth: float) -> None:
 
 def test_each_building_is_scored_with_a_weight_fitted_without_it() -> None:
     before, after = _runs(1.5)
-    doc = summary(before, after, 2.0)
+    for name in ("p000", "p003"):  # two drifted poses, the rest standard
+        for run in (before, after):
+            run[name]["set"] = "standard"
+    doc = summary(before, after, 2.0, 1.0)
     assert sorted(doc["leave_one_out"]) == ["avz", "intel", "willow"]
     for row in doc["leave_one_out"].values():
-        assert row["scale"] == pytest.approx(1.5, abs=0.5)
-        assert row["with"]["mean_nees"] < row["without"]["mean_nees"]
-    assert doc["changed"] == []
+        assert row["all poses"]["scale"] == pytest.approx(1.5, abs=0.5)
+        assert row["all poses"]["with"]["mean_nees"] < row["without"]["mean_nees"]
+        assert row["in_use"]["mean_nees"] < row["without"]["mean_nees"]
+    assert doc["leave_one_out"]["intel"]["drifted poses"]["with"]["n"] == 100
+    assert doc["rows"]["standard"]["with"]["n"] == 2 and doc["changed"] == []
 
 
 def test_a_changed_outcome_is_named_and_left_out(tmp_path: Path) -> None:
@@ -72,7 +77,7 @@ def test_a_changed_outcome_is_named_and_left_out(tmp_path: Path) -> None:
     for name, run in (("before", before), ("after", after)):
         (tmp_path / f"{name}.json").write_text(json.dumps({"records": list(run.values())}))
     args = ["--before", str(tmp_path / "before.json"), "--after", str(tmp_path / "after.json")]
-    assert main(["choose", *args, "--after-scale", "2"]) == 0
+    assert main([*args, "--after-scale", "2"]) == 0
     text = (tmp_path / "covariance-model-error.md").read_text()
     assert "1 with a different outcome (accepted or matrix): p000." in text
     assert "| intel | 9 |" in text and "| willow | 10 |" in text and "| avz | 10 |" in text
@@ -80,26 +85,11 @@ def test_a_changed_outcome_is_named_and_left_out(tmp_path: Path) -> None:
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys) -> None:
     missing = str(tmp_path / "none.json")
-    assert main(["choose", "--before", missing, "--after", missing, "--after-scale", "1"]) == 2
+    assert main(["--before", missing, "--after", missing, "--after-scale", "1"]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
     before, after = _runs(0.0, n=6)
     for name, run in (("before", before), ("after", after)):
         (tmp_path / f"{name}.json").write_text(json.dumps({"records": list(run.values())}))
     args = ["--before", str(tmp_path / "before.json"), "--after", str(tmp_path / "after.json")]
-    assert main(["choose", *args, "--after-scale", "0"]) == 2
+    assert main([*args, "--after-scale", "0"]) == 2
     assert "weight of the --after run must be > 0" in capsys.readouterr().err
-
-
-def test_a_run_is_reweighed_pair_by_pair(tmp_path: Path) -> None:
-    before, after = _runs(0.0, n=4)
-    after["p001"]["matrix"][0][2] += 5.0
-    run = reweighed({"records": list(after.values())}, before, after, 2.0, 0.5)
-    covs = {r["pair"]: np.array(r["result"]["covariance"]) for r in run["records"]}
-    assert covs["p000"] == pytest.approx(BASE + 0.5 * TERM)
-    assert covs["p001"] == pytest.approx(BASE + 2.0 * TERM)
-    for name, doc in (("before", before), ("after", after)):
-        (tmp_path / f"{name}.json").write_text(json.dumps({"records": list(doc.values())}))
-    args = ["--before", str(tmp_path / "before.json"), "--after", str(tmp_path / "after.json")]
-    out = tmp_path / "run" / "merge.json"
-    assert main(["reweigh", *args, "--after-scale", "2", "--out", str(out)]) == 0
-    assert len(json.loads(out.read_text())["records"]) == 4

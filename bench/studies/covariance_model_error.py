@@ -1,9 +1,7 @@
 """The weight of the model-error term of the merge covariance, left out one building at a time.
 
-    python3 -m bench covariance_model_error choose --before BASE/merge.json \
-        --after NEW/merge.json --after-scale 1 [--out DIR]
-    python3 -m bench covariance_model_error reweigh --before BASE/merge.json \
-        --after NEW/merge.json --after-scale 1 --out RUN/merge.json
+    python3 -m bench covariance_model_error --before BASE/merge.json --after NEW/merge.json \
+        --after-scale 1 [--out DIR]
 
 Reads the pgvd records of two development merge bench runs (:mod:`bench.merge`) on the same
 pairs: ``--before`` reports the covariance without the model-error term of
@@ -14,17 +12,13 @@ report lists any that differ.  Since the term is added, ``Sigma(c) = Sigma_befor
 frame's Jacobian of :func:`pgvd.pooling.covariance_from_pooled` is linear in the covariance),
 and any weight ``c`` is evaluated without another run.
 
-The weight is chosen by maximum likelihood (Gaussian pose errors, ``c >= 0``).  Each
-development building is left out in turn: ``c`` is fitted on the others' poses and the
-building's own poses are scored with it (mean NEES against the chi2(3) band, share inside the
-95 % ellipsoid).  The weight the merge uses (:data:`pgvd.model_error.MODEL_ERROR_SCALE`) is the
-fit on every development building.  ``choose`` writes ``covariance-model-error.md`` and
+The weight is fitted by maximum likelihood (Gaussian pose errors, ``c >= 0``), on every
+accepted right pose and on the drifted ones alone (those with a bent map, the error the term
+is for).  Each development building is left out in turn: ``c`` is fitted on the others' poses
+and the building's own poses are scored with it (mean NEES against the chi2(3) band, share
+inside the 95 % ellipsoid), and with the weight the merge uses
+(:data:`pgvd.model_error.MODEL_ERROR_SCALE`).  Writes ``covariance-model-error.md`` and
 ``.json`` to ``--out`` (default: the directory of ``--after``).
-
-``reweigh`` fits nothing: it writes the ``--after`` run with every pgvd covariance at the
-weight in use, ``Sigma_before + MODEL_ERROR_SCALE M``, as a run of the merge in use would
-have reported it (pairs whose outcomes differ keep their own).  That is how a held-out run
-made before the weight was chosen is read with it, without a second held-out merge run.
 """
 
 from __future__ import annotations
@@ -79,28 +73,43 @@ def fit_scale(errors: np.ndarray, base: np.ndarray, term: np.ndarray) -> float:
     return 0.0 if at_zero <= best.fun else float(np.expm1(best.x))
 
 
+#: The pairs a weight is fitted on: every accepted right pose, or the drifted ones alone
+#: (those with a map bent by drift, the model error the term is for).
+FITS = {"all poses": None, "drifted poses": "drifted"}
+
+
 def leave_one_building_out(
-    records: list[dict], errors: np.ndarray, base: np.ndarray, term: np.ndarray
+    records: list[dict], errors: np.ndarray, base: np.ndarray, term: np.ndarray, scale: float
 ) -> dict[str, dict]:
-    """Per building: the weight fitted on the others, and its own poses' consistency without
-    the term and with that weight."""
+    """Per building: the weight fitted on the others' poses (each of :data:`FITS`), and its own
+    poses' consistency without the term, with each fitted weight and with ``scale``."""
     buildings = np.array([r["building"] for r in records])
+    sets = np.array([r["set"] for r in records])
     out = {}
     for building in sorted(set(buildings)):
         own = buildings == building
-        scale = fit_scale(errors[~own], base[~own], term[~own])
-        out[building] = {
-            "scale": scale,
+        row = {
             "without": consistency(errors[own], base[own]),
-            "with": consistency(errors[own], base[own] + scale * term[own]),
+            "in_use": consistency(errors[own], base[own] + scale * term[own]),
         }
+        for name, only in FITS.items():
+            fit_on = ~own if only is None else ~own & (sets == only)
+            fitted = fit_scale(errors[fit_on], base[fit_on], term[fit_on])
+            row[name] = {
+                "scale": fitted,
+                "with": consistency(errors[own], base[own] + fitted * term[own]),
+            }
+        out[building] = row
     return out
 
 
-def summary(before: dict[str, dict], after: dict[str, dict], after_scale: float) -> dict:
-    """Everything the report shows, from the two runs' records."""
+def summary(
+    before: dict[str, dict], after: dict[str, dict], after_scale: float, scale: float
+) -> dict:
+    """Everything the report shows, from the two runs' records, with ``scale`` the weight in
+    use."""
     records, errors, base, term = model_terms(before, after, after_scale)
-    scale = fit_scale(errors, base, term)
+    sets = np.array([r["set"] for r in records])
     index = {r["pair"]: i for i, r in enumerate(records)}
     rows = {}
     for name, members in groups(records).items():
@@ -112,11 +121,16 @@ def summary(before: dict[str, dict], after: dict[str, dict], after_scale: float)
             "median_factor": float(np.median(grown.max(axis=1))),
             "max_factor": float(grown.max()),
         }
+    fitted = {}
+    for name, only in FITS.items():
+        on = np.ones(len(sets), bool) if only is None else sets == only
+        fitted[name] = fit_scale(errors[on], base[on], term[on])
     return {
         "changed": changed_outcomes(before, after),
         "pairs": len(after),
         "scale": scale,
-        "leave_one_out": leave_one_building_out(records, errors, base, term),
+        "fitted": fitted,
+        "leave_one_out": leave_one_building_out(records, errors, base, term, scale),
         "rows": rows,
     }
 
@@ -129,6 +143,7 @@ def _stats(s: dict) -> str:
 def markdown(doc: dict, command: str) -> str:
     """The report of the module docstring."""
     changed = doc["changed"]
+    fits = ", ".join(f"{name}: c = {c:.3g}" for name, c in doc["fitted"].items())
     lines = [
         "# The model-error term of the merge covariance (pgvd.model_error)",
         "",
@@ -138,27 +153,31 @@ def markdown(doc: dict, command: str) -> str:
         + ".",
         "",
         "Reported covariance: the calibrated one widened where the evidence is thin, plus c M, "
-        "M the cluster-robust covariance of the fit over 5 m blocks of the overlap (what the "
-        "parts of a bent map disagree by). c by maximum likelihood on the accepted right "
-        f"poses of every development building: **c = {doc['scale']:.3g}**.",
+        "M the cluster-robust (sandwich) covariance of the fit with the overlap's four "
+        "quadrants as clusters (what the parts of a bent map disagree by). Weight in use: "
+        f"**c = {doc['scale']:.3g}**. Maximum likelihood on the accepted right poses of every "
+        f"development building: {fits}.",
         "",
         "## Each development building left out",
         "",
-        "c fitted on the other buildings' poses; the building's own poses scored without the "
-        "term and with that c.",
+        "c fitted on the other buildings' poses (all of them, or their drifted ones); the "
+        "building's own poses scored without the term, with each fitted c and with the c in "
+        "use. Each cell: mean NEES | chi2(3) band of the mean | inside the 95 % ellipsoid.",
         "",
-        "| building left out | n | c fitted without it | mean NEES without | chi2(3) band | "
-        "inside 95 % without | mean NEES with | band | inside 95 % with |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| building left out | n | without the term | c fitted on all poses | with it "
+        "| c fitted on drifted poses | with it | with the c in use |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for building, row in doc["leave_one_out"].items():
+        every, drifted = row["all poses"], row["drifted poses"]
         lines.append(
-            f"| {building} | {row['with']['n']} | {row['scale']:.3g} | {_stats(row['without'])} "
-            f"| {_stats(row['with'])} |"
+            f"| {building} | {row['without']['n']} | {_stats(row['without'])} "
+            f"| {every['scale']:.3g} | {_stats(every['with'])} | {drifted['scale']:.3g} "
+            f"| {_stats(drifted['with'])} | {_stats(row['in_use'])} |"
         )
     lines += [
         "",
-        f"## Every development pose at c = {doc['scale']:.3g}",
+        f"## Every development pose at the c in use ({doc['scale']:.3g})",
         "",
         "Factor: the largest eigenvalue of Sigma_without^-1 Sigma_with (the most a pose's "
         "variance grew in any direction).",
@@ -181,57 +200,24 @@ def markdown(doc: dict, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def reweighed(
-    run: dict, before: dict[str, dict], after: dict[str, dict], after_scale: float, scale: float
-) -> dict:
-    """``run`` (the ``--after`` document) with each pgvd covariance of a pair whose outcome
-    both runs share at ``Sigma_before + scale M``."""
-    if not after_scale > 0:
-        raise ValueError(f"the weight of the --after run must be > 0, got {after_scale}")
-    changed = set(changed_outcomes(before, after))
-    for rec in run["records"]:
-        name = rec["pair"]
-        if rec["method"] != "pgvd" or name in changed or not rec["accepted"]:
-            continue
-        base = np.array(before[name]["result"]["covariance"], dtype=float)
-        term = (np.array(rec["result"]["covariance"], dtype=float) - base) / after_scale
-        rec["result"]["covariance"] = (base + scale * term).tolist()
-    return run
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    sub = ap.add_subparsers(dest="command", required=True)
-    for name, out_help in (
-        ("choose", "report directory (default: the directory of --after)"),
-        ("reweigh", "the reweighed run's merge.json"),
-    ):
-        c = sub.add_parser(name)
-        c.add_argument("--before", type=Path, required=True, help="merge.json without the term")
-        c.add_argument("--after", type=Path, required=True, help="merge.json with it")
-        c.add_argument(
-            "--after-scale", type=float, required=True, help="the term's weight in the --after run"
-        )
-        c.add_argument("--out", type=Path, required=name == "reweigh", help=out_help)
+    ap.add_argument("--before", type=Path, required=True, help="merge.json without the term")
+    ap.add_argument("--after", type=Path, required=True, help="merge.json with it")
+    ap.add_argument(
+        "--after-scale", type=float, required=True, help="the term's weight in the --after run"
+    )
+    ap.add_argument("--out", type=Path, help="default: the directory of --after")
     args = ap.parse_args(argv)
     try:
         before, after = pgvd_records(args.before), pgvd_records(args.after)
-        if args.command == "reweigh":
-            run = json.loads(args.after.read_text())
-            run = reweighed(run, before, after, args.after_scale, MODEL_ERROR_SCALE)
-        else:
-            doc = summary(before, after, args.after_scale)
+        doc = summary(before, after, args.after_scale, MODEL_ERROR_SCALE)
     except (OSError, ValueError, KeyError) as e:
         print(f"covariance_model_error: {e}", file=sys.stderr)
         return 2
-    if args.command == "reweigh":
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(run))
-        print(f"wrote {args.out}: pgvd covariances at weight {MODEL_ERROR_SCALE:g}")
-        return 0
     command = (
-        f"python3 -m bench covariance_model_error choose --before {args.before} "
-        f"--after {args.after} --after-scale {args.after_scale:g}"
+        f"python3 -m bench covariance_model_error --before {args.before} --after {args.after} "
+        f"--after-scale {args.after_scale:g}"
     )
     text = markdown(doc, command)
     out = args.out or args.after.parent

@@ -4,7 +4,7 @@ The covariance (eq. (3), :func:`pgvd.covariance.calibrated_covariance`) is calib
 :mod:`bench.covariance` on pairs of the intel and freiburg-079 *logs* only, and widened
 where an overlap's evidence is thin (:mod:`pgvd.inflation`, constants measured on those
 logs' pairs, :mod:`bench.studies.covariance_evidence`), plus the disagreement of the
-overlap's parts where a map is bent (:mod:`pgvd.model_error`, weight chosen by
+overlap's parts where a map is bent (:mod:`pgvd.model_error`, weight checked by
 :mod:`bench.studies.covariance_model_error`).  This reads
 the pgvd records of a merge bench run (``merge.json``, :mod:`bench.merge`) and measures
 the covariance each accepted right pose reported against that pose's error: on the
@@ -99,8 +99,8 @@ def markdown(records: list[dict], source: str, command: str) -> str:
         "and freiburg-079 logs only (`bench/results/covariance.md`), is widened where the "
         "evidence is thin with constants measured on them "
         "(`bench/results/covariance-evidence.md`), and adds the disagreement of the overlap's "
-        "quadrants (pgvd.model_error) at a weight chosen on the development buildings "
-        "(`bench/results/covariance-model-error.md`).",
+        "quadrants (pgvd.model_error), its weight checked leaving each development building "
+        "out (`bench/results/covariance-model-error.md`).",
         "",
         "| poses | n | mean NEES | chi2(3) 95 % band of the mean | inside 95 % ellipsoid | "
         "heading NEES | chi2(1) band | heading inside 95 % |",
