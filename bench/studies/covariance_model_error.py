@@ -140,6 +140,10 @@ def _stats(s: dict) -> str:
     return f"{s['mean_nees']:.2f} | {lo:.2f}-{hi:.2f} | {s['inside_95']:.0%}"
 
 
+def _nees(s: dict) -> str:
+    return f"{s['mean_nees']:.2f} | {s['inside_95']:.0%}"
+
+
 def markdown(doc: dict, command: str) -> str:
     """The report of the module docstring."""
     changed = doc["changed"]
@@ -162,18 +166,20 @@ def markdown(doc: dict, command: str) -> str:
         "",
         "c fitted on the other buildings' poses (all of them, or their drifted ones); the "
         "building's own poses scored without the term, with each fitted c and with the c in "
-        "use. Each cell: mean NEES | chi2(3) band of the mean | inside the 95 % ellipsoid.",
+        "use: mean NEES (against the chi2(3) band of the mean) and the share inside the 95 % "
+        "ellipsoid.",
         "",
-        "| building left out | n | without the term | c fitted on all poses | with it "
-        "| c fitted on drifted poses | with it | with the c in use |",
-        "|---|---|---|---|---|---|---|---|",
+        "| building left out | n | chi2(3) band | NEES without | inside | c fitted on all poses "
+        "| NEES | inside | c fitted on drifted poses | NEES | inside | NEES, c in use | inside |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for building, row in doc["leave_one_out"].items():
         every, drifted = row["all poses"], row["drifted poses"]
+        band = row["without"]["band"]
         lines.append(
-            f"| {building} | {row['without']['n']} | {_stats(row['without'])} "
-            f"| {every['scale']:.3g} | {_stats(every['with'])} | {drifted['scale']:.3g} "
-            f"| {_stats(drifted['with'])} | {_stats(row['in_use'])} |"
+            f"| {building} | {row['without']['n']} | {max(0.0, band[0]):.2f}-{band[1]:.2f} "
+            f"| {_nees(row['without'])} | {every['scale']:.3g} | {_nees(every['with'])} "
+            f"| {drifted['scale']:.3g} | {_nees(drifted['with'])} | {_nees(row['in_use'])} |"
         )
     lines += [
         "",
