@@ -141,7 +141,8 @@ def _covs(recs: list[dict], model: CovarianceModel) -> np.ndarray:
 
 def reported(recs: list[dict]) -> np.ndarray:
     """The covariances the merge reports for ``recs``: :data:`pgvd.covariance.CALIBRATED`,
-    widened where the evidence is thin (:func:`pgvd.inflation.inflate`)."""
+    widened where the evidence is thin (:func:`pgvd.inflation.inflate`), short of the
+    model-error term (:mod:`pgvd.model_error`), which needs the walls a record does not keep."""
     calibrated = _covs(recs, CALIBRATED)
     return np.array(
         [inflate(c, alignment(r), r["resolution"]) for c, r in zip(calibrated, recs, strict=True)]
