@@ -82,8 +82,8 @@ def refine(
 
 
 @dataclass(frozen=True)
-class _LineFit:
-    """Point-to-line residuals of B's walls near A's at one pose (see :func:`_point_to_line`)."""
+class LineFit:
+    """Point-to-line residuals of B's walls near A's at one pose (see :func:`point_to_line`)."""
 
     cells: np.ndarray  # (M, 2) B's wall cells within the radius, in B's frame
     moved: np.ndarray  # (M, 2) the same cells moved into A
@@ -91,7 +91,7 @@ class _LineFit:
     jac: np.ndarray  # (M, 3) d res / d (tx, ty, psi)
 
 
-def _point_to_line(walls_a: Walls, pts: np.ndarray, matrix: np.ndarray, radius: float) -> _LineFit:
+def point_to_line(walls_a: Walls, pts: np.ndarray, matrix: np.ndarray, radius: float) -> LineFit:
     """Residuals along A's wall normals, and their Jacobian, of B's cells within ``radius``.
 
     ``r_i = n_i . (R x_i + t - y_i)`` with ``y_i`` the nearest wall cell of A and
@@ -107,7 +107,7 @@ def _point_to_line(walls_a: Walls, pts: np.ndarray, matrix: np.ndarray, radius: 
     c, s = np.cos(psi), np.sin(psi)
     dx = np.column_stack([-s * x[:, 0] + c * x[:, 1], -c * x[:, 0] - s * x[:, 1]])
     jac = np.column_stack([n[:, 0], n[:, 1], np.sum(n * dx, axis=1)])
-    return _LineFit(x, moved[ok], np.sum(n * (moved[ok] - y), axis=1), jac)
+    return LineFit(x, moved[ok], np.sum(n * (moved[ok] - y), axis=1), jac)
 
 
 def refine_point_to_line(
@@ -155,7 +155,7 @@ def refine_point_to_line(
     pts = subsample(walls_b, max_points)
     m = matrix.copy()
     for _ in range(iterations):
-        fit = _point_to_line(walls_a, pts, m, radius)
+        fit = point_to_line(walls_a, pts, m, radius)
         if len(fit.res) < 10:
             break
         jac, res = fit.jac, fit.res
@@ -217,7 +217,7 @@ def residual_distortion(
     """
     pts = subsample(walls_b, max_points)
     stride = len(walls_b) / max(1, len(pts))
-    fit = _point_to_line(walls_a, pts, matrix, radius)
+    fit = point_to_line(walls_a, pts, matrix, radius)
     if len(fit.res) * stride < min_points:
         return 0.0
     n, r = fit.jac[:, :2], -fit.res
@@ -291,7 +291,7 @@ def alignment_fit(
         None when fewer than 3 cells of B land near A's walls.
     """
     pts = subsample(walls_b, max_points)
-    fit = _point_to_line(walls_a, pts, matrix, radius)
+    fit = point_to_line(walls_a, pts, matrix, radius)
     if len(fit.res) < 3:
         return None
     x, res = fit.cells, fit.res

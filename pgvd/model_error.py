@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pgvd.alignment import _point_to_line
+from pgvd.alignment import point_to_line
 from pgvd.sampling import subsample
 from pgvd.walls import Walls
 
@@ -96,7 +96,7 @@ def model_error_covariance(
     """
     if not radius > 0:
         raise ValueError(f"radius must be > 0 px, got {radius}")
-    fit = _point_to_line(walls_a, subsample(walls_b, max_points), matrix, radius)
+    fit = point_to_line(walls_a, subsample(walls_b, max_points), matrix, radius)
     if len(fit.res) < 2 * MIN_PART_CELLS:
         return np.zeros((3, 3))
     part = quadrants(fit.moved)
