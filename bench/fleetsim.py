@@ -14,9 +14,11 @@ Each agent has a computer of its own unless ``--cores`` makes them share that ma
 Per N: searches and checks per epoch, messages and bytes received per robot, global-map
 rebuild CPU, agreement time after the last update, bytes of grids held per agent, CPU per
 agent per epoch relative to 16 robots.  At 8 and 16 robots the counts stand beside
-:mod:`bench.fleet`'s (``bench/results/fleet.json``).
+:mod:`bench.fleet`'s, run by run, with their mean and spread (``--real FILE ...``: result
+files of ``bench.fleet --robots 8 16 --out DIR``; default ``bench/results/fleet.json``).
 
-Run: ``python3 -m bench fleetsim [--robots 16 32 64 128] [--quick] [--cores C] [--tag T]``;
+Run: ``python3 -m bench fleetsim [--robots 16 32 64 128] [--quick] [--cores C] [--tag T]
+[--real FILE ...]``;
 writes ``fleetsim.json``, ``fleetsim.md`` and ``fleetsim.png`` (``fleetsim-T.*`` with a tag)
 under ``--out`` (default ``bench/results``); progress on stderr.
 """
@@ -33,7 +35,7 @@ from bench.fleetsim_core import Meter, Rebuilds, SimClock
 from bench.fleetsim_fleet import Churn, Scenario, SimFleet
 from bench.fleetsim_merges import load_outcomes
 from bench.fleetsim_net import NetParams, Partition
-from bench.fleetsim_report import summarise, write_results
+from bench.fleetsim_report import load_real_runs, summarise, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -103,6 +105,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--cache", type=Path, default=CACHE, help="where the outcome cache lives")
     ap.add_argument("--out", type=Path, default=RESULTS, help="where the results go")
     ap.add_argument("--tag", help="results named fleetsim-TAG.* instead of fleetsim.*")
+    ap.add_argument(
+        "--real", type=Path, nargs="+", default=[RESULTS / "fleet.json"], metavar="FILE",
+        help="bench.fleet result files (JSON) to set the counts beside",
+    )  # fmt: skip
     return ap
 
 
@@ -159,12 +165,13 @@ def main(argv: list[str] | None = None) -> int:
         scenarios = [scenario(args, n) for n in args.robots]
         if not args.log.is_file():
             raise ValueError(f"log not found: {args.log}")
+        real_runs = load_real_runs(args.real)
         outcomes = load_outcomes(args.cache, args.log)
         rows = [run_one(sc, outcomes, args.quick) for sc in scenarios]
     except ValueError as exc:
         print(f"fleetsim: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
-    write_results(rows, args, args.out, ROOT)
+    write_results(rows, args, args.out, real_runs)
     _progress(f"results in {args.out}")
     return 0
 
