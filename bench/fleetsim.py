@@ -18,7 +18,7 @@ agent per epoch relative to 16 robots.  At 8 and 16 robots the counts stand besi
 files of ``bench.fleet --robots 8 16 --out DIR``; default ``bench/results/fleet.json``).
 
 Run: ``python3 -m bench fleetsim [--robots 16 32 64 128] [--quick] [--cores C] [--tag T]
-[--real FILE ...]``;
+[--exact-poses] [--real FILE ...]``;
 writes ``fleetsim.json``, ``fleetsim.md`` and ``fleetsim.png`` (``fleetsim-T.*`` with a tag)
 under ``--out`` (default ``bench/results``); progress on stderr.
 """
@@ -106,6 +106,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", type=Path, default=RESULTS, help="where the results go")
     ap.add_argument("--tag", help="results named fleetsim-TAG.* instead of fleetsim.*")
     ap.add_argument(
+        "--exact-poses", action="store_true",
+        help="registrations land on the true pose (the real pose errors left out)",
+    )  # fmt: skip
+    ap.add_argument(
         "--real", type=Path, nargs="+", default=[RESULTS / "fleet.json"], metavar="FILE",
         help="bench.fleet result files (JSON) to set the counts beside",
     )  # fmt: skip
@@ -167,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"log not found: {args.log}")
         real_runs = load_real_runs(args.real)
         outcomes = load_outcomes(args.cache, args.log)
+        if args.exact_poses:
+            outcomes = [o.exact() for o in outcomes]
         rows = [run_one(sc, outcomes, args.quick) for sc in scenarios]
     except ValueError as exc:
         print(f"fleetsim: {str(exc).splitlines()[0]}", file=sys.stderr)

@@ -27,7 +27,8 @@ outcome (confirmed, rejected, or inconclusive) at the cached check's own error;
 inconclusive also when the predicted transform is outside the check's basin around the
 truth (:data:`pgvd.verify.BASIN_M`, :data:`pgvd.verify.BASIN_DEG`), as the real check is
 when the chained prediction it starts from has drifted.  Either is charged at the cached
-outcome's measured CPU seconds, as measured, unscaled.
+outcome's measured CPU seconds, as measured, unscaled.  ``bench.fleetsim --exact-poses``
+leaves the errors out (:meth:`PairOutcome.exact`), to measure what they change.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import pickle
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -121,6 +122,11 @@ class PairOutcome:
     search_cpu: float
     check: Outcome | None
     check_cpu: float
+
+    def exact(self) -> PairOutcome:
+        """This pair with its pose errors left out: a search or check lands on the truth."""
+        check = None if self.check is None else replace(self.check, error=np.eye(3))
+        return replace(self, search=replace(self.search, error=np.eye(3)), check=check)
 
 
 def known_area(grid: Grid) -> float:

@@ -243,6 +243,7 @@ def write_results(
     flags = " --quick" if args.quick else ""
     flags += "" if args.cores is None else f" --cores {args.cores}"
     flags += "" if not args.tag else f" --tag {args.tag}"
+    flags += " --exact-poses" if args.exact_poses else ""
     flags += " --real " + " ".join(str(p) for p in args.real)
     md = (
         f"# Fleet simulator{'' if not args.tag else f' ({args.tag})'}\n\n"

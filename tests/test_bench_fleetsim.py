@@ -113,6 +113,11 @@ def test_a_drawn_search_carries_its_real_pose_error(tiny_outcomes):
         # on another pair, the same error against that pair's truth
         drawn = outcome.at(other).matrix
         np.testing.assert_allclose(np.linalg.inv(other) @ drawn, outcome.error, atol=1e-9)
+    # --exact-poses: the same outcomes, on the truth
+    for pair in tiny_outcomes:
+        exact = pair.exact()
+        assert exact.search.accepted == pair.search.accepted
+        np.testing.assert_array_equal(exact.search.at(other).matrix, other)
 
 
 def test_tiny_fleet_agrees_on_the_final_maps(tiny_fleet):
