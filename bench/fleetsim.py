@@ -9,7 +9,9 @@ measured CPU cost (:mod:`bench.fleetsim_merges`); global-map rebuilds really run
 (:mod:`bench.fleetsim_core`).  Above 16 robots the replay slows by 17 / (N + 1), so that each
 robot's segment lasts as many simulated seconds as at 16 robots (``--no-slowdown``: not).
 Each agent has a computer of its own unless ``--cores`` makes them share that many cores, as
-:mod:`bench.fleet`'s agents share one machine (``--cores 2 --tag validation`` at 8 and 16).
+:mod:`bench.fleet`'s agents share one machine (``--cores 2 --tag validation`` at 8 and 16);
+a smaller number, a fraction too, stands for a machine other jobs load (``--cores 0.5``: the
+fleet gets half a core).
 
 Per N: searches and checks per epoch, messages and bytes received per robot, global-map
 rebuild CPU, agreement time after the last update, bytes of grids held per agent, CPU per
@@ -98,7 +100,9 @@ def parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     ap.add_argument("--churn", type=_churn, action="append", default=[], metavar="R:LEAVE[:BACK]")
     ap.add_argument(
-        "--cores", type=int, help="agents share this many cores (default: one computer each)"
+        "--cores",
+        type=_positive,
+        help="agents share this many cores, or this share of one (default: a computer each)",
     )
     ap.add_argument("--limit", type=_positive, default=900.0, help="simulated seconds at most")
     ap.add_argument("--log", type=Path, default=LOG, help="CARMEN log the robots replay")
@@ -127,8 +131,6 @@ def scenario(args: argparse.Namespace, n: int) -> Scenario:
     partitions = tuple(Partition(s, e, halves) for s, e in args.partition)
     if any(not 0 <= p.start < p.end for p in partitions):
         raise ValueError("a partition needs 0 <= START < END")
-    if args.cores is not None and args.cores < 1:
-        raise ValueError(f"--cores must be >= 1, got {args.cores}")
     net = NetParams(args.latency, args.jitter, args.loss, args.bandwidth, partitions)
     slow = 1.0 if args.no_slowdown else min(1.0, (REFERENCE_ROBOTS + 1) / (n + 1))
     return Scenario(

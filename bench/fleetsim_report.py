@@ -241,7 +241,7 @@ def write_results(
     plot(rows, out / f"{stem}.png")
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     flags = " --quick" if args.quick else ""
-    flags += "" if args.cores is None else f" --cores {args.cores}"
+    flags += "" if args.cores is None else f" --cores {args.cores:g}"
     flags += "" if not args.tag else f" --tag {args.tag}"
     flags += " --exact-poses" if args.exact_poses else ""
     flags += " --real " + " ".join(str(p) for p in args.real)

@@ -184,7 +184,7 @@ def test_a_bad_real_result_file_is_refused_in_one_line(tmp_path, capsys):
         (["--robots", "3", "--churn", "r9:1"], "churn names robots not in a fleet of 3"),
         (["--loss", "1.5", "--robots", "3"], "loss in [0, 1)"),
         (["--partition", "5", "1", "--robots", "3"], "a partition needs 0 <= START < END"),
-        (["--cores", "0", "--robots", "3"], "--cores must be >= 1"),
+        (["--cores", "0", "--robots", "3"], "argument --cores: must be > 0, got 0"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args, message, tmp_path, capsys):
