@@ -5,9 +5,9 @@ as ``pgvd demo`` and :mod:`bench.fleet` split it: for 4, 8, 16, 32 and 64 robots
 in random frames; pairs of neighbours, of second neighbours and of robots half the circle
 apart, and at 8 every pair.  Then the first maps a robot publishes, before its segment is
 done: the first half, quarter and tenth of each segment at 8 robots and the first quarter at
-16, pairs of neighbours and second neighbours.  Those early maps are small, and a real search
-often rejects them (too few Voronoi edges); without them a fleet's first epochs would be drawn
-from whole maps, which a search accepts, and the searches that follow a rejection go missing.
+16, pairs of neighbours and second neighbours.  A real search rejects most of those (41 of
+61 when made): without them a fleet's first, small maps would draw whole maps' outcomes,
+which a search mostly accepts, and the searches that follow a rejection would go missing.
 For each pair the real :func:`agent.worker.merge_registration` (the full search) and the real
 :func:`agent.worker.verify_check` at the true transform (the check a correct chain asks for)
 are run, timed in CPU seconds (``time.thread_time``), and stored with the pair's true
