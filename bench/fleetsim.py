@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 from agent.scenario import LOG
+from bench.fleet_accuracy import OneLineParser
 from bench.fleetsim_core import Meter, Rebuilds, SimClock
 from bench.fleetsim_fleet import Churn, Scenario, SimFleet
 from bench.fleetsim_merges import load_outcomes
@@ -76,16 +77,9 @@ def _churn(text: str) -> Churn:
     return Churn(parts[0], *times)
 
 
-class _Parser(argparse.ArgumentParser):
-    """Bad arguments: one line on stderr, exit 2."""
-
-    def error(self, message: str) -> None:
-        self.exit(2, f"fleetsim: {message}\n")
-
-
 def parser() -> argparse.ArgumentParser:
     first = __doc__.split("\n")[0]
-    ap = _Parser(prog="python3 -m bench fleetsim", description=first)
+    ap = OneLineParser(prog="python3 -m bench fleetsim", description=first, error_prefix="fleetsim")
     ap.add_argument("--robots", type=_robots, nargs="+", default=[16, 32, 64, 128])
     ap.add_argument("--quick", action="store_true", help="rarer polls, fewer real rebuilds")
     ap.add_argument("--speed", type=_positive, default=100.0, help="replay speed at <= 16 robots")
