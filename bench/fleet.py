@@ -42,21 +42,13 @@ import numpy as np
 
 from agent.launcher import LocalFleet, agreement, sources_done
 from agent.scenario import LOG, random_frames, segments
-from bench.fleet_accuracy import BenchError, Building, check_building
+from bench.fleet_accuracy import BenchError, Building, OneLineParser, check_building
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 TICK = os.sysconf("SC_CLK_TCK")
 #: Seconds between two reads of every agent's status, up to 8 agents.
 POLL_S = 0.1
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """An argument parser whose every error is one line on stderr, exit 2."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        print(f"{self.prog}: {message}", file=sys.stderr)
-        raise SystemExit(2)
 
 
 def poll_period(n: int) -> float:

@@ -537,14 +537,30 @@ def _panel(ax, case: Mapping, truth: fh.Truth, tol: fh.Tolerance) -> None:
 # ------------------------------------------------------------------------------ CLI
 
 
-class _Parser(argparse.ArgumentParser):
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose every error is one line on stderr, exit 2.
+
+    Parameters
+    ----------
+    error_prefix : what the line starts with, before ``": "`` (default: ``prog``).
+    **kwargs : those of :class:`argparse.ArgumentParser`.
+    """
+
+    def __init__(self, *, error_prefix: str | None = None, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.error_prefix = error_prefix or self.prog
+
     def error(self, message: str) -> None:  # type: ignore[override]
-        print(f"fleet_accuracy: {message}", file=sys.stderr)
+        print(f"{self.error_prefix}: {message}", file=sys.stderr)
         raise SystemExit(2)
 
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:
-    ap = _Parser(prog="python3 -m bench fleet_accuracy", description=__doc__.splitlines()[0])
+    ap = OneLineParser(
+        prog="python3 -m bench fleet_accuracy",
+        description=__doc__.splitlines()[0],
+        error_prefix="fleet_accuracy",
+    )
     ap.add_argument("--buildings", nargs="+", default=None, help="log:PATH or map:PATH.yaml")
     ap.add_argument("--robots", type=int, nargs="+", default=[2, 3, 4, 6])
     ap.add_argument("--quick", action="store_true", help="the bundled Intel log, N=2,3 only")

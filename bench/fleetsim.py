@@ -9,14 +9,18 @@ measured CPU cost (:mod:`bench.fleetsim_merges`); global-map rebuilds really run
 (:mod:`bench.fleetsim_core`).  Above 16 robots the replay slows by 17 / (N + 1), so that each
 robot's segment lasts as many simulated seconds as at 16 robots (``--no-slowdown``: not).
 Each agent has a computer of its own unless ``--cores`` makes them share that many cores, as
-:mod:`bench.fleet`'s agents share one machine (``--cores 2 --tag validation`` at 8 and 16).
+:mod:`bench.fleet`'s agents share one machine (``--cores 2 --tag validation`` at 8 and 16);
+a smaller number, a fraction too, stands for a machine other jobs load (``--cores 0.5``: the
+fleet gets half a core).
 
 Per N: searches and checks per epoch, messages and bytes received per robot, global-map
 rebuild CPU, agreement time after the last update, bytes of grids held per agent, CPU per
 agent per epoch relative to 16 robots.  At 8 and 16 robots the counts stand beside
-:mod:`bench.fleet`'s (``bench/results/fleet.json``).
+:mod:`bench.fleet`'s, run by run, with their mean and spread (``--real FILE ...``: result
+files of ``bench.fleet --robots 8 16 --out DIR``; default ``bench/results/fleet.json``).
 
-Run: ``python3 -m bench fleetsim [--robots 16 32 64 128] [--quick] [--cores C] [--tag T]``;
+Run: ``python3 -m bench fleetsim [--robots 16 32 64 128] [--quick] [--cores C] [--tag T]
+[--exact-poses] [--real FILE ...]``;
 writes ``fleetsim.json``, ``fleetsim.md`` and ``fleetsim.png`` (``fleetsim-T.*`` with a tag)
 under ``--out`` (default ``bench/results``); progress on stderr.
 """
@@ -29,11 +33,12 @@ import time
 from pathlib import Path
 
 from agent.scenario import LOG
+from bench.fleet_accuracy import OneLineParser
 from bench.fleetsim_core import Meter, Rebuilds, SimClock
 from bench.fleetsim_fleet import Churn, Scenario, SimFleet
 from bench.fleetsim_merges import load_outcomes
 from bench.fleetsim_net import NetParams, Partition
-from bench.fleetsim_report import summarise, write_results
+from bench.fleetsim_report import load_real_runs, summarise, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -72,16 +77,9 @@ def _churn(text: str) -> Churn:
     return Churn(parts[0], *times)
 
 
-class _Parser(argparse.ArgumentParser):
-    """Bad arguments: one line on stderr, exit 2."""
-
-    def error(self, message: str) -> None:
-        self.exit(2, f"fleetsim: {message}\n")
-
-
 def parser() -> argparse.ArgumentParser:
     first = __doc__.split("\n")[0]
-    ap = _Parser(prog="python3 -m bench fleetsim", description=first)
+    ap = OneLineParser(prog="python3 -m bench fleetsim", description=first, error_prefix="fleetsim")
     ap.add_argument("--robots", type=_robots, nargs="+", default=[16, 32, 64, 128])
     ap.add_argument("--quick", action="store_true", help="rarer polls, fewer real rebuilds")
     ap.add_argument("--speed", type=_positive, default=100.0, help="replay speed at <= 16 robots")
@@ -96,13 +94,23 @@ def parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     ap.add_argument("--churn", type=_churn, action="append", default=[], metavar="R:LEAVE[:BACK]")
     ap.add_argument(
-        "--cores", type=int, help="agents share this many cores (default: one computer each)"
+        "--cores",
+        type=_positive,
+        help="agents share this many cores, or this share of one (default: a computer each)",
     )
     ap.add_argument("--limit", type=_positive, default=900.0, help="simulated seconds at most")
     ap.add_argument("--log", type=Path, default=LOG, help="CARMEN log the robots replay")
     ap.add_argument("--cache", type=Path, default=CACHE, help="where the outcome cache lives")
     ap.add_argument("--out", type=Path, default=RESULTS, help="where the results go")
     ap.add_argument("--tag", help="results named fleetsim-TAG.* instead of fleetsim.*")
+    ap.add_argument(
+        "--exact-poses", action="store_true",
+        help="registrations land on the true pose (the real pose errors left out)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--real", type=Path, nargs="+", default=[RESULTS / "fleet.json"], metavar="FILE",
+        help="bench.fleet result files (JSON) to set the counts beside",
+    )  # fmt: skip
     return ap
 
 
@@ -117,8 +125,6 @@ def scenario(args: argparse.Namespace, n: int) -> Scenario:
     partitions = tuple(Partition(s, e, halves) for s, e in args.partition)
     if any(not 0 <= p.start < p.end for p in partitions):
         raise ValueError("a partition needs 0 <= START < END")
-    if args.cores is not None and args.cores < 1:
-        raise ValueError(f"--cores must be >= 1, got {args.cores}")
     net = NetParams(args.latency, args.jitter, args.loss, args.bandwidth, partitions)
     slow = 1.0 if args.no_slowdown else min(1.0, (REFERENCE_ROBOTS + 1) / (n + 1))
     return Scenario(
@@ -159,12 +165,15 @@ def main(argv: list[str] | None = None) -> int:
         scenarios = [scenario(args, n) for n in args.robots]
         if not args.log.is_file():
             raise ValueError(f"log not found: {args.log}")
+        real_runs = load_real_runs(args.real)
         outcomes = load_outcomes(args.cache, args.log)
+        if args.exact_poses:
+            outcomes = [o.exact() for o in outcomes]
         rows = [run_one(sc, outcomes, args.quick) for sc in scenarios]
     except ValueError as exc:
         print(f"fleetsim: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
-    write_results(rows, args, args.out, ROOT)
+    write_results(rows, args, args.out, real_runs)
     _progress(f"results in {args.out}")
     return 0
 

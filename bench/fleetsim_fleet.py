@@ -16,6 +16,12 @@ encoding, the source's ray casting) is charged at its real CPU time and keeps it
 busy that long: messages wait in the robot's inbox meanwhile, in order, as in the daemon's.
 Queries are answered at once (Zenoh's threads answer them in the daemon).
 
+Start-up: a core is made at 0 s and its daemon's loop first turns ``startup`` s later, when
+the robot also comes online.  The real daemon opens its Zenoh session in between, which
+takes longer than the change gate's interval (1 s), so that its first version is the map of
+its first scans, too small for any search to accept; the fleet's first searches are of those
+maps.  Without the delay the gate would hold the first version back for 1 s of replay.
+
 Liveliness: a robot that comes online sees every robot online and is seen by them after one
 latency; one that goes offline (churn) or a partition that separates two robots tells both
 that the other left, and they see each other again when it ends.
@@ -59,9 +65,11 @@ class Churn:
 class Scenario:
     """What is simulated: ``robots`` replaying ``log`` split as :func:`agent.scenario.segments`,
     in the frames of :func:`agent.scenario.random_frames` (seed ``frames_seed``), at ``speed``
-    times real time; the agents' options as ``pgvd agent``'s defaults.  ``cores``: the
-    workers share that many cores (as :mod:`bench.fleet`'s agents share one machine's);
-    None gives each agent a computer of its own."""
+    times real time; the agents' options as ``pgvd agent``'s defaults; ``startup``: seconds
+    from a core's making to its loop's first turn (module docstring).  ``cores``: the
+    workers share that many cores (as :mod:`bench.fleet`'s agents share one machine's), a
+    fraction standing for the share of a loaded machine they get; None gives each agent a
+    computer of its own."""
 
     robots: int
     log: Path
@@ -73,7 +81,8 @@ class Scenario:
     churn: tuple[Churn, ...] = ()
     poll: float = 0.2
     limit: float = 900.0
-    cores: int | None = None
+    cores: float | None = None
+    startup: float = 1.5
 
     def names(self) -> list[str]:
         return [f"r{i + 1}" for i in range(self.robots)]
@@ -156,8 +165,8 @@ class SimFleet:
             leaves = {c.robot: c for c in self.sc.churn}
             for name in self.robots:
                 c = leaves.get(name)
-                if c is None or c.leave > 0:
-                    self.loop.at(0.0, self._online, name, True)
+                if c is None or c.leave > self.sc.startup:
+                    self.loop.at(self.sc.startup, self._online, name, True)
                 if c is not None:
                     self.loop.at(c.leave, self._online, name, False)
                     if c.back is not None:
@@ -165,7 +174,7 @@ class SimFleet:
             for p in self.sc.net.partitions:
                 self.loop.at(p.start, self._liveliness)
                 self.loop.at(p.end, self._liveliness)
-            self.loop.at(0.0, self._turn)
+            self.loop.at(self.sc.startup, self._turn)
             self.loop.run(self.sc.limit, stop=lambda: self.agreed_at is not None)
 
     def _online(self, name: str, up: bool) -> None:

@@ -2,11 +2,15 @@
 
 A cache of real outcomes is built once (:func:`load_outcomes`) from the development Intel log
 as ``pgvd demo`` and :mod:`bench.fleet` split it: for 4, 8, 16, 32 and 64 robots, segment maps
-(whole, and the first half of each for 8) in random frames; pairs of neighbours, of second
-neighbours and of robots half the circle apart, and at 8 every pair.  For each pair the real
-:func:`agent.worker.merge_registration` (the full search) and the real
-:func:`agent.worker.verify_check` at the true transform (the check a correct chain asks
-for) are run, timed in CPU seconds (``time.thread_time``), and stored with the pair's true
+in random frames; pairs of neighbours, of second neighbours and of robots half the circle
+apart, and at 8 every pair.  Then the first maps a robot publishes, before its segment is
+done: the first half, quarter and tenth of each segment at 8 robots and the first quarter at
+16, pairs of neighbours and second neighbours.  A real search rejects most of those (41 of
+61 when made): without them a fleet's first, small maps would draw whole maps' outcomes,
+which a search mostly accepts, and the searches that follow a rejection would go missing.
+For each pair the real :func:`agent.worker.merge_registration` (the full search) and the real
+:func:`agent.worker.verify_check` at the true transform (the check a correct chain asks for)
+are run, timed in CPU seconds (``time.thread_time``), and stored with the pair's true
 overlap and size.  The cache is pickled under the bench's cache directory, versioned
 (:data:`CACHE_VERSION`, and the libraries' suffix of :func:`bench.environment.cache_suffix`).
 
@@ -14,12 +18,21 @@ In the simulation a pair of robots ``i, j`` at whatever versions they hold is ma
 the cached outcome nearest in (true overlap of their footprints, known area of the smaller
 map): distance ``|overlap - overlap'| / 0.1 + |ln(area / area')|``, ties to the first cached.
 The footprint is the set of 0.5 m world cells under the known cells of the map, placed by
-the robot's true frame; overlap is the shared cells over the smaller footprint.  A search
-returns that outcome's decision, score, margin, reason and covariance, with the TRUE
-transform of ``i, j`` as its matrix (pose errors are not modelled); a check returns the
-cached check's outcome (confirmed, rejected, or inconclusive), inconclusive also when the
-predicted transform is outside the check's basin around the truth.  Either is charged at
-the cached outcome's measured CPU seconds, as measured, unscaled.
+the robot's true frame; overlap is the shared cells over the smaller footprint.
+
+A drawn registration carries its real pose error along with its outcome.  The cache keeps,
+for each search and each check, the error of its matrix against the pair's truth,
+``E = T^-1 M`` (a B-pixel -> B-pixel transform: every map is drawn in 0.1 m cells, so it
+applies to any pair alike); the simulation returns ``T_ij E`` with ``T_ij`` the true
+transform of ``i, j``.  A search thus answers with that outcome's decision, score, margin,
+reason and covariance at the real merge's own error, a near miss included, and the checks
+that chain on its link later see the error it left.  A check returns the cached check's
+outcome (confirmed, rejected, or inconclusive) at the cached check's own error;
+inconclusive also when the predicted transform is outside the check's basin around the
+truth (:data:`pgvd.verify.BASIN_M`, :data:`pgvd.verify.BASIN_DEG`), as the real check is
+when the chained prediction it starts from has drifted.  Either is charged at the cached
+outcome's measured CPU seconds, as measured, unscaled.  ``bench.fleetsim --exact-poses``
+leaves the errors out (:meth:`PairOutcome.exact`), to measure what they change.
 """
 
 from __future__ import annotations
@@ -29,7 +42,7 @@ import pickle
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +53,7 @@ from bench.environment import cache_suffix
 from pgvd.grid import Grid
 
 #: Bump when the pairs or what is stored of them change: caches are then made again.
-CACHE_VERSION = 1
+CACHE_VERSION = 3
 #: Side of the world cells a footprint is made of, metres.
 FOOTPRINT_CELL_M = 0.5
 #: Weight of the overlap in the distance between pairs: 0.1 of overlap counts as e in area.
@@ -75,22 +88,31 @@ def overlap(fa: np.ndarray, fb: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class Outcome:
-    """A registration's result without its pose (the simulation supplies the true one)."""
+    """A registration's result, its matrix kept as its error against the truth.
+
+    ``error`` is ``T^-1 M``: the true transform ``T`` of the pair it was measured on,
+    inverted, times the matrix ``M`` the registration returned (module docstring).
+    """
 
     accepted: bool
+    error: np.ndarray
     covariance: np.ndarray
     score: float
     reason: str
     margin: float | None
 
     @classmethod
-    def of(cls, res: Registration) -> Outcome:
-        return cls(res.accepted, res.covariance, res.score, res.reason, res.margin)
+    def of(cls, res: Registration, truth: np.ndarray) -> Outcome:
+        """``res``, measured on a pair whose true transform is ``truth``."""
+        error = np.linalg.inv(truth) @ np.asarray(res.matrix, np.float64)
+        return cls(res.accepted, error, res.covariance, res.score, res.reason, res.margin)
 
-    def at(self, matrix: np.ndarray) -> Registration:
+    def at(self, truth: np.ndarray) -> Registration:
+        """This result on a pair whose true transform is ``truth``, with this error."""
         return Registration(
-            self.accepted, matrix, self.covariance, self.score, self.reason, self.margin
-        )
+            self.accepted, truth @ self.error, self.covariance, self.score, self.reason,
+            self.margin,
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -104,6 +126,11 @@ class PairOutcome:
     search_cpu: float
     check: Outcome | None
     check_cpu: float
+
+    def exact(self) -> PairOutcome:
+        """This pair with its pose errors left out: a search or check lands on the truth."""
+        check = None if self.check is None else replace(self.check, error=np.eye(3))
+        return replace(self, search=replace(self.search, error=np.eye(3)), check=check)
 
 
 def known_area(grid: Grid) -> float:
@@ -133,7 +160,9 @@ def cache_plan() -> Plan:
         if n == 8:
             pairs |= {(i, j) for i in range(n) for j in range(i + 1, n)}
         plan.append((n, 1.0, sorted(pairs)))
-    plan.append((8, 0.5, [(i, i + 1) for i in range(7)]))
+    early = [(8, 0.5), (8, 0.25), (8, 0.1), (16, 0.25)]
+    for n, share in early:
+        plan.append((n, share, [(i, i + d) for i in range(n) for d in (1, 2) if i + d < n]))
     return plan
 
 
@@ -158,9 +187,9 @@ def measure_outcomes(log: Path, plan: Plan) -> list[PairOutcome]:
                 PairOutcome(
                     overlap(ta.footprint(ga), tb.footprint(gb)),
                     min(known_area(ga), known_area(gb)),
-                    Outcome.of(searched),
+                    Outcome.of(searched, truth),
                     t1 - t0,
-                    None if checked is None else Outcome.of(checked),
+                    None if checked is None else Outcome.of(checked, truth),
                     t2 - t1,
                 )
             )

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from agent.scenario import LOG
@@ -13,7 +16,7 @@ from bench.fleetsim_core import Meter, Rebuilds, SimClock
 from bench.fleetsim_fleet import Scenario, SimFleet
 from bench.fleetsim_merges import measure_outcomes
 from bench.fleetsim_net import EventLoop, NetParams, Network, Partition
-from bench.fleetsim_report import summarise
+from bench.fleetsim_report import load_real_runs, summarise, validation
 
 
 def test_event_loop_runs_in_time_order_and_ties_in_order_set():
@@ -81,14 +84,40 @@ def test_a_query_is_answered_by_its_target_only():
 
 
 @pytest.fixture(scope="module")
-def tiny_fleet():
-    """Three robots on the Intel log, their pairs' outcomes measured for real."""
-    outcomes = measure_outcomes(LOG, [(3, 1.0, [(0, 1), (1, 2), (0, 2)])])
+def tiny_outcomes():
+    """The three pairs of three robots on the Intel log, measured for real."""
+    return measure_outcomes(LOG, [(3, 1.0, [(0, 1), (1, 2), (0, 2)])])
+
+
+@pytest.fixture(scope="module")
+def tiny_fleet(tiny_outcomes):
+    """Three robots on the Intel log, drawing from their pairs' real outcomes."""
     fleet = SimFleet(
-        Scenario(3, LOG, speed=200.0, limit=120.0), outcomes, Rebuilds(Meter(SimClock()))
+        Scenario(3, LOG, speed=200.0, limit=120.0), tiny_outcomes, Rebuilds(Meter(SimClock()))
     )
     fleet.run()
     return fleet
+
+
+def test_a_drawn_search_carries_its_real_pose_error(tiny_outcomes):
+    accepted = [o.search for o in tiny_outcomes if o.search.accepted]
+    assert accepted
+    turn = math.radians(30.0)
+    other = np.array([[math.cos(turn), -math.sin(turn), 40.0],
+                      [math.sin(turn), math.cos(turn), -25.0], [0.0, 0.0, 1.0]])  # fmt: skip
+    for outcome in accepted:
+        # a real merge lands near the truth, never exactly on it
+        assert not np.allclose(outcome.error, np.eye(3), atol=1e-9)
+        shift_m = float(np.hypot(*outcome.error[:2, 2])) * 0.1
+        assert shift_m < 2.0
+        # on another pair, the same error against that pair's truth
+        drawn = outcome.at(other).matrix
+        np.testing.assert_allclose(np.linalg.inv(other) @ drawn, outcome.error, atol=1e-9)
+    # --exact-poses: the same outcomes, on the truth
+    for pair in tiny_outcomes:
+        exact = pair.exact()
+        assert exact.search.accepted == pair.search.accepted
+        np.testing.assert_array_equal(exact.search.at(other).matrix, other)
 
 
 def test_tiny_fleet_agrees_on_the_final_maps(tiny_fleet):
@@ -121,6 +150,32 @@ def test_tiny_fleet_counts_add_up(tiny_fleet):
     assert row["agreement_s"] is not None and row["agreement_s"] >= 0
 
 
+def test_validation_sets_each_count_against_the_real_runs_mean_and_range(tmp_path):
+    runs = []
+    for i, (searches, checks) in enumerate([(30, 40), (50, 44)]):
+        path = tmp_path / f"fleet-{i}.json"
+        path.write_text(json.dumps([{"robots": 8, "searches": searches, "checks": checks}]))
+        runs.append(path)
+    real = load_real_runs(runs)
+    sim = [{"robots": 8, "searches": 45, "checks": 50}, {"robots": 16, "searches": 9}]
+    by_measure = {c["measure"]: c for c in validation(sim, real)}
+    assert set(by_measure) == {"searches", "checks"}  # nothing real at 16
+    searches, checks = by_measure["searches"], by_measure["checks"]
+    assert searches["fleet"] == [30.0, 50.0] and searches["fleet_mean"] == 40.0
+    assert searches["spread"] == 0.5 and searches["difference"] == 0.125
+    assert searches["within"]  # 12.5 % off the mean, but inside the runs' range
+    assert checks["difference"] == pytest.approx(0.190, abs=1e-3) and not checks["within"]
+
+
+def test_a_bad_real_result_file_is_refused_in_one_line(tmp_path, capsys):
+    bad = tmp_path / "fleet.json"
+    bad.write_text('{"robots": 8}')
+    code = main(["--robots", "3", "--real", str(bad), "--out", str(tmp_path / "out")])
+    assert code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [f"fleetsim: not a bench.fleet result file (a list of rows by robots): {bad}"]
+
+
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -129,7 +184,7 @@ def test_tiny_fleet_counts_add_up(tiny_fleet):
         (["--robots", "3", "--churn", "r9:1"], "churn names robots not in a fleet of 3"),
         (["--loss", "1.5", "--robots", "3"], "loss in [0, 1)"),
         (["--partition", "5", "1", "--robots", "3"], "a partition needs 0 <= START < END"),
-        (["--cores", "0", "--robots", "3"], "--cores must be >= 1"),
+        (["--cores", "0", "--robots", "3"], "argument --cores: must be > 0, got 0"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args, message, tmp_path, capsys):
