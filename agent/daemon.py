@@ -43,6 +43,7 @@ from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
 from agent.persister import Persister
 from agent.pose import Pose
+from agent.profiling import profiled
 from agent.ros2_io import RosMapSubscription, declare_node
 from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap
@@ -315,11 +316,14 @@ class Agent:
             self.worker.start()
             halt = threading.Event()
             receiver = threading.Thread(
-                target=self._receive, args=(halt,), name="pgvd-receive", daemon=True
+                target=profiled,
+                args=(me, "receive", lambda: self._receive(halt)),
+                name="pgvd-receive",
+                daemon=True,
             )
             receiver.start()
             try:
-                self._loop(stop, outputs)
+                profiled(me, "main", lambda: self._loop(stop, outputs))
             finally:
                 halt.set()
                 receiver.join(timeout=0.2)  # a decode in progress is not waited for

@@ -64,6 +64,7 @@ from agent.links import (
 )
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
+from agent.profiling import profiled
 from agent.trust import (
     CANDIDATE,
     CONFIRMED,
@@ -121,6 +122,10 @@ CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
 #: Seconds a solution of the pose graph keeps serving predictions once newer accepted links
 #: arrived (:meth:`FusionWorker._solved_for`).
 RESOLVE_AFTER = 2.0
+#: :class:`Chains` with provisional accepts taken as links kept at once
+#: (:meth:`FusionWorker._provisional_chains`): a round's first tries and re-checks each
+#: leave out their own pair.
+PROVISIONAL_CACHE = 8
 #: Largest share of the wall time an agent spends on previews (unsettled global maps).
 PREVIEW_SHARE = 0.05
 #: The share while a round of registrations only re-places the maps of the last rebuild (no
@@ -279,6 +284,13 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         return None
 
     return check
+
+
+def _taken_as_accepted(ln: LinkRecord, pair: tuple[str, str], bar: float) -> bool:
+    """Whether ``ln`` is a link in the map once the provisional accepts (above ``bar``, the
+    merge's ``min_margin``) of pairs other than ``pair`` count as links
+    (:meth:`FusionWorker._as_accepted`)."""
+    return ln.accepted or (ln.pair != pair and provisional(ln.state, ln.margin, bar))
 
 
 def _rejected_before(links: list[LinkRecord], a: str, b: str) -> bool:
@@ -453,6 +465,8 @@ class FusionWorker:
         self.poses = dict(poses or {})
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
+        #: :meth:`_provisional_chains` by signature, the oldest first.
+        self._provisional: dict[tuple[object, ...], tuple[list[LinkRecord], Chains]] = {}
         #: Which link records held are sound (:data:`Soundness`).
         self._sound: Soundness = {}
         #: The warped maps of the last rebuild, for the next (:class:`LayerCache`).
@@ -484,7 +498,9 @@ class FusionWorker:
         self._quiet_since: dict[tuple[object, ...], float] = {}
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
-        self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
+        self._thread = threading.Thread(
+            target=profiled, args=(me, "fusion", self._run), name="pgvd-fusion", daemon=True
+        )
 
     def start(self) -> None:
         self._thread.start()
@@ -757,13 +773,40 @@ class FusionWorker:
             return False
         chains = self._chains_of(snap)
         if provisional:
-            snap = replace(snap, links=[self._as_accepted(ln, (a, b)) for ln in snap.links])
-            chains = Chains(snap.maps, snap.links)
+            links, chains = self._provisional_chains(snap, (a, b))
+            snap = replace(snap, links=links)
         group = next((g for g in chains.groups if a in g and b in g), None)
         if group is None or not _current_chain(snap, group):
             return False
         predicted = predict(chains.solved()[0], a, b)
         return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
+
+    def _provisional_chains(
+        self, snap: Snapshot, pair: tuple[str, str]
+    ) -> tuple[list[LinkRecord], Chains]:
+        """The links of ``snap`` with the other pairs' provisional accepts as links
+        (:meth:`_as_accepted`), and their :class:`Chains`, made anew only when the robots or
+        the links that count as accepted changed.
+
+        Every provisional first try and re-check asks for them, and a fresh pose graph of
+        every accepted link each time was a third of an agent's CPU at 16 robots; the
+        signature holds all a :class:`Chains` reads (the robots, and the identity of each
+        link taken as accepted, which names its content), so a cached one is the one a
+        fresh build gives.
+        """
+        bar = self.min_margin
+        signature = (
+            tuple(sorted(snap.maps)),
+            tuple(ln.identity for ln in snap.links if _taken_as_accepted(ln, pair, bar)),
+        )
+        held = self._provisional.get(signature)
+        if held is None:
+            links = [self._as_accepted(ln, pair) for ln in snap.links]
+            held = (links, Chains(snap.maps, links))
+            if len(self._provisional) >= PROVISIONAL_CACHE:
+                del self._provisional[next(iter(self._provisional))]  # the oldest
+            self._provisional[signature] = held
+        return held
 
     def _as_accepted(self, ln: LinkRecord, pair: tuple[str, str]) -> LinkRecord:
         """``ln`` as a link in the map if it is a provisional accept of another pair than

@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 from numpy.linalg import inv
 
-from agent.book import FleetBook
+from agent.book import FleetBook, Snapshot
 from agent.links import EPOCH_SHIFT, LinkRecord
-from agent.trust import WITHDRAWN
+from agent.trust import CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN
 from agent.worker import (
     APART,
     CHECKS_PREVIEW_SHARE,
     PREVIEW_SHARE,
     RESOLVE_AFTER,
+    Chains,
     FusionWorker,
     GlobalState,
     Registration,
@@ -828,3 +829,42 @@ def test_a_robot_newly_placed_with_the_agents_own_is_shown_before_more_registrat
     assert len(h.calls) == 1 and len(h.globals) == 2  # shown first, registration put off
     assert h.globals[-1].components[0].members == ("r1", "r2")
     assert h.worker.step(now=5.2) and len(h.calls) == 2
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cached_provisional_chains_are_a_fresh_build(seed: int) -> None:
+    """Over a random sequence of link sets (accepts, provisional accepts, grey candidates,
+    rejections, some sets met again), the provisional cycle test's cached pose graph is the
+    one built from scratch: the same groups and placements, bit for bit."""
+    rng = np.random.default_rng(seed)
+    h = Harness("r1")
+    robots = [f"r{i}" for i in range(1, 7)]
+    maps = {r: (V(1), tiny(i)) for i, r in enumerate(robots)}
+    bar = h.worker.min_margin
+    kinds = [
+        (True, CONFIRMED, bar + 0.5),
+        (False, CANDIDATE, bar + 0.1),
+        (False, CANDIDATE, bar - 0.2),
+        (False, REJECTED, None),
+    ]
+    pool = []
+    for i, a in enumerate(robots):
+        for b in robots[i + 1 :]:
+            accepted, state, margin = kinds[rng.integers(len(kinds))]
+            m = rigid_matrix(rng.uniform(-3, 3), *rng.uniform(-50, 50, 2))
+            pool.append(LinkRecord(a, V(1), b, V(1), accepted, m, np.eye(3) * 0.1, 0.9, "r1",
+                                   state=state, margin=margin))  # fmt: skip
+    sets = [list(rng.choice(pool, size=rng.integers(3, len(pool)), replace=False))
+            for _ in range(4)]  # fmt: skip
+    for k in rng.integers(len(sets), size=12):
+        snap = Snapshot(maps, sets[k], False, [], None)
+        pair = tuple(robots[j] for j in sorted(rng.choice(len(robots), 2, replace=False)))
+        links, chains = h.worker._provisional_chains(snap, pair)
+        fresh_links = [h.worker._as_accepted(ln, pair) for ln in sets[k]]
+        fresh = Chains(maps, fresh_links)
+        assert [ln.identity for ln in links] == [ln.identity for ln in fresh_links]
+        assert chains.groups == fresh.groups
+        got, want = chains.solved()[0], fresh.solved()[0]
+        assert got.components == want.components and got.used == want.used
+        for r in robots:
+            assert got.transforms[r].tobytes() == want.transforms[r].tobytes()
