@@ -48,7 +48,13 @@ from agent.ros2_io import RosMapSubscription, declare_node
 from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap
 from agent.status import HostFacts
-from agent.worker import FusionWorker, RegisterFn, merge_registration, verify_check
+from agent.worker import (
+    FusionWorker,
+    RegisterFn,
+    merge_gate,
+    merge_registration,
+    verify_check,
+)
 from agent.zenoh_config import ZenohOptions, build_config
 
 log = logging.getLogger("pgvd.agent")
@@ -170,6 +176,7 @@ class Agent:
             check=verify_check(opts.min_agreement) if register is None else None,
             counters=self.counters,
             poses=dict(opts.known_poses),
+            gate=merge_gate(opts.min_agreement) if register is None else None,
         )
 
     def _load_state(self) -> StoredMap | None:

@@ -30,6 +30,13 @@ once, plus the pairs whose chain is off), not with the pairs -- within one conne
 pairs between groups no link joins are searched in each new epoch of either map, (N/2)^2 for
 two groups of N/2.
 
+Nor is a pair searched whose map A the merge rejects on its own (:data:`GateFn`,
+:func:`pgvd.merge.a_side_rejection`: a robot's first maps, a few metres across, have no GVD
+edge long enough to match): the gate's verdict, asked once per map version, is the search's
+own rejection, recorded with a reason that says it was not searched.  Such a pair keeps the
+later waves closed for a while (:data:`GATE_HOLD_S`): its maps are about to grow, and the link
+they then give may turn the later waves' searches into checks.
+
 Known initial poses (``--known-pose``, :mod:`agent.priors`) are checked the same way, and
 before a chain's prediction: a pair whose two poses are known is checked at their prior
 transform, and the check can only confirm it.  A prior that fails the check decides nothing --
@@ -61,6 +68,7 @@ from agent.links import (
     epoch_of,
     open_keys,
     stale_candidate,
+    version_text,
 )
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
@@ -118,6 +126,18 @@ RegisterFn = Callable[[Grid, Grid], Registration]
 #: ``check(a, b, predicted)``: a :class:`Registration` when the prediction decides the pair
 #: (confirmed, or the maps do not overlap under it), None when a full search must decide.
 CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
+
+#: ``gate(a)``: why the search rejects any pair whose map A is ``a`` whatever map B
+#: (:func:`pgvd.merge.a_side_rejection`), None when a search may pass.
+GateFn = Callable[[Grid], str | None]
+
+#: Seconds a pair whose search the gate skipped (:data:`GateFn`) keeps later waves of
+#: searches closed (:func:`agent.links.open_keys`): a robot's first maps are a few metres
+#: across and soon grow into a new epoch, whose pair is then searched before any further
+#: one; a map that stays too small (a robot that stopped) holds the waves no longer.
+GATE_HOLD_S = 10.0
+#: What a gated pair's rejection reason starts with, on every agent (:meth:`FusionWorker._gated`).
+GATED = "not searched: "
 
 #: Seconds a solution of the pose graph keeps serving predictions once newer accepted links
 #: arrived (:meth:`FusionWorker._solved_for`).
@@ -244,6 +264,19 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
         return _with_grey_covariance(out, a, b, params)
 
     return register
+
+
+def merge_gate(min_agreement: float | None = None) -> GateFn:
+    """:func:`pgvd.merge.a_side_rejection` as a :data:`GateFn`, with the parameters of
+    :func:`merge_registration`: a pair it rejects is one that registration rejects."""
+    from pgvd.merge import a_side_rejection
+
+    params = _merge_params(min_agreement)
+
+    def gate(a: Grid) -> str | None:
+        return a_side_rejection(a, params)
+
+    return gate
 
 
 def verify_check(min_agreement: float | None = None) -> CheckFn:
@@ -435,6 +468,8 @@ class FusionWorker:
     counters : where ``searches``, ``checks``, ``checks_confirmed``, ``checks_rejected``,
         ``checks_skipped`` (pairs placed apart, :meth:`_apart`), ``prior_checks``,
         ``prior_confirmed`` and ``prior_failed`` are counted (the status shows them).
+    gate : skips the search of a pair whose map A the merge rejects on its own
+        (:data:`GateFn`, ``searches_gated``); None searches every pair it must.
     poses : known initial poses, robot -> ``(x, y, yaw)`` of its map frame in the world frame
         (:func:`agent.priors.parse_known_pose`); a pair with both is checked at their prior
         first (with ``check``).
@@ -452,6 +487,7 @@ class FusionWorker:
         check: CheckFn | None = None,
         counters: Counters | None = None,
         poses: Mapping[str, Pose] | None = None,
+        gate: GateFn | None = None,
     ) -> None:
         self.me = me
         self.book = book
@@ -463,6 +499,11 @@ class FusionWorker:
         self.check = check
         self.counters = counters or Counters()
         self.poses = dict(poses or {})
+        self.gate = gate
+        #: The gate's verdict on each (robot, version) of the maps held (:meth:`_gated`).
+        self._gate_verdicts: dict[tuple[str, int], str | None] = {}
+        #: When this worker first saw each gated rejection that holds the waves (:meth:`_holding`).
+        self._held_since: dict[tuple[object, ...], float] = {}
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
         #: :meth:`_provisional_chains` by signature, the oldest first.
@@ -549,7 +590,7 @@ class FusionWorker:
             # a candidate's re-check is a check at its own pose: open at once like a chain's
             rechecks = set(snap.rechecks)
             checkable = rechecks | {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
-            opened = open_keys(snap.needed, checkable, robots)
+            opened = open_keys(snap.needed, checkable, robots, self._holding(snap, now))
         # A pair's turn (and the timeouts of the agents stepping in) counts from when its
         # wave opened, not from when it was first needed: else every agent of a late wave
         # would be past its timeout at once and search it too.
@@ -712,6 +753,8 @@ class FusionWorker:
                     log.debug("check %s - %s deferred: %.2f s, %.2f s CPU", a, b, *clock.elapsed())
                     return
                 res = None
+            if res is None:
+                how, res = "gated", self._gated(snap, a)
             if res is None:
                 how = "searched"
                 self.counters.add("searches")
@@ -942,6 +985,45 @@ class FusionWorker:
         self.counters.add("checks_confirmed")
         base = LinkRecord(a, na, b, nb, False, res.matrix, res.covariance, res.score, self.me)
         self._record(base, res, verdict, "carried forward", clock)
+
+    def _gated(self, snap: Snapshot, a: str) -> Registration | None:
+        """The merge's rejection of any pair whose map A is ``a``'s map held
+        (:data:`GateFn`), without the search; None when a search must decide.
+
+        The gate's verdict is kept per (robot, version): it reads one map, and a fleet asks
+        it of each pair of that map.  Its reason names what the merge says and the map.
+        """
+        if self.gate is None:
+            return None
+        version, grid = snap.maps[a]
+        held = {(r, v) for r, (v, _) in snap.maps.items()}
+        self._gate_verdicts = {k: w for k, w in self._gate_verdicts.items() if k in held}
+        if (a, version) not in self._gate_verdicts:
+            self._gate_verdicts[(a, version)] = self.gate(grid)
+        why = self._gate_verdicts[(a, version)]
+        if why is None:
+            return None
+        self.counters.add("searches_gated")
+        reason = f"{GATED}{why} ({a} v{version_text(version)})"
+        return Registration(False, *_REJECTED, 0.0, reason)
+
+    def _holding(self, snap: Snapshot, now: float) -> list[tuple[str, str]]:
+        """The pairs whose gated rejection (:meth:`_gated`, any agent's) of their current
+        epochs keeps later waves of searches closed: for :data:`GATE_HOLD_S` after this
+        worker first saw it.
+
+        A rejection for want of a map, unlike a search's, says nothing of the pair: were it
+        to open the next wave, every pair of a fleet of small maps would be searched in
+        turn (N(N-1)/2), each searched again as its maps grow.
+        """
+        versions = {r: v for r, (v, _) in snap.maps.items()}
+        gated = {
+            ln.identity: ln.pair
+            for ln in snap.links
+            if not ln.accepted and GATED in ln.reason and ln.current(versions)
+        }
+        self._held_since = {k: self._held_since.get(k, now) for k in gated}
+        return [p for k, p in gated.items() if now - self._held_since[k] < GATE_HOLD_S]
 
     def _checkable(self, chains: Chains, a: str, b: str) -> bool:
         """Whether a check may decide ``(a, b)``: both poses known, or accepted links join

@@ -17,6 +17,8 @@ from agent.trust import CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN
 from agent.worker import (
     APART,
     CHECKS_PREVIEW_SHARE,
+    GATE_HOLD_S,
+    GATED,
     PREVIEW_SHARE,
     RESOLVE_AFTER,
     Chains,
@@ -868,3 +870,43 @@ def test_cached_provisional_chains_are_a_fresh_build(seed: int) -> None:
         assert got.components == want.components and got.used == want.used
         for r in robots:
             assert got.transforms[r].tobytes() == want.transforms[r].tobytes()
+
+
+class Gated(Checking):
+    """A checking harness whose gate rejects the maps of ``small`` robots as map A."""
+
+    def __init__(self, me: str, small: set[str]) -> None:
+        super().__init__(me, None)
+        self.small = {int(tiny(int(r[1:])).logodds.sum()) for r in small}
+        self.gated: list[int] = []
+        self.worker.gate = self.gate
+
+    def gate(self, a: Grid) -> str | None:
+        self.gated.append(int(a.logodds.sum()))
+        return "map A has no GVD edge" if self.gated[-1] in self.small else None
+
+
+def test_a_map_the_merge_rejects_as_a_is_not_searched_and_holds_the_next_wave() -> None:
+    """r1's map is too small to search: r1-r2 is rejected without a search, said in the
+    reason and counted, the gate asked once for r1's version; the second wave stays closed
+    for GATE_HOLD_S, and r1's next epoch is searched."""
+    h = Gated("r1", {"r1"})
+    h.worker.link_timeout = 0.0  # r1 steps in for r4's turn at once
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    assert h.worker.step(now=0.0)
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r2") and not rec.accepted and rec.reason.startswith(GATED)
+    assert "r1 v1.0" in rec.reason and h.calls == []
+    assert h.worker.counters.get("searches_gated") == 1
+    h.worker.step(now=0.1)  # r1-r4, the other first-wave pair of r1's: gated too
+    assert [ln.pair for ln in h.links] == [("r1", "r2"), ("r1", "r4")] and h.calls == []
+    assert h.gated.count(h.gated[0]) == 1  # once per (robot, version)
+    for a, b in (("r2", "r3"), ("r3", "r4"), ("r2", "r4")):  # the others, decided
+        h.book.add_link(_link(a, b, np.eye(3)))
+    assert not h.worker.step(now=1.0) and len(h.links) == 2  # r1-r3 waits: the wave is held
+    assert h.worker.step(now=1.0 + GATE_HOLD_S)
+    assert h.links[-1].pair == ("r1", "r3") and h.links[-1].reason.startswith(GATED)
+    h.small.clear()  # r1's map grew into a new epoch: searched
+    h.book.put_map("r1", V(2), tiny(1))
+    assert h.worker.step(now=20.0) and len(h.calls) == 1
