@@ -504,6 +504,14 @@ class FusionWorker:
         self._gate_verdicts: dict[tuple[str, int], str | None] = {}
         #: When this worker first saw each gated rejection that holds the waves (:meth:`_holding`).
         self._held_since: dict[tuple[object, ...], float] = {}
+        #: The gated rejections of the book's generation, identity -> pair (:meth:`_holding`).
+        self._gated_links: tuple[int | None, dict[tuple[object, ...], tuple[str, str]]] = (
+            None,
+            {},
+        )
+        #: What :meth:`_open` made last, with what it was made of.
+        self._opened: tuple[tuple[object, ...], set[LinkKey], list[LinkKey]] | None = None
+        self._held_since: dict[tuple[object, ...], float] = {}
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
         #: :meth:`_provisional_chains` by signature, the oldest first.
@@ -583,14 +591,10 @@ class FusionWorker:
         # maps so far still agree whose turn a pair is and do not both search it.
         robots = sorted(set(snap.maps) | (snap.alive or frozenset()))
         # Without checks every pair is a search anyway: no wave to wait for.
-        checkable: set[LinkKey] = set()
+        checkable: Collection[LinkKey] = set()
         opened = snap.needed
         if self.check is not None:
-            chains = self._chains_of(snap)
-            # a candidate's re-check is a check at its own pose: open at once like a chain's
-            rechecks = set(snap.rechecks)
-            checkable = rechecks | {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
-            opened = open_keys(snap.needed, checkable, robots, self._holding(snap, now))
+            checkable, opened = self._open(snap, robots, now)
         # A pair's turn (and the timeouts of the agents stepping in) counts from when its
         # wave opened, not from when it was first needed: else every agent of a late wave
         # would be past its timeout at once and search it too.
@@ -652,6 +656,29 @@ class FusionWorker:
                     self._rebuild_seconds, cpu,
                 )  # fmt: skip
         return bool(due)  # registrations put off for the preview
+
+    def _open(
+        self, snap: Snapshot, robots: list[str], now: float
+    ) -> tuple[set[LinkKey], list[LinkKey]]:
+        """The keys needed that a check may decide, and the keys open
+        (:func:`agent.links.open_keys`); made anew only when the book, the robots, the
+        chains or the pairs holding the waves changed.
+
+        A worker steps at every wake and every poll, and at 128 robots some thousands of
+        keys are needed: going over them all at each idle poll cost as much as the work.
+        """
+        chains = self._chains_of(snap)
+        holding = self._holding(snap, now)
+        key = (snap.generation, tuple(robots), chains, tuple(holding))
+        held = self._opened
+        if snap.generation is None or held is None or held[0] != key:
+            # a candidate's re-check is a check at its own pose: open at once like a chain's
+            checkable = set(snap.rechecks) | {
+                k for k in snap.needed if self._checkable(chains, k[0], k[2])
+            }
+            opened = open_keys(snap.needed, checkable, robots, holding)
+            held = self._opened = (key, checkable, opened)
+        return held[1], held[2]
 
     def _quiet(self, snap: Snapshot, now: float) -> bool:
         """Confirm one of this agent's provisional accepts whose maps have not changed for
@@ -1016,12 +1043,15 @@ class FusionWorker:
         to open the next wave, every pair of a fleet of small maps would be searched in
         turn (N(N-1)/2), each searched again as its maps grow.
         """
-        versions = {r: v for r, (v, _) in snap.maps.items()}
-        gated = {
-            ln.identity: ln.pair
-            for ln in snap.links
-            if not ln.accepted and GATED in ln.reason and ln.current(versions)
-        }
+        if snap.generation is None or snap.generation != self._gated_links[0]:
+            versions = {r: v for r, (v, _) in snap.maps.items()}
+            found = {
+                ln.identity: ln.pair
+                for ln in snap.links
+                if not ln.accepted and GATED in ln.reason and ln.current(versions)
+            }
+            self._gated_links = (snap.generation, found)
+        gated = self._gated_links[1]
         self._held_since = {k: self._held_since.get(k, now) for k in gated}
         return [p for k, p in gated.items() if now - self._held_since[k] < GATE_HOLD_S]
 

@@ -12,7 +12,7 @@ import pytest
 from numpy.linalg import inv
 
 from agent.book import FleetBook, Snapshot
-from agent.links import EPOCH_SHIFT, LinkRecord
+from agent.links import EPOCH_SHIFT, LinkRecord, open_keys
 from agent.trust import CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN
 from agent.worker import (
     APART,
@@ -910,3 +910,42 @@ def test_a_map_the_merge_rejects_as_a_is_not_searched_and_holds_the_next_wave() 
     h.small.clear()  # r1's map grew into a new epoch: searched
     h.book.put_map("r1", V(2), tiny(1))
     assert h.worker.step(now=20.0) and len(h.calls) == 1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_memoised_open_keys_are_a_fresh_computation_over_a_replay(seed: int) -> None:
+    """Maps, links (accepted, rejected, gated) and liveliness change at random; at each step
+    the keys open and checkable, reused while nothing they depend on changed, are those
+    computed from scratch."""
+    rng = np.random.default_rng(seed)
+    h = Checking("r1", None)
+    robots = [f"r{i}" for i in range(1, 8)]
+    epochs = dict.fromkeys(robots, 1)
+    for i, r in enumerate(robots):
+        h.book.put_map(r, V(1), tiny(i))
+    for step in range(60):
+        what = rng.integers(4)
+        a, b = sorted(rng.choice(robots, 2, replace=False))
+        if what == 0:
+            r = robots[rng.integers(len(robots))]
+            epochs[r] += int(rng.integers(2))
+            h.book.put_map(r, V(epochs[r], step + 1), tiny(int(r[1:])))
+        elif what == 1:
+            ea, eb = (h.book.version(r) for r in (a, b))
+            kind = rng.integers(3)
+            reason = f"{GATED}map A has no GVD edge" if kind == 2 else ""
+            h.book.add_link(LinkRecord(a, ea, b, eb, kind == 0, np.eye(3),
+                                       np.eye(3) * 0.1 if kind == 0 else np.zeros((3, 3)),
+                                       0.9, "r9", reason=reason))  # fmt: skip
+        elif what == 2:
+            h.book.set_alive(set(rng.choice(robots, rng.integers(1, 8), replace=False)))
+        snap = h.book.snapshot()
+        ring = sorted(set(snap.maps) | (snap.alive or frozenset()))
+        checkable, opened = h.worker._open(snap, ring, now=0.0)
+        chains = Chains(snap.maps, snap.links)
+        versions = {r: v for r, (v, _) in snap.maps.items()}
+        holding = [ln.pair for ln in snap.links
+                   if not ln.accepted and GATED in ln.reason and ln.current(versions)]  # fmt: skip
+        fresh = set(snap.rechecks) | {k for k in snap.needed if chains.linked(k[0], k[2])}
+        assert checkable == fresh
+        assert opened == open_keys(snap.needed, fresh, ring, holding)
