@@ -51,7 +51,6 @@ nothing is random; the same edges in any order give the same result bit for bit.
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
@@ -590,48 +589,9 @@ def solve(
     ------
     ValueError
         On a link :func:`link_problem` finds fault with.
-
-    Notes
-    -----
-    The last :data:`SOLVED_KEEP` solutions are kept, by the nodes, the links' content in
-    their order, the nodes' ranks, ``params`` and :data:`SPARSE_FROM`: all a solution is
-    made of.  An agent
-    solves the same graph again and again (each map version that changes no link
-    rebuilds its global map), and a solve is a fifth of its registrations' CPU.  Their
-    arrays are read-only, being shared.
     """
     params = params or PoseGraphParams()
     node_list = sorted(set(nodes))
-    key = (
-        tuple(node_list),
-        tuple(_validation_key(ln) for ln in links),
-        tuple(rank(n) for n in node_list),
-        params,
-        SPARSE_FROM,  # which normal equations solve it: a switch bench.posegraph turns
-    )
-    with _SOLVED_LOCK:
-        held = _SOLVED.get(key)
-    if held is None:
-        held = _solved(node_list, links, params, rank)
-        for arr in (*held.transforms.values(), *held.covariances.values()):
-            arr.setflags(write=False)  # shared by every caller of the same graph
-        with _SOLVED_LOCK:
-            _SOLVED[key] = held
-            while len(_SOLVED) > SOLVED_KEEP:
-                del _SOLVED[next(iter(_SOLVED))]  # the oldest
-    return held
-
-
-#: Solutions :func:`solve` keeps, the latest, by all they were solved from.
-SOLVED_KEEP = 4
-_SOLVED: dict[tuple[object, ...], Solution] = {}
-_SOLVED_LOCK = threading.Lock()
-
-
-def _solved(
-    node_list: list[str], links: Sequence[Link], params: PoseGraphParams, rank: Rank
-) -> Solution:
-    """:func:`solve` of the sorted ``node_list``, computed."""
     for ln in links:
         problem = link_problem(ln, set(node_list))
         if problem:
