@@ -50,6 +50,9 @@ class Snapshot:
     #: with other ``links`` (``dataclasses.replace``) keeps these of the book's links.
     link_ids: tuple[tuple[object, ...], ...] = ()
     accepted_ids: tuple[tuple[object, ...], ...] = ()
+    #: The book's generation this snapshot lists: equal generations, equal maps, links used
+    #: and keys needed (a worker reuses what it made of them).  None: not the book's.
+    generation: int | None = None
 
 
 @dataclass(frozen=True)
@@ -269,4 +272,5 @@ class FleetBook:
                 held.rechecks,
                 held.link_ids,
                 held.accepted_ids,
+                held.generation,
             )

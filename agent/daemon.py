@@ -43,11 +43,18 @@ from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
 from agent.persister import Persister
 from agent.pose import Pose
+from agent.profiling import profiled
 from agent.ros2_io import RosMapSubscription, declare_node
 from agent.sources import RosTopicSource, SourceSpec, make_source
 from agent.state import StateDir, StoredMap
 from agent.status import HostFacts
-from agent.worker import FusionWorker, RegisterFn, merge_registration, verify_check
+from agent.worker import (
+    FusionWorker,
+    RegisterFn,
+    merge_gate,
+    merge_registration,
+    verify_check,
+)
 from agent.zenoh_config import ZenohOptions, build_config
 
 log = logging.getLogger("pgvd.agent")
@@ -169,6 +176,7 @@ class Agent:
             check=verify_check(opts.min_agreement) if register is None else None,
             counters=self.counters,
             poses=dict(opts.known_poses),
+            gate=merge_gate(opts.min_agreement) if register is None else None,
         )
 
     def _load_state(self) -> StoredMap | None:
@@ -315,11 +323,14 @@ class Agent:
             self.worker.start()
             halt = threading.Event()
             receiver = threading.Thread(
-                target=self._receive, args=(halt,), name="pgvd-receive", daemon=True
+                target=profiled,
+                args=(me, "receive", lambda: self._receive(halt)),
+                name="pgvd-receive",
+                daemon=True,
             )
             receiver.start()
             try:
-                self._loop(stop, outputs)
+                profiled(me, "main", lambda: self._loop(stop, outputs))
             finally:
                 halt.set()
                 receiver.join(timeout=0.2)  # a decode in progress is not waited for

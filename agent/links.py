@@ -409,7 +409,10 @@ def ring_distance(a: str, b: str, robots: Sequence[str]) -> int:
 
 
 def open_keys(
-    keys: Iterable[LinkKey], predicted: Collection[LinkKey], robots: Sequence[str]
+    keys: Iterable[LinkKey],
+    predicted: Collection[LinkKey],
+    robots: Sequence[str],
+    holding: Iterable[tuple[str, str]] = (),
 ) -> list[LinkKey]:
     """Of the needed ``keys``, those whose turn it is fleet-wide, the same rule on every agent.
 
@@ -423,11 +426,15 @@ def open_keys(
     fleet of n robots searches n pairs and checks the rest, not n(n-1)/2 searches.  Every
     wave opens in turn while keys to search remain, so a pair no link reaches is searched
     in the end.
+
+    ``holding``: pairs decided without a search (their map was too small to search) that
+    keep later waves closed as if still to search: a wave opens on what searches found.
     """
     keys = list(keys)
     ring = Ring(robots)
     waves = {k: ring.distance(k[0], k[2]) for k in keys if k not in predicted}
-    first = min(waves.values(), default=None)
+    held = [ring.distance(a, b) for a, b in holding]
+    first = min([*waves.values(), *held], default=None)
     return [k for k in keys if k in predicted or waves[k] == first]
 
 

@@ -30,6 +30,13 @@ once, plus the pairs whose chain is off), not with the pairs -- within one conne
 pairs between groups no link joins are searched in each new epoch of either map, (N/2)^2 for
 two groups of N/2.
 
+Nor is a pair searched whose map A the merge rejects on its own (:data:`GateFn`,
+:func:`pgvd.merge.a_side_rejection`: a robot's first maps, a few metres across, have no GVD
+edge long enough to match): the gate's verdict, asked once per map version, is the search's
+own rejection, recorded with a reason that says it was not searched.  Such a pair keeps the
+later waves closed for a while (:data:`GATE_HOLD_S`): its maps are about to grow, and the link
+they then give may turn the later waves' searches into checks.
+
 Known initial poses (``--known-pose``, :mod:`agent.priors`) are checked the same way, and
 before a chain's prediction: a pair whose two poses are known is checked at their prior
 transform, and the check can only confirm it.  A prior that fails the check decides nothing --
@@ -61,9 +68,11 @@ from agent.links import (
     epoch_of,
     open_keys,
     stale_candidate,
+    version_text,
 )
 from agent.memory import release_free_memory
 from agent.priors import Pose, pair_prior
+from agent.profiling import profiled
 from agent.trust import (
     CANDIDATE,
     CONFIRMED,
@@ -118,9 +127,25 @@ RegisterFn = Callable[[Grid, Grid], Registration]
 #: (confirmed, or the maps do not overlap under it), None when a full search must decide.
 CheckFn = Callable[[Grid, Grid, np.ndarray], Registration | None]
 
+#: ``gate(a)``: why the search rejects any pair whose map A is ``a`` whatever map B
+#: (:func:`pgvd.merge.a_side_rejection`), None when a search may pass.
+GateFn = Callable[[Grid], str | None]
+
+#: Seconds a pair whose search the gate skipped (:data:`GateFn`) keeps later waves of
+#: searches closed (:func:`agent.links.open_keys`): a robot's first maps are a few metres
+#: across and soon grow into a new epoch, whose pair is then searched before any further
+#: one; a map that stays too small (a robot that stopped) holds the waves no longer.
+GATE_HOLD_S = 10.0
+#: What a gated pair's rejection reason starts with, on every agent (:meth:`FusionWorker._gated`).
+GATED = "not searched: "
+
 #: Seconds a solution of the pose graph keeps serving predictions once newer accepted links
 #: arrived (:meth:`FusionWorker._solved_for`).
 RESOLVE_AFTER = 2.0
+#: :class:`Chains` with provisional accepts taken as links kept at once
+#: (:meth:`FusionWorker._provisional_chains`): a round's first tries and re-checks each
+#: leave out their own pair.
+PROVISIONAL_CACHE = 8
 #: Largest share of the wall time an agent spends on previews (unsettled global maps).
 PREVIEW_SHARE = 0.05
 #: The share while a round of registrations only re-places the maps of the last rebuild (no
@@ -241,6 +266,19 @@ def merge_registration(min_agreement: float | None = None) -> RegisterFn:
     return register
 
 
+def merge_gate(min_agreement: float | None = None) -> GateFn:
+    """:func:`pgvd.merge.a_side_rejection` as a :data:`GateFn`, with the parameters of
+    :func:`merge_registration`: a pair it rejects is one that registration rejects."""
+    from pgvd.merge import a_side_rejection
+
+    params = _merge_params(min_agreement)
+
+    def gate(a: Grid) -> str | None:
+        return a_side_rejection(a, params)
+
+    return gate
+
+
 def verify_check(min_agreement: float | None = None) -> CheckFn:
     """:func:`pgvd.verify.verify` as a :data:`CheckFn`, with the merge's thresholds.
 
@@ -279,6 +317,13 @@ def verify_check(min_agreement: float | None = None) -> CheckFn:
         return None
 
     return check
+
+
+def _taken_as_accepted(ln: LinkRecord, pair: tuple[str, str], bar: float) -> bool:
+    """Whether ``ln`` is a link in the map once the provisional accepts (above ``bar``, the
+    merge's ``min_margin``) of pairs other than ``pair`` count as links
+    (:meth:`FusionWorker._as_accepted`)."""
+    return ln.accepted or (ln.pair != pair and provisional(ln.state, ln.margin, bar))
 
 
 def _rejected_before(links: list[LinkRecord], a: str, b: str) -> bool:
@@ -423,6 +468,8 @@ class FusionWorker:
     counters : where ``searches``, ``checks``, ``checks_confirmed``, ``checks_rejected``,
         ``checks_skipped`` (pairs placed apart, :meth:`_apart`), ``prior_checks``,
         ``prior_confirmed`` and ``prior_failed`` are counted (the status shows them).
+    gate : skips the search of a pair whose map A the merge rejects on its own
+        (:data:`GateFn`, ``searches_gated``); None searches every pair it must.
     poses : known initial poses, robot -> ``(x, y, yaw)`` of its map frame in the world frame
         (:func:`agent.priors.parse_known_pose`); a pair with both is checked at their prior
         first (with ``check``).
@@ -440,6 +487,7 @@ class FusionWorker:
         check: CheckFn | None = None,
         counters: Counters | None = None,
         poses: Mapping[str, Pose] | None = None,
+        gate: GateFn | None = None,
     ) -> None:
         self.me = me
         self.book = book
@@ -451,8 +499,23 @@ class FusionWorker:
         self.check = check
         self.counters = counters or Counters()
         self.poses = dict(poses or {})
+        self.gate = gate
+        #: The gate's verdict on each (robot, version) of the maps held (:meth:`_gated`).
+        self._gate_verdicts: dict[tuple[str, int], str | None] = {}
+        #: When this worker first saw each gated rejection that holds the waves (:meth:`_holding`).
+        self._held_since: dict[tuple[object, ...], float] = {}
+        #: The gated rejections of the book's generation, identity -> pair (:meth:`_holding`).
+        self._gated_links: tuple[int | None, dict[tuple[object, ...], tuple[str, str]]] = (
+            None,
+            {},
+        )
+        #: What :meth:`_open` made last, with what it was made of.
+        self._opened: tuple[tuple[object, ...], set[LinkKey], list[LinkKey]] | None = None
+        self._held_since: dict[tuple[object, ...], float] = {}
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
+        #: :meth:`_provisional_chains` by signature, the oldest first.
+        self._provisional: dict[tuple[object, ...], tuple[list[LinkRecord], Chains]] = {}
         #: Which link records held are sound (:data:`Soundness`).
         self._sound: Soundness = {}
         #: The warped maps of the last rebuild, for the next (:class:`LayerCache`).
@@ -484,7 +547,9 @@ class FusionWorker:
         self._quiet_since: dict[tuple[object, ...], float] = {}
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
-        self._thread = threading.Thread(target=self._run, name="pgvd-fusion", daemon=True)
+        self._thread = threading.Thread(
+            target=profiled, args=(me, "fusion", self._run), name="pgvd-fusion", daemon=True
+        )
 
     def start(self) -> None:
         self._thread.start()
@@ -526,14 +591,10 @@ class FusionWorker:
         # maps so far still agree whose turn a pair is and do not both search it.
         robots = sorted(set(snap.maps) | (snap.alive or frozenset()))
         # Without checks every pair is a search anyway: no wave to wait for.
-        checkable: set[LinkKey] = set()
+        checkable: Collection[LinkKey] = set()
         opened = snap.needed
         if self.check is not None:
-            chains = self._chains_of(snap)
-            # a candidate's re-check is a check at its own pose: open at once like a chain's
-            rechecks = set(snap.rechecks)
-            checkable = rechecks | {k for k in snap.needed if self._checkable(chains, k[0], k[2])}
-            opened = open_keys(snap.needed, checkable, robots)
+            checkable, opened = self._open(snap, robots, now)
         # A pair's turn (and the timeouts of the agents stepping in) counts from when its
         # wave opened, not from when it was first needed: else every agent of a late wave
         # would be past its timeout at once and search it too.
@@ -595,6 +656,29 @@ class FusionWorker:
                     self._rebuild_seconds, cpu,
                 )  # fmt: skip
         return bool(due)  # registrations put off for the preview
+
+    def _open(
+        self, snap: Snapshot, robots: list[str], now: float
+    ) -> tuple[set[LinkKey], list[LinkKey]]:
+        """The keys needed that a check may decide, and the keys open
+        (:func:`agent.links.open_keys`); made anew only when the book, the robots, the
+        chains or the pairs holding the waves changed.
+
+        A worker steps at every wake and every poll, and at 128 robots some thousands of
+        keys are needed: going over them all at each idle poll cost as much as the work.
+        """
+        chains = self._chains_of(snap)
+        holding = self._holding(snap, now)
+        key = (snap.generation, tuple(robots), chains, tuple(holding))
+        held = self._opened
+        if snap.generation is None or held is None or held[0] != key:
+            # a candidate's re-check is a check at its own pose: open at once like a chain's
+            checkable = set(snap.rechecks) | {
+                k for k in snap.needed if self._checkable(chains, k[0], k[2])
+            }
+            opened = open_keys(snap.needed, checkable, robots, holding)
+            held = self._opened = (key, checkable, opened)
+        return held[1], held[2]
 
     def _quiet(self, snap: Snapshot, now: float) -> bool:
         """Confirm one of this agent's provisional accepts whose maps have not changed for
@@ -697,6 +781,8 @@ class FusionWorker:
                     return
                 res = None
             if res is None:
+                how, res = "gated", self._gated(snap, a)
+            if res is None:
                 how = "searched"
                 self.counters.add("searches")
                 res = self.register(snap.maps[a][1], snap.maps[b][1])
@@ -757,13 +843,40 @@ class FusionWorker:
             return False
         chains = self._chains_of(snap)
         if provisional:
-            snap = replace(snap, links=[self._as_accepted(ln, (a, b)) for ln in snap.links])
-            chains = Chains(snap.maps, snap.links)
+            links, chains = self._provisional_chains(snap, (a, b))
+            snap = replace(snap, links=links)
         group = next((g for g in chains.groups if a in g and b in g), None)
         if group is None or not _current_chain(snap, group):
             return False
         predicted = predict(chains.solved()[0], a, b)
         return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
+
+    def _provisional_chains(
+        self, snap: Snapshot, pair: tuple[str, str]
+    ) -> tuple[list[LinkRecord], Chains]:
+        """The links of ``snap`` with the other pairs' provisional accepts as links
+        (:meth:`_as_accepted`), and their :class:`Chains`, made anew only when the robots or
+        the links that count as accepted changed.
+
+        Every provisional first try and re-check asks for them, and a fresh pose graph of
+        every accepted link each time was a third of an agent's CPU at 16 robots; the
+        signature holds all a :class:`Chains` reads (the robots, and the identity of each
+        link taken as accepted, which names its content), so a cached one is the one a
+        fresh build gives.
+        """
+        bar = self.min_margin
+        signature = (
+            tuple(sorted(snap.maps)),
+            tuple(ln.identity for ln in snap.links if _taken_as_accepted(ln, pair, bar)),
+        )
+        held = self._provisional.get(signature)
+        if held is None:
+            links = [self._as_accepted(ln, pair) for ln in snap.links]
+            held = (links, Chains(snap.maps, links))
+            if len(self._provisional) >= PROVISIONAL_CACHE:
+                del self._provisional[next(iter(self._provisional))]  # the oldest
+            self._provisional[signature] = held
+        return held
 
     def _as_accepted(self, ln: LinkRecord, pair: tuple[str, str]) -> LinkRecord:
         """``ln`` as a link in the map if it is a provisional accept of another pair than
@@ -899,6 +1012,48 @@ class FusionWorker:
         self.counters.add("checks_confirmed")
         base = LinkRecord(a, na, b, nb, False, res.matrix, res.covariance, res.score, self.me)
         self._record(base, res, verdict, "carried forward", clock)
+
+    def _gated(self, snap: Snapshot, a: str) -> Registration | None:
+        """The merge's rejection of any pair whose map A is ``a``'s map held
+        (:data:`GateFn`), without the search; None when a search must decide.
+
+        The gate's verdict is kept per (robot, version): it reads one map, and a fleet asks
+        it of each pair of that map.  Its reason names what the merge says and the map.
+        """
+        if self.gate is None:
+            return None
+        version, grid = snap.maps[a]
+        held = {(r, v) for r, (v, _) in snap.maps.items()}
+        self._gate_verdicts = {k: w for k, w in self._gate_verdicts.items() if k in held}
+        if (a, version) not in self._gate_verdicts:
+            self._gate_verdicts[(a, version)] = self.gate(grid)
+        why = self._gate_verdicts[(a, version)]
+        if why is None:
+            return None
+        self.counters.add("searches_gated")
+        reason = f"{GATED}{why} ({a} v{version_text(version)})"
+        return Registration(False, *_REJECTED, 0.0, reason)
+
+    def _holding(self, snap: Snapshot, now: float) -> list[tuple[str, str]]:
+        """The pairs whose gated rejection (:meth:`_gated`, any agent's) of their current
+        epochs keeps later waves of searches closed: for :data:`GATE_HOLD_S` after this
+        worker first saw it.
+
+        A rejection for want of a map, unlike a search's, says nothing of the pair: were it
+        to open the next wave, every pair of a fleet of small maps would be searched in
+        turn (N(N-1)/2), each searched again as its maps grow.
+        """
+        if snap.generation is None or snap.generation != self._gated_links[0]:
+            versions = {r: v for r, (v, _) in snap.maps.items()}
+            found = {
+                ln.identity: ln.pair
+                for ln in snap.links
+                if not ln.accepted and GATED in ln.reason and ln.current(versions)
+            }
+            self._gated_links = (snap.generation, found)
+        gated = self._gated_links[1]
+        self._held_since = {k: self._held_since.get(k, now) for k in gated}
+        return [p for k, p in gated.items() if now - self._held_since[k] < GATE_HOLD_S]
 
     def _checkable(self, chains: Chains, a: str, b: str) -> bool:
         """Whether a check may decide ``(a, b)``: both poses known, or accepted links join

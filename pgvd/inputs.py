@@ -87,11 +87,18 @@ def check_inputs(a: Grid, b: Grid, pa: np.ndarray, pb: np.ndarray, params: Merge
     too small map, NaN, or no wall (in ``pa``, ``pb``, the probabilities registration reads).
     """
     check_resolutions(a, b)
-    for name, g, p in (("A", a, pa), ("B", b, pb)):
-        if g.logodds.size == 0:
-            raise ValueError(f"map {name} is empty")
-        check_extent(name, g, params)
-        if not np.isfinite(g.logodds).all():
-            raise ValueError(f"map {name} contains NaN or infinite values")
-        if not (p > params.reading.occupied).any():
-            raise ValueError(f"map {name} has no occupied cells")
+    check_map("A", a, pa, params)
+    check_map("B", b, pb, params)
+
+
+def check_map(name: str, grid: Grid, prob: np.ndarray, params: MergeParams) -> None:
+    """``ValueError`` naming map ``name`` if the merge cannot read it, whatever the other
+    map (:func:`check_inputs`, less the cell sizes' match): empty, too small, NaN, or no
+    wall in ``prob``."""
+    if grid.logodds.size == 0:
+        raise ValueError(f"map {name} is empty")
+    check_extent(name, grid, params)
+    if not np.isfinite(grid.logodds).all():
+        raise ValueError(f"map {name} contains NaN or infinite values")
+    if not (prob > params.reading.occupied).any():
+        raise ValueError(f"map {name} has no occupied cells")

@@ -62,7 +62,7 @@ Stages (``timings_ms`` keys):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -85,7 +85,7 @@ from pgvd.heading_search import (
 )
 from pgvd.hypotheses import Hypothesis, keep_edges, search_heading, skeleton
 from pgvd.inflation import inflated_covariance
-from pgvd.inputs import check_inputs, registration_probability
+from pgvd.inputs import check_inputs, check_map, registration_probability
 from pgvd.overlay import Agreement, MapView, OverlayScores
 from pgvd.parallel import both
 from pgvd.params import MergeParams
@@ -94,6 +94,7 @@ from pgvd.result import MergeResult, merge_result, rejected
 from pgvd.retry import Progress, retried
 from pgvd.rotation import HeadingCandidate, estimate_headings
 from pgvd.scoring import decide_hypotheses, fine_maps, overlay_floors
+from pgvd.speckle import DESPECKLE_RADIUS
 from pgvd.stage_clock import StageClock
 from pgvd.walls import WallMap
 
@@ -219,8 +220,7 @@ def _merge_pass(a: Grid, b: Grid, params: MergeParams, progress: Progress) -> Me
     clock.lap("rotation")
     coarse = _coarsen(pa, pb, a.resolution, params, clock)
     if not coarse.graph_a.edges:
-        shortest = params.search.min_edge_length
-        return rejected(f"map A has no GVD edge of {shortest} m or more", clock)
+        return rejected(_no_edge(params), clock)
     hyps, searched = _search(headings, coarse, params, progress, clock)
     good = [h for h in hyps if h.support >= params.search.min_pairs]
     if not good:
@@ -275,19 +275,66 @@ def _coarsen(
     (13)-(24) and edges (Sec. IV-D)."""
     k = max(1, round(params.search.coarse_resolution / resolution))
     ca, cb = both(lambda p: coarsen(p, k, params.reading.occupied), pa, pb)
+    coarse_res = resolution * k
+    ca, off_a, min_len, sp_a, graph_a = _graph_of_a(ca, coarse_res, params, clock)
+    radius = max(1, round(params.search.search_radius / coarse_res))
+    return _Coarse(k, ca, cb, off_a, min_len, radius, sp_a, graph_a)
+
+
+def _graph_of_a(
+    ca: np.ndarray, coarse_res: float, params: MergeParams, clock: StageClock
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, EdgeGraph]:
+    """A's pooled map cropped to its known cells, the crop's offset, the shortest edge in
+    cells, and A's PGVD (13)-(24) and edges (Sec. IV-D)."""
     # Search only the known part of A; cells of A's crop are offset by off_a.
     rows, cols = known_box(ca)
     ca = ca[rows, cols]
     off_a = translation(cols.start, rows.start)
-    coarse_res = resolution * k
     min_len = max(3, round(params.search.min_edge_length / coarse_res))
     clock.lap("coarsen")
     s_a, sp_a = skeleton(ca, params)
     clock.lap("pgvd")
     graph_a = keep_edges(build_graph(s_a, sp_a, min_len), params.search.max_edges)
     clock.lap("graph")
-    radius = max(1, round(params.search.search_radius / coarse_res))
-    return _Coarse(k, ca, cb, off_a, min_len, radius, sp_a, graph_a)
+    return ca, off_a, min_len, sp_a, graph_a
+
+
+def _no_edge(params: MergeParams) -> str:
+    """Why a map A without a GVD edge long enough to match is rejected."""
+    return f"map A has no GVD edge of {params.search.min_edge_length} m or more"
+
+
+def a_side_rejection(a: Grid, params: MergeParams | None = None) -> str | None:
+    """Why :func:`merge` rejects every pair whose map A is ``a``, whatever map B; None when
+    some map B may pass.
+
+    A map the merge cannot read (:func:`pgvd.inputs.check_map`), or whose PGVD has no edge
+    of ``min_edge_length`` (the search matches A's edges, Sec. IV-D), is rejected before
+    B's content counts; when a rejection would be retried with speckle read as unknown
+    (:func:`pgvd.retry.retried`, which depends on B as well), ``a`` must fail that reading
+    too.  The same stages as :func:`merge` on the same arrays, so the answer is the merge's
+    own: a fleet asks it once per map version rather than paying a search per pair.
+    """
+    params = params or MergeParams()
+    why, unreadable = _a_side(a, params)
+    retry_off = params.off.speckle_radius > 0 or params.reading.speckle_retry <= 0
+    if why is None or unreadable or retry_off:
+        return why  # an unreadable map raises before any retry
+    again, _ = _a_side(a, replace(params, speckle_radius=DESPECKLE_RADIUS))
+    return None if again is None else why
+
+
+def _a_side(a: Grid, params: MergeParams) -> tuple[str | None, bool]:
+    """:func:`a_side_rejection` of one reading of ``a``, and whether the map is unreadable."""
+    pa = registration_probability(a, params)
+    try:
+        check_map("A", a, pa, params)
+    except ValueError as exc:
+        return str(exc), True
+    k = max(1, round(params.search.coarse_resolution / a.resolution))
+    ca = coarsen(pa, k, params.reading.occupied)
+    graph_a = _graph_of_a(ca, a.resolution * k, params, StageClock(None))[4]
+    return (None if graph_a.edges else _no_edge(params)), False
 
 
 def _search(

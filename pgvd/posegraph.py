@@ -53,6 +53,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Protocol
 
 import numpy as np
@@ -475,7 +476,7 @@ def _sandwich_covariances(x: np.ndarray, e: _Edges) -> np.ndarray:
 def _prepare(nodes: Sequence[str], links: Sequence[Link], params: PoseGraphParams) -> _Edges:
     index = {n: i for i, n in enumerate(nodes)}
     z = np.array([matrix_to_pose(ln.matrix) for ln in links]).reshape(-1, 3)[:, [1, 2, 0]]
-    cov = np.array([check_covariance(ln.covariance) for ln in links]).reshape(-1, 3, 3)
+    cov = np.array([_covariance(ln) for ln in links]).reshape(-1, 3, 3)
     return _Edges(
         ia=np.array([index[ln.a] for ln in links], dtype=int),
         ib=np.array([index[ln.b] for ln in links], dtype=int),
@@ -487,21 +488,55 @@ def _prepare(nodes: Sequence[str], links: Sequence[Link], params: PoseGraphParam
 
 def link_problem(link: Link, nodes: Collection[str]) -> str | None:
     """Why :func:`solve` would refuse ``link``, or None if it is fine."""
-    where = f"link ({link.a!r}, {link.b!r})"
     if link.a == link.b or link.a not in nodes or link.b not in nodes:
-        return f"{where} must join two distinct known nodes"
+        return f"link ({link.a!r}, {link.b!r}) must join two distinct known nodes"
+    return _validated(_validation_key(link))[0]
+
+
+#: A link's ends, and the shape and bytes of its matrix and covariance as float64: all that
+#: :func:`_validated` reads of it.
+_ValidationKey = tuple[str, str, tuple[int, ...], bytes, tuple[int, ...], bytes]
+
+
+def _validation_key(link: Link) -> _ValidationKey:
     m = np.asarray(link.matrix, dtype=np.float64)
+    c = np.asarray(link.covariance, dtype=np.float64)
+    return (link.a, link.b, m.shape, m.tobytes(), c.shape, c.tobytes())
+
+
+@lru_cache(maxsize=1 << 15)
+def _validated(key: _ValidationKey) -> tuple[str | None, np.ndarray | None]:
+    """What :func:`link_problem` finds in a link's matrix and covariance, and the covariance
+    checked (:func:`pgvd.uncertainty.check_covariance`; None with a problem).
+
+    Memoised by content: a fleet solves its pose graph at every registration, over every
+    accepted link held (thousands at 128 robots), and a link's content never changes, so
+    judging each anew took half of a solve.  The arrays are rebuilt from the key's bytes,
+    so a cached verdict is exactly the one a fresh check gives.
+    """
+    a, b, m_shape, m_bytes, c_shape, c_bytes = key
+    where = f"link ({a!r}, {b!r})"
+    m = np.frombuffer(m_bytes, dtype=np.float64).reshape(m_shape)
     if m.shape != (3, 3) or not np.isfinite(m).all():
-        return f"{where}: matrix must be a finite 3x3 array"
+        return f"{where}: matrix must be a finite 3x3 array", None
     if not np.allclose(m[:2, :2] @ m[:2, :2].T, np.eye(2), atol=1e-6) or not np.allclose(
         m[2], [0.0, 0.0, 1.0]
     ):
-        return f"{where}: matrix is not rigid"
+        return f"{where}: matrix is not rigid", None
     try:
-        check_covariance(link.covariance)
+        cov = check_covariance(np.frombuffer(c_bytes, dtype=np.float64).reshape(c_shape))
     except ValueError as exc:
-        return f"{where}: {exc}"
-    return None
+        return f"{where}: {exc}", None
+    cov.setflags(write=False)  # shared by every solve that meets this link
+    return None, cov
+
+
+def _covariance(link: Link) -> np.ndarray:
+    """The checked covariance of a link :func:`link_problem` passed (:func:`_validated`)."""
+    cov = _validated(_validation_key(link))[1]
+    if cov is None:  # only a link solve() refused gets here
+        raise ValueError(f"link ({link.a!r}, {link.b!r}) has no sound covariance")
+    return cov
 
 
 def _content_key(ln: Link) -> tuple[str, str, bytes, bytes]:
@@ -606,5 +641,5 @@ def _link_residual(ln: Link, transforms: dict[str, np.ndarray], params: PoseGrap
     p_psi, p_x, p_y = matrix_to_pose(pred)
     z_psi, z_x, z_y = matrix_to_pose(ln.matrix)
     r = np.array([p_x - z_x, p_y - z_y, float(_wrap(np.array(p_psi - z_psi)))])
-    info = np.linalg.inv(check_covariance(ln.covariance) + params.floor)
+    info = np.linalg.inv(_covariance(ln) + params.floor)
     return float(r @ info @ r)

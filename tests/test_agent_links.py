@@ -298,3 +298,13 @@ def test_a_record_whose_state_contradicts_its_outcome_is_refused() -> None:
         LinkRecord("r1", 1, "r2", 1, True, np.eye(3), np.eye(3), 0.9, "r1", state="candidate")
     with pytest.raises(ValueError, match="first_b is newer"):
         LinkRecord("r1", 1, "r2", 1, False, np.eye(3), np.eye(3), 0.9, "r1", first_b=2)
+
+
+def test_a_pair_decided_without_a_search_holds_the_later_waves() -> None:
+    """A first-wave pair whose map was too small to search keeps the second wave closed;
+    held in the second wave, it closes nothing the first wave holds open."""
+    ring = ["r1", "r2", "r3", "r4", "r5"]
+    second = [("r1", 1, "r3", 1), ("r2", 1, "r4", 1)]
+    assert open_keys(second, set(), ring, holding=[("r1", "r2")]) == []
+    assert open_keys(second, set(), ring) == second
+    assert open_keys(second, set(), ring, holding=[("r2", "r4")]) == second

@@ -11,14 +11,17 @@ import numpy as np
 import pytest
 from numpy.linalg import inv
 
-from agent.book import FleetBook
-from agent.links import EPOCH_SHIFT, LinkRecord
-from agent.trust import WITHDRAWN
+from agent.book import FleetBook, Snapshot
+from agent.links import EPOCH_SHIFT, LinkRecord, open_keys
+from agent.trust import CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN
 from agent.worker import (
     APART,
     CHECKS_PREVIEW_SHARE,
+    GATE_HOLD_S,
+    GATED,
     PREVIEW_SHARE,
     RESOLVE_AFTER,
+    Chains,
     FusionWorker,
     GlobalState,
     Registration,
@@ -828,3 +831,121 @@ def test_a_robot_newly_placed_with_the_agents_own_is_shown_before_more_registrat
     assert len(h.calls) == 1 and len(h.globals) == 2  # shown first, registration put off
     assert h.globals[-1].components[0].members == ("r1", "r2")
     assert h.worker.step(now=5.2) and len(h.calls) == 2
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cached_provisional_chains_are_a_fresh_build(seed: int) -> None:
+    """Over a random sequence of link sets (accepts, provisional accepts, grey candidates,
+    rejections, some sets met again), the provisional cycle test's cached pose graph is the
+    one built from scratch: the same groups and placements, bit for bit."""
+    rng = np.random.default_rng(seed)
+    h = Harness("r1")
+    robots = [f"r{i}" for i in range(1, 7)]
+    maps = {r: (V(1), tiny(i)) for i, r in enumerate(robots)}
+    bar = h.worker.min_margin
+    kinds = [
+        (True, CONFIRMED, bar + 0.5),
+        (False, CANDIDATE, bar + 0.1),
+        (False, CANDIDATE, bar - 0.2),
+        (False, REJECTED, None),
+    ]
+    pool = []
+    for i, a in enumerate(robots):
+        for b in robots[i + 1 :]:
+            accepted, state, margin = kinds[rng.integers(len(kinds))]
+            m = rigid_matrix(rng.uniform(-3, 3), *rng.uniform(-50, 50, 2))
+            pool.append(LinkRecord(a, V(1), b, V(1), accepted, m, np.eye(3) * 0.1, 0.9, "r1",
+                                   state=state, margin=margin))  # fmt: skip
+    sets = [list(rng.choice(pool, size=rng.integers(3, len(pool)), replace=False))
+            for _ in range(4)]  # fmt: skip
+    for k in rng.integers(len(sets), size=12):
+        snap = Snapshot(maps, sets[k], False, [], None)
+        pair = tuple(robots[j] for j in sorted(rng.choice(len(robots), 2, replace=False)))
+        links, chains = h.worker._provisional_chains(snap, pair)
+        fresh_links = [h.worker._as_accepted(ln, pair) for ln in sets[k]]
+        fresh = Chains(maps, fresh_links)
+        assert [ln.identity for ln in links] == [ln.identity for ln in fresh_links]
+        assert chains.groups == fresh.groups
+        got, want = chains.solved()[0], fresh.solved()[0]
+        assert got.components == want.components and got.used == want.used
+        for r in robots:
+            assert got.transforms[r].tobytes() == want.transforms[r].tobytes()
+
+
+class Gated(Checking):
+    """A checking harness whose gate rejects the maps of ``small`` robots as map A."""
+
+    def __init__(self, me: str, small: set[str]) -> None:
+        super().__init__(me, None)
+        self.small = {int(tiny(int(r[1:])).logodds.sum()) for r in small}
+        self.gated: list[int] = []
+        self.worker.gate = self.gate
+
+    def gate(self, a: Grid) -> str | None:
+        self.gated.append(int(a.logodds.sum()))
+        return "map A has no GVD edge" if self.gated[-1] in self.small else None
+
+
+def test_a_map_the_merge_rejects_as_a_is_not_searched_and_holds_the_next_wave() -> None:
+    """r1's map is too small to search: r1-r2 is rejected without a search, said in the
+    reason and counted, the gate asked once for r1's version; the second wave stays closed
+    for GATE_HOLD_S, and r1's next epoch is searched."""
+    h = Gated("r1", {"r1"})
+    h.worker.link_timeout = 0.0  # r1 steps in for r4's turn at once
+    for i in range(1, 5):
+        h.book.put_map(f"r{i}", V(1), tiny(i))
+    assert h.worker.step(now=0.0)
+    (rec,) = h.links
+    assert rec.pair == ("r1", "r2") and not rec.accepted and rec.reason.startswith(GATED)
+    assert "r1 v1.0" in rec.reason and h.calls == []
+    assert h.worker.counters.get("searches_gated") == 1
+    h.worker.step(now=0.1)  # r1-r4, the other first-wave pair of r1's: gated too
+    assert [ln.pair for ln in h.links] == [("r1", "r2"), ("r1", "r4")] and h.calls == []
+    assert h.gated.count(h.gated[0]) == 1  # once per (robot, version)
+    for a, b in (("r2", "r3"), ("r3", "r4"), ("r2", "r4")):  # the others, decided
+        h.book.add_link(_link(a, b, np.eye(3)))
+    assert not h.worker.step(now=1.0) and len(h.links) == 2  # r1-r3 waits: the wave is held
+    assert h.worker.step(now=1.0 + GATE_HOLD_S)
+    assert h.links[-1].pair == ("r1", "r3") and h.links[-1].reason.startswith(GATED)
+    h.small.clear()  # r1's map grew into a new epoch: searched
+    h.book.put_map("r1", V(2), tiny(1))
+    assert h.worker.step(now=20.0) and len(h.calls) == 1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_memoised_open_keys_are_a_fresh_computation_over_a_replay(seed: int) -> None:
+    """Maps, links (accepted, rejected, gated) and liveliness change at random; at each step
+    the keys open and checkable, reused while nothing they depend on changed, are those
+    computed from scratch."""
+    rng = np.random.default_rng(seed)
+    h = Checking("r1", None)
+    robots = [f"r{i}" for i in range(1, 8)]
+    epochs = dict.fromkeys(robots, 1)
+    for i, r in enumerate(robots):
+        h.book.put_map(r, V(1), tiny(i))
+    for step in range(60):
+        what = rng.integers(4)
+        a, b = sorted(rng.choice(robots, 2, replace=False))
+        if what == 0:
+            r = robots[rng.integers(len(robots))]
+            epochs[r] += int(rng.integers(2))
+            h.book.put_map(r, V(epochs[r], step + 1), tiny(int(r[1:])))
+        elif what == 1:
+            ea, eb = (h.book.version(r) for r in (a, b))
+            kind = rng.integers(3)
+            reason = f"{GATED}map A has no GVD edge" if kind == 2 else ""
+            h.book.add_link(LinkRecord(a, ea, b, eb, kind == 0, np.eye(3),
+                                       np.eye(3) * 0.1 if kind == 0 else np.zeros((3, 3)),
+                                       0.9, "r9", reason=reason))  # fmt: skip
+        elif what == 2:
+            h.book.set_alive(set(rng.choice(robots, rng.integers(1, 8), replace=False)))
+        snap = h.book.snapshot()
+        ring = sorted(set(snap.maps) | (snap.alive or frozenset()))
+        checkable, opened = h.worker._open(snap, ring, now=0.0)
+        chains = Chains(snap.maps, snap.links)
+        versions = {r: v for r, (v, _) in snap.maps.items()}
+        holding = [ln.pair for ln in snap.links
+                   if not ln.accepted and GATED in ln.reason and ln.current(versions)]  # fmt: skip
+        fresh = set(snap.rechecks) | {k for k in snap.needed if chains.linked(k[0], k[2])}
+        assert checkable == fresh
+        assert opened == open_keys(snap.needed, fresh, ring, holding)

@@ -11,12 +11,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from pgvd import posegraph
 from pgvd.grid import matrix_to_pose, rigid_matrix
 from pgvd.posegraph import (
     PoseGraphParams,
     Solution,
     components,
     compose_transforms,
+    link_problem,
     solve,
     triangle_groups,
 )
@@ -258,3 +260,39 @@ def test_triangle_groups_hold_triangles_and_no_bridge(n: int, data: st.DataObjec
     ]
     blocks = components(nodes, kept)
     assert all(any(set(g) <= set(blk) for blk in blocks) for g in groups)
+
+
+def _reference_problem(link: Edge, nodes: set[str]) -> str | None:
+    """:func:`link_problem` as judged from scratch, without the memo."""
+    if link.a == link.b or link.a not in nodes or link.b not in nodes:
+        return f"link ({link.a!r}, {link.b!r}) must join two distinct known nodes"
+    return posegraph._validated.__wrapped__(posegraph._validation_key(link))[0]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_memoised_link_checks_give_what_a_fresh_check_gives(seed: int) -> None:
+    """Links sound and broken, met again and again (the memo warm), are judged as a fresh
+    check judges them, and a solve over a warm memo is the solve over a cold one, bit for
+    bit."""
+    rng = np.random.default_rng(seed)
+    truth = world(6, seed)
+    links = measure(truth, all_pairs(6), seed)
+    broken = [
+        Edge("r0", "r1", np.diag([2.0, 1.0, 1.0])),
+        Edge("r0", "r1", np.full((3, 3), np.nan)),
+        Edge("r0", "r1", np.eye(3), -np.eye(3)),
+        Edge("r0", "r1", np.eye(2)),
+        Edge("r0", "r0", np.eye(3)),
+    ]
+    nodes = set(truth)
+    for _ in range(4):
+        for link in rng.permutation(np.array(links + broken, dtype=object)):
+            assert link_problem(link, nodes) == _reference_problem(link, nodes)
+    posegraph._validated.cache_clear()
+    cold = solve(truth, links)
+    warm = solve(truth, links)
+    assert posegraph._validated.cache_info().hits >= len(links)
+    assert cold.used == warm.used and cold.residuals == warm.residuals
+    for n in truth:
+        assert cold.transforms[n].tobytes() == warm.transforms[n].tobytes()
+        assert cold.covariances[n].tobytes() == warm.covariances[n].tobytes()
