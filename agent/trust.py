@@ -12,33 +12,45 @@ simply accepted or rejected on its first decision:
   ``margin >= min_margin`` but not :data:`HIGH_BAR`.  On the development bench no negative or
   wrong winner reaches ``min_margin`` (``python3 -m bench greyzone``), yet a fleet tries
   many more bad pairs than that bench holds (every pair, at every epoch, on maps still
-  small), and near misses accepted just above it were shown wrong for seconds.  It enters
-  the global map once a re-check on a newer version of either map holds at its pose (the
-  search has already weighed every rival), or a later search finds it again at the same
-  pose, or it lies on a consistent cycle.
+  small), and near misses accepted just above it were shown wrong for seconds.  It is
+  confirmed as a grey-zone candidate is (below); a re-check on a newer version of its epochs
+  that holds at its pose earns it its confirmation.
 - **candidate**: the best pose sits in the *grey zone*, ``GREY_FLOOR <= margin < min_margin``:
   right poses and mirror or look-alike ones both land there, and no threshold on one decision
   separates them.  A candidate does not enter the global map.  It is checked again at its own
-  pose (:func:`pgvd.verify.verify`, ~0.05 s) at each new version of either map.
-- **confirmed**: a candidate that earned its place, and enters the global map, when
+  pose (:func:`pgvd.verify.verify`, ~0.05 s) at each new version of either map, which drops
+  it when contradicted.
+- **confirmed**: a candidate that earned its place, and enters the global map.  A re-check
+  on a newer *version* of the same epochs (:func:`recheck_verdict`) may keep or reject a
+  candidate, but never confirms it: a version adds a few scans, and on maps still small the
+  search and the check (:func:`pgvd.verify.verify`, a local basin) both converge on a near
+  miss (0.7 deg, some 5 cells off at the maps' corners, inside the hold) that the next
+  *epoch* (a map changed by a set share of its cells, :mod:`agent.links`) refined to the
+  truth; confirmed on the next version, such near misses were shown wrong for up to 12 s.
+  A re-check that would have confirmed leaves the candidate *earned* (:func:`earned`).  So
+  a candidate is confirmed when
 
-  1. a re-check clears the high bar, or
-  2. its pose holds (:data:`HOLD_M`, :data:`HOLD_DEG`) with a margin that does not fall by
-     more than :data:`MARGIN_SLACK` on :data:`HOLDS_TO_CONFIRM` newer versions, and its
-     margin grew by :data:`MARGIN_GAIN` since its first decision (a right pose gains
-     agreeing walls; a look-alike or mirror pose that holds stays flat), or
+  1. the first decision of a newer epoch of either map (a search, or a check at the pose the
+     accepted links predict) accepts at its pose, within the hold (:data:`HOLD_M`,
+     :data:`HOLD_DEG`): the pose that enters is that newer decision's refined one; or
+  2. it had earned its confirmation within its epochs -- its pose held with a margin that
+     did not fall by more than :data:`MARGIN_SLACK` on :data:`HOLDS_TO_CONFIRM` newer
+     versions, and either a re-check cleared the merge's bar or its margin grew by
+     :data:`MARGIN_GAIN` (a right pose gains agreeing walls; a look-alike or mirror pose
+     that holds stays flat) -- and a newer epoch's full search, which weighs every rival as
+     the first decision did (a check's margin weighs only rivals within its basin, and a
+     mirror or look-alike pose far from the right one is no rival there), lands at the same
+     pose in the grey zone with a margin :data:`MARGIN_GAIN` above the candidate's first
+     (:func:`promoted`); or
   3. it lies on a consistent cycle: the accepted links of the current epochs already place
-     its robots where its pose does, within the hold.
+     its robots where its pose does, within the hold (at any version: a cycle's evidence is
+     other pairs' decisions, not more of the same two maps); or
+  4. it is a search's provisional accept whose maps stayed unchanged for :data:`QUIET_S`
+     (:func:`quiet_verdict`).
 
-  A re-check is :func:`pgvd.verify.verify`, whose margin weighs only rivals within its
-  basin: a mirror or look-alike pose far from the right one is no rival there, so a check
-  alone can clear the bar at a wrong pose.  So 1 and 2 only propose a confirmation; a full
-  search on the same versions, which weighs every rival as the first decision did, must
-  agree (:func:`promotion_verdict`).
-
-  An accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the
-  same pose stays confirmed; so does a candidate whose pair a new epoch's search accepts
-  at the same pose.
+  A search on a newer epoch that accepts another pose is a first try of its own.  An
+  accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the same
+  pose stays confirmed.
 - **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
   contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold or out
   of the check's basin).
@@ -108,16 +120,11 @@ MARGIN_GAIN = 0.08
 
 @dataclass(frozen=True)
 class Verdict:
-    """A decision on a link: its ``state``, why, and how many re-checks its pose held.
-
-    ``proposed``: a confirmation that stands only once a full search agrees
-    (:func:`promotion_verdict`).
-    """
+    """A decision on a link: its ``state``, why, and how many re-checks its pose held."""
 
     state: str
     reason: str
     holds: int = 0
-    proposed: bool = False
 
 
 def clean_reason(text: str, limit: int = 400) -> str:
@@ -161,6 +168,17 @@ def provisional(state: str, margin: float | None, min_margin: float) -> bool:
     return state == CANDIDATE and margin is not None and margin >= min_margin
 
 
+def awaits_quiet(
+    state: str, margin: float | None, first_margin: float | None, min_margin: float
+) -> bool:
+    """Whether a link is a search's provisional accept (its first decision's margin
+    ``first_margin`` cleared ``min_margin``) that its re-checks left above the bar: the one
+    kind :func:`quiet_verdict` confirms.  A grey-zone candidate that a re-check lifted above
+    the bar is not: the check weighs only rivals within its basin, so no search of these maps
+    ever accepted it."""
+    return provisional(state, margin, min_margin) and provisional(state, first_margin, min_margin)
+
+
 def quiet_verdict(margin: float | None, quiet_s: float) -> Verdict:
     """A provisional accept whose maps stayed unchanged for ``quiet_s`` (:data:`QUIET_S`):
     confirmed on the merge's own bar, as a one-shot merge of the same two maps would be."""
@@ -190,6 +208,7 @@ def first_verdict(
     previous: str | None = None,
     held: bool = False,
     searched: bool = False,
+    promoted: bool = False,
 ) -> Verdict:
     """The state of a pair's first decision in its epochs.
 
@@ -204,11 +223,13 @@ def first_verdict(
     held : the pose is that earlier link's, within the hold (:func:`holds`).
     searched : the decision is a full search's, with no prediction behind it: its accept
         must clear :data:`HIGH_BAR` to enter the global map at once.
+    promoted : the earlier link is a candidate that earned its confirmation and this
+        search's margin bears it out (:func:`promoted`).
     """
     was_in = previous in IN_MAP
     m = _margin_text(margin)
     if accepted and held and (was_in or previous == CANDIDATE):
-        return Verdict(CONFIRMED, f"found again at the same pose: margin {m}")
+        return Verdict(CONFIRMED, f"found again at the same pose on a newer epoch: margin {m}")
     if accepted and searched:
         return searched_accept(margin, min_margin)
     if accepted:
@@ -216,6 +237,9 @@ def first_verdict(
     if has_pose and in_grey_zone(margin, min_margin):
         if was_in and held:
             return Verdict(CONFIRMED, f"held over a new epoch: margin {m} at the same pose")
+        if promoted and held and searched and previous == CANDIDATE:
+            why = f"earned on its versions, and a newer epoch's search agrees: margin {m}"
+            return Verdict(CONFIRMED, why)
         # elsewhere than an earlier link: a canvas that moved shifts every pixel pose, so
         # the new pose earns its place as any candidate does, re-checked at each version
         moved = "; the earlier epoch's link moved" if was_in else ""
@@ -245,8 +269,39 @@ def carried_verdict(
     if searched_accept(found_margin, min_margin).state == ACCEPTED:
         return Verdict(ACCEPTED, f"margin {m} clears {min_margin}")
     if held:
-        return Verdict(CONFIRMED, f"provisional accept holds on a newer version: margin {m}")
+        return Verdict(CONFIRMED, f"provisional accept holds on a newer epoch: margin {m}")
     return None
+
+
+def _gain(margin: float, first_margin: float | None) -> float:
+    """How much ``margin`` grew since the first decision's ``first_margin`` (0 without it)."""
+    return 0.0 if first_margin is None else margin - first_margin
+
+
+def earned(holds: int, margin: float | None, first_margin: float | None, min_margin: float) -> bool:
+    """Whether a candidate's re-checks on newer versions of its epochs (``holds`` of them,
+    the last at ``margin``, its first decision at ``first_margin``) would confirm it, were a
+    version enough: its pose held on :data:`HOLDS_TO_CONFIRM` versions, and the last re-check
+    cleared the merge's bar or its margin grew by :data:`MARGIN_GAIN`."""
+    if holds < HOLDS_TO_CONFIRM or margin is None or not np.isfinite(margin):
+        return False
+    return margin >= min_margin or _gain(margin, first_margin) >= MARGIN_GAIN
+
+
+def promoted(
+    holds: int,
+    margin: float | None,
+    first_margin: float | None,
+    searched_margin: float | None,
+    min_margin: float,
+) -> bool:
+    """Whether a newer epoch's search, at ``searched_margin``, promotes an :func:`earned`
+    candidate (``holds``, ``margin``, ``first_margin`` as there): its margin, which weighs
+    every rival as the candidate's first decision did, grew by :data:`MARGIN_GAIN` since."""
+    if searched_margin is None or not np.isfinite(searched_margin):
+        return False
+    grown = _gain(searched_margin, first_margin) >= MARGIN_GAIN
+    return earned(holds, margin, first_margin, min_margin) and grown
 
 
 def recheck_verdict(
@@ -259,21 +314,22 @@ def recheck_verdict(
     reason: str,
     min_margin: float,
 ) -> Verdict:
-    """A candidate re-checked at its pose on newer versions of its maps.
+    """A candidate re-checked at its pose on a newer version of its epochs: kept or rejected,
+    never confirmed (a version is too little new map to tell a near miss from the truth; a
+    newer epoch confirms, see the module docstring).
 
     ``held_holds``, ``held_margin``, ``first_margin``: the candidate's count of holds, its
     last margin and its first decision's; ``accepted``, ``margin``, ``held``: the re-check's
     outcome, its margin and whether the refined pose stayed within the hold of the
-    candidate's.  A provisional accept (:func:`provisional`) whose re-check accepts at its
-    pose is confirmed outright: its search weighed every rival.  Any other confirmation is
-    only ``proposed``.
+    candidate's.  The verdict's holds say whether it :func:`earned` its confirmation.
     """
     m = _margin_text(margin)
     n = held_holds + 1
-    if accepted and held and provisional(CANDIDATE, held_margin, min_margin):
-        return Verdict(CONFIRMED, f"provisional accept holds on a newer version: margin {m}", n)
-    if accepted:  # the refined pose stands out on its own, held or not
-        return Verdict(CONFIRMED, f"re-check clears the bar: margin {m}", n, proposed=True)
+    wait = "; a newer epoch confirms"
+    if accepted and held:
+        return Verdict(CANDIDATE, f"re-check holds at the bar: margin {m}{wait}", n)
+    if accepted:  # the refined pose stands out on its own, away from the candidate's
+        return Verdict(CANDIDATE, f"re-check clears the bar, moved: margin {m}", held_holds)
     if margin is None or not np.isfinite(margin) or margin < GREY_FLOOR:
         return Verdict(REJECTED, f"contradicted: {reason or f'margin {m}'}", held_holds)
     if not held:
@@ -281,39 +337,8 @@ def recheck_verdict(
     floor = -np.inf if held_margin is None else held_margin - MARGIN_SLACK
     if margin < floor:
         return Verdict(CANDIDATE, f"margin fell: {m} < {_margin_text(held_margin)}", held_holds)
-    gain = margin - (margin if first_margin is None else first_margin)
-    if n >= HOLDS_TO_CONFIRM and gain >= MARGIN_GAIN:
-        why = f"pose held on {n} newer versions: margin {m}, +{gain:.2f}"
-        return Verdict(CONFIRMED, why, n, proposed=True)
+    gain = _gain(margin, first_margin)
+    if earned(n, margin, first_margin, min_margin):
+        why = f"pose held on {n} newer versions: margin {m}, +{gain:.2f}{wait}"
+        return Verdict(CANDIDATE, why, n)
     return Verdict(CANDIDATE, f"pose held {n}/{HOLDS_TO_CONFIRM}: margin {m}, {gain:+.2f}", n)
-
-
-def promotion_verdict(
-    proposed: Verdict,
-    accepted: bool,
-    margin: float | None,
-    held: bool,
-    first_margin: float | None,
-    reason: str,
-    min_margin: float,
-) -> Verdict:
-    """The state of a candidate whose re-check ``proposed`` a confirmation, once a full search
-    (:func:`pgvd.merge.merge`) on the same versions has decided the pair again.
-
-    ``accepted``, ``margin``, ``held``: the search's outcome, its margin (every rival weighed,
-    comparable with the first decision's ``first_margin``) and whether its pose is the
-    candidate's within the hold (:func:`holds`).
-    """
-    m = _margin_text(margin)
-    if accepted:
-        if held:
-            return Verdict(CONFIRMED, f"a search confirms the pose: margin {m}", proposed.holds)
-        return searched_accept(margin, min_margin, "a search found another pose: ")
-    if not held or not in_grey_zone(margin, min_margin):
-        return Verdict(REJECTED, f"contradicted by a search: {reason or f'margin {m}'}")
-    gain = margin - (margin if first_margin is None else first_margin)
-    if proposed.holds >= HOLDS_TO_CONFIRM and gain >= MARGIN_GAIN:
-        why = f"pose held on {proposed.holds} newer versions and a search agrees: margin {m}"
-        return Verdict(CONFIRMED, f"{why}, +{gain:.2f}", proposed.holds)
-    why = f"a search keeps it in the grey zone: margin {m}, {gain:+.2f}"
-    return Verdict(CANDIDATE, why, proposed.holds)
