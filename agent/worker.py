@@ -723,8 +723,10 @@ class FusionWorker:
         self, snap: Snapshot, a: str, b: str, res: Registration, searched: bool = False
     ) -> Verdict:
         """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`;
-        ``searched``: by a full search, whose accept below the high bar is provisional),
-        confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
+        ``searched``: by a full search, whose accept below the high bar is provisional, and
+        whose grey-zone pose may promote an earlier epoch's candidate,
+        :func:`agent.trust.promoted`), confirmed at once when it closes a cycle with the
+        accepted links (:meth:`_on_cycle`)."""
         previous = next((ln for ln in snap.links if ln.pair == (a, b)), None)
         grid_b = snap.maps[b][1]
         earned = previous is not None and promoted(

@@ -7,8 +7,9 @@ bench rendered it, each map on a canvas fixed at its first version, then robot B
 (and, for a mirror pair, both) grows version by version while the agent's own check
 (:func:`agent.worker.verify_check`) re-checks the candidate at its pose and
 :func:`agent.trust.recheck_verdict` decides.  It prints each pair's margins and states, and
-how many right poses were confirmed and how many bad ones (look-alikes, mirrors, wrong poses)
-were, which must be none.
+how many right poses earned their confirmation (:func:`agent.trust.earned`: confirmed once a
+newer epoch bears them out) and how many bad ones (look-alikes, mirrors, wrong poses) did,
+which must be none.
 
 Drifted pairs are left out (their drift model would have to grow too), and so are pairs from
 map images (nothing to grow).  Run from the project root::
@@ -87,8 +88,10 @@ def replay(record: dict, scans: list, bar: float) -> tuple[list[float | None], l
             res.reason, bar,
         )  # fmt: skip
         margins.append(res.margin)
-        states.append(verdict.state)
-        if verdict.state != trust.CANDIDATE:
+        # a version never confirms: a candidate that earned it waits for a newer epoch
+        earned = trust.earned(verdict.holds, res.margin, first.margin, bar)
+        states.append("earned" if verdict.state == trust.CANDIDATE and earned else verdict.state)
+        if states[-1] != trust.CANDIDATE:
             break
         pose, held, held_margin = res.matrix, verdict.holds, res.margin
     return margins, states
