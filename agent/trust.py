@@ -13,8 +13,7 @@ simply accepted or rejected on its first decision:
   wrong winner reaches ``min_margin`` (``python3 -m bench greyzone``), yet a fleet tries
   many more bad pairs than that bench holds (every pair, at every epoch, on maps still
   small), and near misses accepted just above it were shown wrong for seconds.  It is
-  confirmed as a grey-zone candidate is (below); a re-check on a newer version of its epochs
-  that holds at its pose earns it its confirmation.
+  confirmed as a grey-zone candidate is (below).
 - **candidate**: the best pose sits in the *grey zone*, ``GREY_FLOOR <= margin < min_margin``:
   right poses and mirror or look-alike ones both land there, and no threshold on one decision
   separates them.  A candidate does not enter the global map.  It is checked again at its own
@@ -27,25 +26,18 @@ simply accepted or rejected on its first decision:
   miss (0.7 deg, some 5 cells off at the maps' corners, inside the hold) that the next
   *epoch* (a map changed by a set share of its cells, :mod:`agent.links`) refined to the
   truth; confirmed on the next version, such near misses were shown wrong for up to 12 s.
-  A re-check that would have confirmed leaves the candidate *earned* (:func:`earned`).  So
-  a candidate is confirmed when
+  Nor does a pose held in the grey zone, however its margin grows: a look-alike held its
+  pose over two newer epochs' searches, its margin grown from 0.01 to 0.40, before a third
+  contradicted it.  So a candidate is confirmed when
 
   1. the first decision of a newer epoch of either map (a search, or a check at the pose the
-     accepted links predict) accepts at its pose, within the hold (:data:`HOLD_M`,
-     :data:`HOLD_DEG`): the pose that enters is that newer decision's refined one; or
-  2. it had earned its confirmation within its epochs -- its pose held with a margin that
-     did not fall by more than :data:`MARGIN_SLACK` on :data:`HOLDS_TO_CONFIRM` newer
-     versions, and either a re-check cleared the merge's bar or its margin grew by
-     :data:`MARGIN_GAIN` (a right pose gains agreeing walls; a look-alike or mirror pose
-     that holds stays flat) -- and a newer epoch's full search, which weighs every rival as
-     the first decision did (a check's margin weighs only rivals within its basin, and a
-     mirror or look-alike pose far from the right one is no rival there), lands at the same
-     pose in the grey zone with a margin :data:`MARGIN_GAIN` above the candidate's first
-     (:func:`promoted`); or
-  3. it lies on a consistent cycle: the accepted links of the current epochs already place
+     accepted links predict) clears the merge's own bar at its pose, within the hold
+     (:data:`HOLD_M`, :data:`HOLD_DEG`): the pose that enters is that newer decision's,
+     refined on more map; or
+  2. it lies on a consistent cycle: the accepted links of the current epochs already place
      its robots where its pose does, within the hold (at any version: a cycle's evidence is
      other pairs' decisions, not more of the same two maps); or
-  4. it is a search's provisional accept whose maps stayed unchanged for :data:`QUIET_S`
+  3. it is a search's provisional accept whose maps stayed unchanged for :data:`QUIET_S`
      (:func:`quiet_verdict`).
 
   A search on a newer epoch that accepts another pose is a first try of its own.  An
@@ -103,19 +95,9 @@ GREY_FLOOR = DecisionParams.GREY_MARGIN
 HOLD_M = 0.15
 #: ... and turned at most this much.
 HOLD_DEG = 2.0
-#: Newer versions on which a candidate's pose must hold before it is confirmed.
-HOLDS_TO_CONFIRM = 2
 #: How far a margin may fall from the last check's and still count as holding: a re-check
 #: refines the pose anew, and its margin wobbles by a few hundredths at a right pose.
 MARGIN_SLACK = 0.02
-#: How much a candidate's margin must have grown since its first decision to be confirmed on
-#: holds alone, midway between what the development logs show (``python3 -m
-#: bench.studies.holds``, 7 grey-zone pairs grown over 4 versions): the right poses that
-#: held grew by 0.11 to 0.49 by their second hold (one, at 0.55, by 0.01: it waited for the
-#: high bar, which it cleared), a look-alike's by at most 0.05 and a mirror's by 0.02.  All
-#: 5 right poses were confirmed, neither bad one: the look-alike stayed a candidate, the
-#: mirror was dropped.  Without the gain, both bad ones were confirmed on their second hold.
-MARGIN_GAIN = 0.08
 
 
 @dataclass(frozen=True)
@@ -208,7 +190,6 @@ def first_verdict(
     previous: str | None = None,
     held: bool = False,
     searched: bool = False,
-    promoted: bool = False,
 ) -> Verdict:
     """The state of a pair's first decision in its epochs.
 
@@ -223,8 +204,6 @@ def first_verdict(
     held : the pose is that earlier link's, within the hold (:func:`holds`).
     searched : the decision is a full search's, with no prediction behind it: its accept
         must clear :data:`HIGH_BAR` to enter the global map at once.
-    promoted : the earlier link is a candidate that earned its confirmation and this
-        search's margin bears it out (:func:`promoted`).
     """
     was_in = previous in IN_MAP
     m = _margin_text(margin)
@@ -237,9 +216,6 @@ def first_verdict(
     if has_pose and in_grey_zone(margin, min_margin):
         if was_in and held:
             return Verdict(CONFIRMED, f"held over a new epoch: margin {m} at the same pose")
-        if promoted and held and searched and previous == CANDIDATE:
-            why = f"earned on its versions, and a newer epoch's search agrees: margin {m}"
-            return Verdict(CONFIRMED, why)
         # elsewhere than an earlier link: a canvas that moved shifts every pixel pose, so
         # the new pose earns its place as any candidate does, re-checked at each version
         moved = "; the earlier epoch's link moved" if was_in else ""
@@ -273,37 +249,6 @@ def carried_verdict(
     return None
 
 
-def _gain(margin: float, first_margin: float | None) -> float:
-    """How much ``margin`` grew since the first decision's ``first_margin`` (0 without it)."""
-    return 0.0 if first_margin is None else margin - first_margin
-
-
-def earned(holds: int, margin: float | None, first_margin: float | None, min_margin: float) -> bool:
-    """Whether a candidate's re-checks on newer versions of its epochs (``holds`` of them,
-    the last at ``margin``, its first decision at ``first_margin``) would confirm it, were a
-    version enough: its pose held on :data:`HOLDS_TO_CONFIRM` versions, and the last re-check
-    cleared the merge's bar or its margin grew by :data:`MARGIN_GAIN`."""
-    if holds < HOLDS_TO_CONFIRM or margin is None or not np.isfinite(margin):
-        return False
-    return margin >= min_margin or _gain(margin, first_margin) >= MARGIN_GAIN
-
-
-def promoted(
-    holds: int,
-    margin: float | None,
-    first_margin: float | None,
-    searched_margin: float | None,
-    min_margin: float,
-) -> bool:
-    """Whether a newer epoch's search, at ``searched_margin``, promotes an :func:`earned`
-    candidate (``holds``, ``margin``, ``first_margin`` as there): its margin, which weighs
-    every rival as the candidate's first decision did, grew by :data:`MARGIN_GAIN` since."""
-    if searched_margin is None or not np.isfinite(searched_margin):
-        return False
-    grown = _gain(searched_margin, first_margin) >= MARGIN_GAIN
-    return earned(holds, margin, first_margin, min_margin) and grown
-
-
 def recheck_verdict(
     held_holds: int,
     held_margin: float | None,
@@ -312,7 +257,6 @@ def recheck_verdict(
     margin: float | None,
     held: bool,
     reason: str,
-    min_margin: float,
 ) -> Verdict:
     """A candidate re-checked at its pose on a newer version of its epochs: kept or rejected,
     never confirmed (a version is too little new map to tell a near miss from the truth; a
@@ -321,11 +265,11 @@ def recheck_verdict(
     ``held_holds``, ``held_margin``, ``first_margin``: the candidate's count of holds, its
     last margin and its first decision's; ``accepted``, ``margin``, ``held``: the re-check's
     outcome, its margin and whether the refined pose stayed within the hold of the
-    candidate's.  The verdict's holds say whether it :func:`earned` its confirmation.
+    candidate's.  The verdict's holds count the versions its pose held on, for the log.
     """
     m = _margin_text(margin)
     n = held_holds + 1
-    wait = "; a newer epoch confirms"
+    wait = "; a newer epoch's accept here confirms"
     if accepted and held:
         return Verdict(CANDIDATE, f"re-check holds at the bar: margin {m}{wait}", n)
     if accepted:  # the refined pose stands out on its own, away from the candidate's
@@ -337,8 +281,5 @@ def recheck_verdict(
     floor = -np.inf if held_margin is None else held_margin - MARGIN_SLACK
     if margin < floor:
         return Verdict(CANDIDATE, f"margin fell: {m} < {_margin_text(held_margin)}", held_holds)
-    gain = _gain(margin, first_margin)
-    if earned(n, margin, first_margin, min_margin):
-        why = f"pose held on {n} newer versions: margin {m}, +{gain:.2f}{wait}"
-        return Verdict(CANDIDATE, why, n)
-    return Verdict(CANDIDATE, f"pose held {n}/{HOLDS_TO_CONFIRM}: margin {m}, {gain:+.2f}", n)
+    gain = margin - (margin if first_margin is None else first_margin)
+    return Verdict(CANDIDATE, f"pose held on {n} newer versions: margin {m}, {gain:+.2f}{wait}", n)

@@ -76,7 +76,6 @@ from agent.trust import (
     first_verdict,
     holds,
     in_grey_zone,
-    promoted,
     provisional,
     quiet_verdict,
     recheck_verdict,
@@ -723,15 +722,10 @@ class FusionWorker:
         self, snap: Snapshot, a: str, b: str, res: Registration, searched: bool = False
     ) -> Verdict:
         """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`;
-        ``searched``: by a full search, whose accept below the high bar is provisional, and
-        whose grey-zone pose may promote an earlier epoch's candidate,
-        :func:`agent.trust.promoted`), confirmed at once when it closes a cycle with the
-        accepted links (:meth:`_on_cycle`)."""
+        ``searched``: by a full search, whose accept below the high bar is provisional),
+        confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
         previous = next((ln for ln in snap.links if ln.pair == (a, b)), None)
         grid_b = snap.maps[b][1]
-        earned = previous is not None and promoted(
-            previous.holds, previous.margin, previous.first_margin, res.margin, self.min_margin
-        )
         verdict = first_verdict(
             res.accepted,
             res.margin,
@@ -741,7 +735,6 @@ class FusionWorker:
             None if previous is None else previous.state,
             previous is not None and holds(previous.matrix, res.matrix, grid_b),
             searched,
-            earned,
         )
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
@@ -805,7 +798,6 @@ class FusionWorker:
             res.margin,
             holds(held.matrix, res.matrix, grid_b),
             res.reason,
-            self.min_margin,
         )
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
