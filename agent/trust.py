@@ -26,14 +26,18 @@ simply accepted or rejected on its first decision:
   miss (0.7 deg, some 5 cells off at the maps' corners, inside the hold) that the next
   *epoch* (a map changed by a set share of its cells, :mod:`agent.links`) refined to the
   truth; confirmed on the next version, such near misses were shown wrong for up to 12 s.
-  Nor does a pose held in the grey zone, however its margin grows: a look-alike held its
-  pose over two newer epochs' searches, its margin grown from 0.01 to 0.40, before a third
-  contradicted it.  So a candidate is confirmed when
+  Nor does a pose held in the grey zone, however its margin grows: a look-alike 18 m off
+  held its pose over two newer epochs' searches, its margin grown from 0.01 to 0.40, before
+  a third contradicted it.  So a candidate is confirmed when
 
-  1. the first decision of a newer epoch of either map (a search, or a check at the pose the
-     accepted links predict) clears the merge's own bar at its pose, within the hold
-     (:data:`HOLD_M`, :data:`HOLD_DEG`): the pose that enters is that newer decision's,
-     refined on more map; or
+  1. it is a search's accept (a provisional one, its re-checks kept above the bar,
+     :func:`standing_accept`) and the first decision of a newer epoch of either map (a
+     search, or a check at the pose the accepted links predict) accepts it again at its
+     pose, within the hold (:data:`HOLD_M`, :data:`HOLD_DEG`): the pose that enters is that
+     newer decision's, refined on more map.  A grey-zone candidate that a newer epoch
+     accepts is a provisional accept, which the epoch after must accept again: in the fleet
+     bench a look-alike 27 m off, searched at margins 0.16, 0.30, 0.38 over three epochs,
+     was accepted at 0.68 on the fourth, and shown wrong for 7 s; or
   2. it lies on a consistent cycle: the accepted links of the current epochs already place
      its robots where its pose does, within the hold (at any version: a cycle's evidence is
      other pairs' decisions, not more of the same two maps); or
@@ -150,14 +154,15 @@ def provisional(state: str, margin: float | None, min_margin: float) -> bool:
     return state == CANDIDATE and margin is not None and margin >= min_margin
 
 
-def awaits_quiet(
+def standing_accept(
     state: str, margin: float | None, first_margin: float | None, min_margin: float
 ) -> bool:
     """Whether a link is a search's provisional accept (its first decision's margin
-    ``first_margin`` cleared ``min_margin``) that its re-checks left above the bar: the one
-    kind :func:`quiet_verdict` confirms.  A grey-zone candidate that a re-check lifted above
-    the bar is not: the check weighs only rivals within its basin, so no search of these maps
-    ever accepted it."""
+    ``first_margin`` cleared ``min_margin``) that its re-checks left above the bar: the kind
+    a newer epoch's accept at the same pose confirms (:func:`first_verdict`), and
+    :func:`quiet_verdict` too.  A grey-zone candidate that a re-check lifted above the bar
+    is not: the check weighs only rivals within its basin, so no search of its epochs ever
+    accepted it."""
     return provisional(state, margin, min_margin) and provisional(state, first_margin, min_margin)
 
 
@@ -190,6 +195,7 @@ def first_verdict(
     previous: str | None = None,
     held: bool = False,
     searched: bool = False,
+    standing: bool = False,
 ) -> Verdict:
     """The state of a pair's first decision in its epochs.
 
@@ -204,10 +210,13 @@ def first_verdict(
     held : the pose is that earlier link's, within the hold (:func:`holds`).
     searched : the decision is a full search's, with no prediction behind it: its accept
         must clear :data:`HIGH_BAR` to enter the global map at once.
+    standing : the earlier link is a candidate that a search accepted
+        (:func:`standing_accept`): an accept at its pose confirms it.  A grey-zone
+        candidate's first accept is only a provisional one.
     """
     was_in = previous in IN_MAP
     m = _margin_text(margin)
-    if accepted and held and (was_in or previous == CANDIDATE):
+    if accepted and held and (was_in or (standing and previous == CANDIDATE)):
         return Verdict(CONFIRMED, f"found again at the same pose on a newer epoch: margin {m}")
     if accepted and searched:
         return searched_accept(margin, min_margin)

@@ -70,7 +70,6 @@ from agent.trust import (
     IN_MAP,
     QUIET_S,
     Verdict,
-    awaits_quiet,
     carried_verdict,
     clean_reason,
     first_verdict,
@@ -79,6 +78,7 @@ from agent.trust import (
     provisional,
     quiet_verdict,
     recheck_verdict,
+    standing_accept,
 )
 from pgvd.grid import Grid
 from pgvd.posegraph import Solution, components, link_problem, solve, triangle_groups
@@ -608,7 +608,7 @@ class FusionWorker:
             (ln.identity, ln.version_a, ln.version_b): ln
             for ln in snap.links
             if ln.decided_by == self.me
-            and awaits_quiet(ln.state, ln.margin, ln.first_margin, self.min_margin)
+            and standing_accept(ln.state, ln.margin, ln.first_margin, self.min_margin)
             and (ln.version_a, ln.version_b) == (versions.get(ln.a), versions.get(ln.b))
         }
         self._quiet_since = {k: self._quiet_since.get(k, now) for k in waiting}
@@ -735,6 +735,10 @@ class FusionWorker:
             None if previous is None else previous.state,
             previous is not None and holds(previous.matrix, res.matrix, grid_b),
             searched,
+            previous is not None
+            and standing_accept(
+                previous.state, previous.margin, previous.first_margin, self.min_margin
+            ),
         )
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)

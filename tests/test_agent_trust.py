@@ -54,7 +54,10 @@ def test_a_search_accept_below_the_high_bar_is_provisional_until_re_checked() ->
     moved = trust.recheck_verdict(0, 0.58, 0.58, True, 0.75, False, "")
     assert (moved.state, moved.holds) == (trust.CANDIDATE, 0), moved
     # ... and a newer epoch's search that finds it again at the same pose confirms it
-    again = trust.first_verdict(True, 0.6, True, "", bar, trust.CANDIDATE, True, searched=True)
+    assert trust.standing_accept(held.state, 0.75, 0.58, bar)
+    again = trust.first_verdict(
+        True, 0.6, True, "", bar, trust.CANDIDATE, True, searched=True, standing=True
+    )
     assert again.state == trust.CONFIRMED and "newer epoch" in again.reason
     # carried forward: a check of the search's pose on maps of a newer epoch
     assert trust.carried_verdict(0.6, True, 0.8, True, bar).state == trust.CONFIRMED
@@ -105,23 +108,27 @@ def test_a_re_check_on_a_newer_version_keeps_or_drops_a_candidate_but_never_conf
     assert trust.recheck_verdict(2, 0.5, 0.3, True, 0.9, True, "").state == trust.CANDIDATE
 
 
-def test_a_grey_candidate_is_confirmed_only_by_a_newer_epochs_accept_at_its_pose() -> None:
+def test_a_grey_candidate_needs_two_epochs_accepts_at_its_pose() -> None:
     bar, grey = 0.57, trust.CANDIDATE
-    found = trust.first_verdict(True, 0.6, True, "", bar, grey, True, searched=True)
-    assert found.state == trust.CONFIRMED, found
-    # the look-alike of the fleet bench: held over newer epochs' searches in the grey zone
+    # the look-alikes of the fleet bench: held over newer epochs' searches in the grey zone,
+    # then accepted once
     held = trust.first_verdict(False, 0.40, True, "", bar, grey, True, searched=True)
     assert held.state == trust.CANDIDATE, held
+    first = trust.first_verdict(True, 0.68, True, "", bar, grey, True, searched=True)
+    assert first.state == trust.CANDIDATE and first.reason.startswith("provisional"), first
+    assert trust.standing_accept(first.state, 0.68, 0.68, bar)
+    found = trust.first_verdict(True, 0.6, True, "", bar, grey, True, True, standing=True)
+    assert found.state == trust.CONFIRMED, found
     # a newer epoch's search accepting another pose is a first try of its own
     other = trust.first_verdict(True, 0.7, True, "", bar, grey, False, searched=True)
     assert other.state == trust.CANDIDATE and trust.provisional(other.state, 0.7, bar), other
 
 
-def test_only_a_searchs_provisional_accept_waits_for_the_quiet() -> None:
+def test_only_a_searchs_provisional_accept_stands_as_an_accept() -> None:
     bar = 0.57
-    assert trust.awaits_quiet(trust.CANDIDATE, 0.7, 0.6, bar)
-    assert not trust.awaits_quiet(trust.CANDIDATE, 0.7, 0.3, bar)  # lifted by a re-check
-    assert not trust.awaits_quiet(trust.CANDIDATE, 0.4, 0.6, bar)  # re-checked into grey
+    assert trust.standing_accept(trust.CANDIDATE, 0.7, 0.6, bar)
+    assert not trust.standing_accept(trust.CANDIDATE, 0.7, 0.3, bar)  # lifted by a re-check
+    assert not trust.standing_accept(trust.CANDIDATE, 0.4, 0.6, bar)  # re-checked into grey
 
 
 def test_a_pose_holds_within_3_cells_and_2_degrees_at_the_maps_centre() -> None:
@@ -233,18 +240,23 @@ def test_a_right_pair_in_the_grey_zone_is_confirmed_once_its_maps_grow(logs) -> 
     frame_a, frame_b = random_frame(rng), random_frame(rng)
     part_a = select_segment(scans, (0.3051, 0.4765))
     (map_a,) = growing(scans, frame_a, part_a, [part_a])
-    parts = [select_segment(scans, (0.5643, e)) for e in (0.7527, 0.78, 0.81, 0.84)]
+    ends = (0.7527, 0.78, 0.81, 0.84, 0.87)
+    parts = [select_segment(scans, (0.5643, e)) for e in ends]
     maps_b = growing(scans, frame_b, parts[-1], parts)
     r1 = Agent("r1")
     r1.book.put_map("r1", V(1), map_a)
-    states = []
-    # three versions of r2's first epoch, then its second epoch
-    for step, (version, b) in enumerate(zip((V(1), V(1, 1), V(1, 2), V(2)), maps_b, strict=True)):
+    states, reasons = [], []
+    # three versions of r2's first epoch, then two newer epochs
+    versions = (V(1), V(1, 1), V(1, 2), V(2), V(3))
+    for step, (version, b) in enumerate(zip(versions, maps_b, strict=True)):
         r1.book.put_map("r2", version, b)
         r1.step(now=float(step))
         states.append(r1.record("r1", "r2").state)
+        reasons.append(r1.record("r1", "r2").reason)
         assert states[-1] == trust.CONFIRMED or not r1.joined("r1", "r2"), states
-    assert states == [trust.CANDIDATE] * 3 + [trust.CONFIRMED], states
+    # grey, held on two versions; its first accept (epoch 2) provisional; epoch 3 confirms
+    assert states == [trust.CANDIDATE] * 4 + [trust.CONFIRMED], (states, reasons)
+    assert reasons[3].startswith("provisional"), reasons
     assert r1.joined("r1", "r2") and r1.globals[-1].settled
     (comp,) = r1.globals[-1].components
     truth = true_matrix(map_a, frame_a, maps_b[-1], frame_b)
