@@ -47,6 +47,11 @@ simply accepted or rejected on its first decision:
   A search on a newer epoch that accepts another pose is a first try of its own.  An
   accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the same
   pose stays confirmed.
+
+  What this does not stop (fleet bench, development buildings): a look-alike that searches
+  accept on two epochs (27 m off, at 0.63 and 0.62, shown wrong for 2.4 s), and a near miss
+  (0.4 deg, 3.3 cells) that the check carrying its search onto a just-begun newer epoch
+  converges on again from the same pose.  A newer epoch is more map, but not always enough.
 - **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
   contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold or out
   of the check's basin).

@@ -706,38 +706,10 @@ class FusionWorker:
         self.merges += 1
         self.merge_seconds += clock.elapsed()[0]
         verdict = self._first_verdict(snap, a, b, res, searched=how == "searched")
-        if how == "searched" and verdict.state == CONFIRMED:
-            res, verdict = self._refined(snap, a, b, res, verdict)
         base = LinkRecord(a, va, b, vb, False, res.matrix, res.covariance, res.score, self.me)
         self._record(base, res, verdict, how, clock)
         if how == "searched" and res.accepted:
             self._carry_forward(a, va, b, vb, res)
-
-    def _refined(
-        self, snap: Snapshot, a: str, b: str, found: Registration, verdict: Verdict
-    ) -> tuple[Registration, Verdict]:
-        """A search's pose that confirms a candidate (``found``, ``verdict``), refined by the
-        check at it (:func:`pgvd.verify.verify`, ~0.05 s) where the check accepts within the
-        hold (:func:`agent.trust.holds`); as it was otherwise.
-
-        The pose that enters the global map is the newest decision's, and the check's
-        refinement of it: on the fleet bench's willow runs, robots first placed by a
-        search's pose were 0.87 cells off at the median, by a check's 0.27.
-        """
-        if self.check is None:
-            return found, verdict
-        (_, grid_a), (_, grid_b) = snap.maps[a], snap.maps[b]
-        self.counters.add("checks")
-        try:
-            res = self.check(grid_a, grid_b, found.matrix)
-        except Exception as exc:  # bad maps: the search's own pose stands
-            log.warning("refining %s / %s failed: %s", a, b, exc)
-            return found, verdict
-        if res is None or not res.accepted or not holds(found.matrix, res.matrix, grid_b):
-            return found, verdict
-        margin = "none" if res.margin is None else f"{res.margin:.2f}"
-        why = f"{verdict.reason}; refined by a check: margin {margin}"
-        return res, replace(verdict, reason=why)
 
     @property
     def min_margin(self) -> float:

@@ -403,10 +403,7 @@ def test_a_first_try_below_the_high_bar_enters_only_once_a_newer_epoch_finds_it_
     again = agents["r1"].links[-1]
     assert again.state == trust.CONFIRMED and again.key[3] == 2, again
     assert again.first_b == V(2) and "newer epoch" in again.reason, again
-    # the newest pose enters, refined by a check at it, not the near miss
-    assert "refined by a check" in again.reason, again
-    assert trust.pose_change(truth, again.matrix, maps_b[1])[1] < 0.3, again.matrix
-    assert trust.pose_change(near, again.matrix, maps_b[1])[1] > 0.4, again.matrix
+    assert np.array_equal(again.matrix, truth)  # the newest pose enters, not the near miss
     agents["r2"].book.add_link(again)
     agents["r2"].step(now=2.5)
     digests = set()
