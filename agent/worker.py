@@ -84,10 +84,10 @@ from agent.trust import (
     first_verdict,
     holds,
     in_grey_zone,
-    promotion_verdict,
     provisional,
     quiet_verdict,
     recheck_verdict,
+    standing_accept,
 )
 from pgvd.grid import Grid
 from pgvd.posegraph import Solution, components, link_problem, solve, triangle_groups
@@ -692,7 +692,7 @@ class FusionWorker:
             (ln.identity, ln.version_a, ln.version_b): ln
             for ln in snap.links
             if ln.decided_by == self.me
-            and provisional(ln.state, ln.margin, self.min_margin)
+            and standing_accept(ln.state, ln.margin, ln.first_margin, self.min_margin)
             and (ln.version_a, ln.version_b) == (versions.get(ln.a), versions.get(ln.b))
         }
         self._quiet_since = {k: self._quiet_since.get(k, now) for k in waiting}
@@ -821,6 +821,10 @@ class FusionWorker:
             None if previous is None else previous.state,
             previous is not None and holds(previous.matrix, res.matrix, grid_b),
             searched,
+            previous is not None
+            and standing_accept(
+                previous.state, previous.margin, previous.first_margin, self.min_margin
+            ),
         )
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
@@ -886,8 +890,9 @@ class FusionWorker:
         return replace(ln, accepted=True, state=CONFIRMED)
 
     def _recheck(self, snap: Snapshot, held: LinkRecord) -> None:
-        """Check a candidate again at its pose on the newer versions of its maps
-        (:func:`agent.trust.recheck_verdict`), with :func:`pgvd.verify.verify` (~0.05 s)."""
+        """Check a candidate again at its pose on the newer versions of its maps, of its
+        epochs (:func:`agent.trust.recheck_verdict`: kept or dropped, confirmed only on a
+        consistent cycle), with :func:`pgvd.verify.verify` (~0.05 s)."""
         a, b = held.pair
         (va, grid_a), (vb, grid_b) = snap.maps[a], snap.maps[b]
         clock = _Clock.start()
@@ -910,10 +915,7 @@ class FusionWorker:
             res.margin,
             holds(held.matrix, res.matrix, grid_b),
             res.reason,
-            self.min_margin,
         )
-        if verdict.proposed:
-            res, verdict = self._promotion(held, grid_a, grid_b, verdict)
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
         ):
@@ -922,30 +924,6 @@ class FusionWorker:
         revision = held.revision + 1
         base = replace(held, version_a=va, version_b=vb, decided_by=self.me, revision=revision)
         self._record(base, res, verdict, "rechecked", clock)
-
-    def _promotion(
-        self, held: LinkRecord, grid_a: Grid, grid_b: Grid, proposed: Verdict
-    ) -> tuple[Registration, Verdict]:
-        """The search that a re-check's proposed confirmation needs
-        (:func:`agent.trust.promotion_verdict`), and the state it gives."""
-        self.counters.add("searches")
-        try:
-            res = self.register(grid_a, grid_b)
-        except Exception as exc:  # bad maps: the candidate cannot be promoted
-            log.warning("search of candidate %s / %s failed: %s", *held.pair, exc)
-            return Registration(False, held.matrix, _REJECTED[1], 0.0, str(exc)), Verdict(
-                CANDIDATE, f"a search failed: {exc}", held.holds
-            )
-        verdict = promotion_verdict(
-            proposed,
-            res.accepted,
-            res.margin,
-            holds(held.matrix, res.matrix, grid_b),
-            held.first_margin,
-            res.reason,
-            self.min_margin,
-        )
-        return res, verdict
 
     def _record(
         self, base: LinkRecord, res: Registration, verdict: Verdict, how: str, clock: _Clock
@@ -987,7 +965,8 @@ class FusionWorker:
         as a chain's, and a check (tens of milliseconds) may confirm it.  Only a
         confirmation is taken; anything else leaves the pair to its next turn.  A search's
         provisional accept (below :data:`agent.trust.HIGH_BAR`) is confirmed only where the
-        check holds at its pose: that is its re-check on a newer version.
+        check holds at its pose: the maps are of a newer epoch than the search's, as a
+        confirmation needs (:mod:`agent.trust`).
         """
         held_a, held_b = self.book.map_of(a), self.book.map_of(b)
         if self.check is None or held_a is None or held_b is None:

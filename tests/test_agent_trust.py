@@ -18,6 +18,7 @@ from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.wire import Inbound, encode_link, link_record
 from agent.worker import FusionWorker, GlobalState, merge_registration, verify_check
 from pgvd.grid import Grid, rigid_matrix
+from pgvd.params import DecisionParams
 
 
 def V(epoch: int, minor: int = 0) -> int:
@@ -46,16 +47,19 @@ def test_a_search_accept_below_the_high_bar_is_provisional_until_re_checked() ->
     assert not trust.provisional(trust.CANDIDATE, 0.41, bar)  # a grey-zone candidate
     # a check at the pose the accepted links predict needs no high bar
     assert trust.first_verdict(True, 0.58, True, "", bar).state == trust.ACCEPTED
-    # its re-check on a newer version confirms it outright where the pose holds ...
-    held = trust.recheck_verdict(0, 0.58, 0.58, True, 0.75, True, "", bar)
-    assert (held.state, held.proposed) == (trust.CONFIRMED, False), held
-    # ... and only proposes a confirmation, for a search to agree with, where it moved
-    moved = trust.recheck_verdict(0, 0.58, 0.58, True, 0.75, False, "", bar)
-    assert (moved.state, moved.proposed) == (trust.CONFIRMED, True), moved
-    # found again at the same pose by a new epoch's search
-    again = trust.first_verdict(True, 0.6, True, "", bar, trust.CANDIDATE, True, searched=True)
-    assert again.state == trust.CONFIRMED
-    # carried forward: a check of the search's pose on newer maps
+    # its re-check on a newer version of its epochs keeps it, held or moved ...
+    held = trust.recheck_verdict(0, 0.58, 0.58, True, 0.75, True, "")
+    assert (held.state, held.holds) == (trust.CANDIDATE, 1), held
+    assert "a newer epoch's accept" in held.reason, held
+    moved = trust.recheck_verdict(0, 0.58, 0.58, True, 0.75, False, "")
+    assert (moved.state, moved.holds) == (trust.CANDIDATE, 0), moved
+    # ... and a newer epoch's search that finds it again at the same pose confirms it
+    assert trust.standing_accept(held.state, 0.75, 0.58, bar)
+    again = trust.first_verdict(
+        True, 0.6, True, "", bar, trust.CANDIDATE, True, searched=True, standing=True
+    )
+    assert again.state == trust.CONFIRMED and "newer epoch" in again.reason
+    # carried forward: a check of the search's pose on maps of a newer epoch
     assert trust.carried_verdict(0.6, True, 0.8, True, bar).state == trust.CONFIRMED
     assert trust.carried_verdict(0.6, True, 0.8, False, bar) is None
     assert trust.carried_verdict(high, True, 0.8, False, bar).state == trust.ACCEPTED
@@ -86,45 +90,45 @@ def test_a_new_epoch_confirms_a_held_link_and_withdraws_a_contradicted_one() -> 
     assert trust.first_verdict(False, 0.3, True, "", bar, trust.REJECTED).state == trust.CANDIDATE
 
 
-def test_a_candidate_needs_its_pose_to_hold_twice_and_its_margin_to_grow() -> None:
-    bar = 0.57
-    one = trust.recheck_verdict(0, 0.37, 0.37, False, 0.365, True, "", bar)
+def test_a_re_check_on_a_newer_version_keeps_or_drops_a_candidate_but_never_confirms() -> None:
+    one = trust.recheck_verdict(0, 0.37, 0.37, False, 0.365, True, "")
     assert (one.state, one.holds) == (trust.CANDIDATE, 1)
-    two = trust.recheck_verdict(1, 0.365, 0.37, False, 0.53, True, "", bar)
-    assert (two.state, two.holds) == (trust.CONFIRMED, 2)
-    # a look-alike's pose that holds with a flat margin stays a candidate
-    flat = trust.recheck_verdict(1, 0.24, 0.21, False, 0.24, True, "", bar)
-    assert (flat.state, flat.holds) == (trust.CANDIDATE, 2), flat
-    fell = trust.recheck_verdict(1, 0.5, 0.3, False, 0.3, True, "", bar)
+    # held twice with a growing margin: still a candidate, for a newer epoch to confirm
+    two = trust.recheck_verdict(1, 0.365, 0.37, False, 0.53, True, "")
+    assert (two.state, two.holds) == (trust.CANDIDATE, 2), two
+    assert "+0.16" in two.reason and "newer epoch" in two.reason, two
+    fell = trust.recheck_verdict(1, 0.5, 0.3, False, 0.3, True, "")
     assert (fell.state, fell.holds) == (trust.CANDIDATE, 1)
-    assert trust.recheck_verdict(1, 0.3, 0.3, False, 0.2, False, "", bar).state == trust.REJECTED
-    dropped = trust.recheck_verdict(1, 0.3, 0.3, False, -0.05, True, "x", bar)
+    assert trust.recheck_verdict(1, 0.3, 0.3, False, 0.2, False, "").state == trust.REJECTED
+    dropped = trust.recheck_verdict(1, 0.3, 0.3, False, -0.05, True, "x")
     assert dropped.state == trust.REJECTED and dropped.reason == "contradicted: x"
-    assert trust.recheck_verdict(0, 0.3, 0.3, False, None, True, "", bar).state == trust.REJECTED
-    assert trust.recheck_verdict(0, 0.3, 0.3, True, 0.6, False, "", bar).state == trust.CONFIRMED
+    assert trust.recheck_verdict(0, 0.3, 0.3, False, None, True, "").state == trust.REJECTED
+    # a re-check clearing the bar, at the candidate's pose or away from it, keeps it
+    assert trust.recheck_verdict(0, 0.3, 0.3, True, 0.6, False, "").state == trust.CANDIDATE
+    assert trust.recheck_verdict(2, 0.5, 0.3, True, 0.9, True, "").state == trust.CANDIDATE
 
 
-def test_a_proposed_confirmation_stands_only_where_a_search_agrees() -> None:
-    bar = 0.57
-    proposed = trust.Verdict(trust.CONFIRMED, "re-check clears the bar", 1)
-    agrees = trust.promotion_verdict(proposed, True, 0.7, True, 0.2, "", bar)
-    assert (agrees.state, agrees.holds) == (trust.CONFIRMED, 1)
-    # the search accepts another pose: a first try of its own, the candidate's pose dropped
-    assert trust.promotion_verdict(proposed, True, 0.9, False, 0.2, "", bar).state == (
-        trust.ACCEPTED
-    )
-    other = trust.promotion_verdict(proposed, True, 0.7, False, 0.2, "", bar)
+def test_a_grey_candidate_needs_two_epochs_accepts_at_its_pose() -> None:
+    bar, grey = 0.57, trust.CANDIDATE
+    # the look-alikes of the fleet bench: held over newer epochs' searches in the grey zone,
+    # then accepted once
+    held = trust.first_verdict(False, 0.40, True, "", bar, grey, True, searched=True)
+    assert held.state == trust.CANDIDATE, held
+    first = trust.first_verdict(True, 0.68, True, "", bar, grey, True, searched=True)
+    assert first.state == trust.CANDIDATE and first.reason.startswith("provisional"), first
+    assert trust.standing_accept(first.state, 0.68, 0.68, bar)
+    found = trust.first_verdict(True, 0.6, True, "", bar, grey, True, True, standing=True)
+    assert found.state == trust.CONFIRMED, found
+    # a newer epoch's search accepting another pose is a first try of its own
+    other = trust.first_verdict(True, 0.7, True, "", bar, grey, False, searched=True)
     assert other.state == trust.CANDIDATE and trust.provisional(other.state, 0.7, bar), other
-    # a far rival the check could not see keeps the search in the grey zone
-    grey = trust.promotion_verdict(proposed, False, 0.22, True, 0.19, "rival", bar)
-    assert grey.state == trust.CANDIDATE and "+0.03" in grey.reason, grey
-    elsewhere = trust.promotion_verdict(proposed, False, 0.4, False, 0.19, "rival", bar)
-    assert elsewhere.state == trust.REJECTED and elsewhere.reason.endswith("rival")
-    held_twice = trust.Verdict(trust.CONFIRMED, "pose held", 2)
-    grown = trust.promotion_verdict(held_twice, False, 0.35, True, 0.2, "", bar)
-    assert grown.state == trust.CONFIRMED and "+0.15" in grown.reason, grown
-    flat = trust.promotion_verdict(held_twice, False, 0.24, True, 0.2, "", bar)
-    assert flat.state == trust.CANDIDATE
+
+
+def test_only_a_searchs_provisional_accept_stands_as_an_accept() -> None:
+    bar = 0.57
+    assert trust.standing_accept(trust.CANDIDATE, 0.7, 0.6, bar)
+    assert not trust.standing_accept(trust.CANDIDATE, 0.7, 0.3, bar)  # lifted by a re-check
+    assert not trust.standing_accept(trust.CANDIDATE, 0.4, 0.6, bar)  # re-checked into grey
 
 
 def test_a_pose_holds_within_3_cells_and_2_degrees_at_the_maps_centre() -> None:
@@ -236,16 +240,23 @@ def test_a_right_pair_in_the_grey_zone_is_confirmed_once_its_maps_grow(logs) -> 
     frame_a, frame_b = random_frame(rng), random_frame(rng)
     part_a = select_segment(scans, (0.3051, 0.4765))
     (map_a,) = growing(scans, frame_a, part_a, [part_a])
-    parts = [select_segment(scans, (0.5643, e)) for e in (0.7527, 0.78, 0.81)]
-    maps_b = growing(scans, frame_b, select_segment(scans, (0.5643, 0.84)), parts)
+    ends = (0.7527, 0.78, 0.81, 0.84, 0.87)
+    parts = [select_segment(scans, (0.5643, e)) for e in ends]
+    maps_b = growing(scans, frame_b, parts[-1], parts)
     r1 = Agent("r1")
     r1.book.put_map("r1", V(1), map_a)
-    states = []
-    for minor, b in enumerate(maps_b):
-        r1.book.put_map("r2", V(1, minor), b)
-        r1.step(now=float(minor))
+    states, reasons = [], []
+    # three versions of r2's first epoch, then two newer epochs
+    versions = (V(1), V(1, 1), V(1, 2), V(2), V(3))
+    for step, (version, b) in enumerate(zip(versions, maps_b, strict=True)):
+        r1.book.put_map("r2", version, b)
+        r1.step(now=float(step))
         states.append(r1.record("r1", "r2").state)
-    assert states == [trust.CANDIDATE, trust.CANDIDATE, trust.CONFIRMED], states
+        reasons.append(r1.record("r1", "r2").reason)
+        assert states[-1] == trust.CONFIRMED or not r1.joined("r1", "r2"), states
+    # grey, held on two versions; its first accept (epoch 2) provisional; epoch 3 confirms
+    assert states == [trust.CANDIDATE] * 4 + [trust.CONFIRMED], (states, reasons)
+    assert reasons[3].startswith("provisional"), reasons
     assert r1.joined("r1", "r2") and r1.globals[-1].settled
     (comp,) = r1.globals[-1].components
     truth = true_matrix(map_a, frame_a, maps_b[-1], frame_b)
@@ -337,11 +348,21 @@ def searching_at(truth: np.ndarray, margin: float):
     return lambda a, b: Registration(True, truth, cov, 0.95, "accepted", margin)
 
 
-def pair_of_agents(intel_pair, margin: float) -> dict[str, Agent]:
-    """r1 and r2 holding the first versions; r1 decides the pair by ``searching_at``."""
+def near_miss(truth: np.ndarray, b: Grid, deg: float) -> np.ndarray:
+    """``truth`` turned by ``deg`` about the centre of map ``b``: inside the hold, as the
+    near misses a search and a check converge on when the maps are still small."""
+    centre = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
+    turn = rigid_matrix(np.radians(deg), 0.0, 0.0)
+    turn[:2, 2] = centre - turn[:2, :2] @ centre
+    return truth @ turn
+
+
+def pair_of_agents(intel_pair, margin: float, pose: np.ndarray | None = None) -> dict[str, Agent]:
+    """r1 and r2 holding the first versions; r1 decides the pair by ``searching_at``
+    ``pose`` (the truth unless given)."""
     map_a, maps_b, truth = intel_pair
     agents = {me: Agent(me) for me in ("r1", "r2")}
-    agents["r1"].worker.register = searching_at(truth, margin)
+    agents["r1"].worker.register = searching_at(truth if pose is None else pose, margin)
     for agent in agents.values():
         agent.book.put_map("r1", V(1), map_a)
         agent.book.put_map("r2", V(1), maps_b[0])
@@ -352,10 +373,16 @@ def pair_of_agents(intel_pair, margin: float) -> dict[str, Agent]:
     return agents
 
 
-def test_a_first_try_below_the_high_bar_enters_only_once_a_newer_version_re_checks_it(
+def test_a_first_try_below_the_high_bar_enters_only_once_a_newer_epoch_finds_it_again(
     intel_pair,
 ) -> None:
-    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2)
+    """A near miss re-checked on a newer version of the same epoch is not confirmed however
+    well it holds; the same pose found again on the pair's next epoch is, at that decision's
+    pose."""
+    _, maps_b, truth = intel_pair
+    near = near_miss(truth, maps_b[-1], 0.7)
+    assert trust.holds(truth, near, maps_b[-1])
+    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2, near)
     for agent in agents.values():
         assert agent.record("r1", "r2").state == trust.CANDIDATE
         assert not agent.joined("r1", "r2")
@@ -363,9 +390,22 @@ def test_a_first_try_below_the_high_bar_enters_only_once_a_newer_version_re_chec
         agent.book.put_map("r2", V(1, 1), intel_pair[1][1])
         agent.step(now=1.0)  # r1 re-checks its pose with pgvd.verify, no search
     rechecked = agents["r1"].links[-1]
-    assert rechecked.state == trust.CONFIRMED and rechecked.revision == 1, rechecked
+    assert rechecked.state == trust.CANDIDATE and rechecked.revision == 1, rechecked
+    assert rechecked.holds == 1 and rechecked.margin >= DecisionParams.min_margin, rechecked
     agents["r2"].book.add_link(rechecked)
     agents["r2"].step(now=1.5)
+    assert not any(a.joined("r1", "r2") for a in agents.values())
+    # the new epoch's search, on more map, refines the near miss to the truth
+    agents["r1"].worker.register = searching_at(truth, trust.HIGH_BAR - 0.2)
+    for agent in agents.values():
+        agent.book.put_map("r2", V(2), maps_b[1])
+        agent.step(now=2.0)  # the new epoch: r1 searches the pair again
+    again = agents["r1"].links[-1]
+    assert again.state == trust.CONFIRMED and again.key[3] == 2, again
+    assert again.first_b == V(2) and "newer epoch" in again.reason, again
+    assert np.array_equal(again.matrix, truth)  # the newest pose enters, not the near miss
+    agents["r2"].book.add_link(again)
+    agents["r2"].step(now=2.5)
     digests = set()
     for agent in agents.values():
         assert agent.joined("r1", "r2")

@@ -7,8 +7,9 @@ bench rendered it, each map on a canvas fixed at its first version, then robot B
 (and, for a mirror pair, both) grows version by version while the agent's own check
 (:func:`agent.worker.verify_check`) re-checks the candidate at its pose and
 :func:`agent.trust.recheck_verdict` decides.  It prints each pair's margins and states, and
-how many right poses were confirmed and how many bad ones (look-alikes, mirrors, wrong poses)
-were, which must be none.
+how many right poses and bad ones (look-alikes, mirrors, wrong poses) ended kept (a
+candidate) or dropped: a re-check on a newer version never confirms (a newer epoch's accept
+at the same pose does), so what it must do is drop bad poses and keep right ones.
 
 Drifted pairs are left out (their drift model would have to grow too), and so are pairs from
 map images (nothing to grow).  Run from the project root::
@@ -84,7 +85,7 @@ def replay(record: dict, scans: list, bar: float) -> tuple[list[float | None], l
         verdict = trust.recheck_verdict(
             held, held_margin, first.margin, res.accepted, res.margin,
             trust.holds(pose, res.matrix, b),
-            res.reason, bar,
+            res.reason,
         )  # fmt: skip
         margins.append(res.margin)
         states.append(verdict.state)
