@@ -511,7 +511,6 @@ class FusionWorker:
         )
         #: What :meth:`_open` made last, with what it was made of.
         self._opened: tuple[tuple[object, ...], set[LinkKey], list[LinkKey]] | None = None
-        self._held_since: dict[tuple[object, ...], float] = {}
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
         #: :meth:`_provisional_chains` by signature, the oldest first.
