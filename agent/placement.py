@@ -58,6 +58,14 @@ def snap_placement(
       rotation blur's centre and the Schur complement of :func:`pgvd.uncertainty.propagate`
       by about 1 % of the blur's own width.
 
+    Measured on the layers of a 16-robot rebuild (``python3 -m bench globalmap``'s
+    fleets), the 99th percentile of the change of a known cell's log-odds is about 0.02
+    from the translation's snap, under 0.01 from the heading's and about 0.07 from the
+    covariance's: as much as a 0.1 % change of ``sigma_psi`` gives, since the polar bins
+    of :func:`pgvd.uncertainty.rotation_blur` are laid out anew for every ``sigma_psi``;
+    the steps add nothing to eq. (8)'s own discretisation, and stay under half an int8
+    step of the wire (0.157).
+
     A correlation matrix that rounding made indefinite has its negative eigenvalues
     clipped and its diagonal rescaled to one, so the covariance stays positive
     semi-definite.  A standard deviation of 0 stays 0.  Inputs that are not finite are
