@@ -6,9 +6,10 @@ bulk of that is the warp of each map with its placement's uncertainty, eq. (8)
 alone -- the matrix and covariance into the anchor's pixels -- not of the canvas it is
 fused on, so it is computed again only when one of them changed: a robot's new map
 version re-warps that robot only, and a robot that joins or leaves (however the canvas
-grows) re-warps nobody else, as long as the others' placements stay as they were (the
-links of a tree, or a cycle's links unchanged; a re-solved cycle moves every placement
-and re-warps the component).
+grows) re-warps nobody else, as long as the others' placements stay as they were.  A
+re-solved cycle moves every placement of the component by a rounding error; the
+placements are snapped before they get here (:func:`agent.placement.snap_placement`), so
+only the robots that moved by a step or more are warped again.
 
 Fleet invariant 2 is untouched: a layer held is the very array a cold rebuild would
 compute, so warm and cold rebuilds give the same global map bit for bit.

@@ -39,6 +39,7 @@ import numpy as np
 
 from agent.fusecache import LayerCache
 from agent.links import LinkRecord
+from agent.placement import snap_placement
 from pgvd.fusion import fuse_layers
 from pgvd.grid import Grid, relative_matrix
 from pgvd.posegraph import PoseGraphParams, Rank, link_problem, solve
@@ -61,8 +62,10 @@ class Component:
         (:func:`anchor_rank`); its map's pixel frame is the global frame.
     members : robot ids, sorted.
     versions : ``{robot: version}`` that went into ``grid``.
-    transforms : ``{robot: 3x3}`` from that robot's pixels to the anchor's pixels.
-    covariances : ``{robot: 3x3}`` over ``(x px, y px, psi)`` of that transform, eq. (3).
+    transforms : ``{robot: 3x3}`` from that robot's pixels to the anchor's pixels, as
+        fused: the pose graph's, snapped (:func:`agent.placement.snap_placement`).
+    covariances : ``{robot: 3x3}`` over ``(x px, y px, psi)`` of that transform, eq. (3),
+        snapped likewise.
     used : accepted links the joint solution kept, as sorted ``(a, b)`` pairs.
     rejected : accepted links of its members it dropped as inconsistent around a cycle.
     grid : the fused map.
@@ -182,6 +185,14 @@ def build_components(
     accepted = accepted_links(maps, links)
     usable = usable_links(maps, accepted, sound)
     sol = solve(maps, usable, params, anchor_rank(firsts or {}))
+    # The one place the solve's placements become the fusion's (and the status's and TF's):
+    # snapped, so a re-solve that moved a robot by a rounding error keeps its layer.
+    snapped = {
+        r: snap_placement(m, sol.covariances[r], maps[r][1].shape)
+        for r, m in sol.transforms.items()
+    }
+    mats = {r: m for r, (m, _) in snapped.items()}
+    covs = {r: c for r, (_, c) in snapped.items()}
     dropped = {ln.pair for ln in accepted} - {
         ln.pair for ln, u in zip(usable, sol.used, strict=True) if u
     }
@@ -191,20 +202,16 @@ def build_components(
         anchor, order = placed[0], placed[1:]
         inside = [(ln.pair, u) for ln, u in zip(usable, sol.used, strict=True) if ln.a in members]
         if fuse is None:
-            grid, unblurred = _fuse_component(
-                maps, anchor, order, sol.transforms, sol.covariances, layers
-            )
+            grid, unblurred = _fuse_component(maps, anchor, order, mats, covs, layers)
         else:
-            grid, unblurred = _fuse_in_turn(
-                maps, anchor, order, sol.transforms, sol.covariances, fuse
-            )
+            grid, unblurred = _fuse_in_turn(maps, anchor, order, mats, covs, fuse)
         out.append(
             Component(
                 anchor=anchor,
                 members=members,
                 versions={r: maps[r][0] for r in members},
-                transforms={r: sol.transforms[r] for r in members},
-                covariances={r: sol.covariances[r] for r in members},
+                transforms={r: mats[r] for r in members},
+                covariances={r: covs[r] for r in members},
                 used=tuple(p for p, u in inside if u),
                 rejected=tuple(p for p in sorted(dropped) if p[0] in members or p[1] in members),
                 grid=grid,

@@ -94,7 +94,7 @@ def test_a_failing_blur_falls_back_to_the_plain_warp_the_same_everywhere(
     for _ in range(2):  # cold, then warm: the fallback is held with the layer
         (comp,) = build_components(maps, [link("r1", "r2", truth)], layers=cache)
         assert comp.unblurred == ("r2",)
-        plain = fuse_layers(a, [warp_layer(b, truth, np.zeros((3, 3)))])
+        plain = fuse_layers(a, [warp_layer(b, comp.transforms["r2"], np.zeros((3, 3)))])
         assert comp.grid.logodds.tobytes() == plain.logodds.tobytes()
     assert cache.warps == 1 and cache.reuses == 1
 
@@ -138,3 +138,34 @@ def test_the_worker_keeps_its_layers_from_one_rebuild_to_the_next(
     (last,) = globals_[-1].components
     assert last.versions == {"r1": epoch, "r2": epoch | 2, "r3": epoch}
     assert same_maps([last], build_components(snap.maps, snap.links))
+
+
+def test_a_re_solve_that_moves_placements_by_less_than_a_step_re_warps_nobody(
+    halves: tuple,
+) -> None:
+    """Three robots on a cycle: a link changed by a hair re-solves the cycle and moves
+    every placement by a rounding error, which the snapped placements absorb; a link
+    moved by a pixel re-warps the robots it moved, and warm stays cold throughout."""
+    a, b, truth = halves
+    c, c_to_a = rolled(a, 7, 4)
+    maps = {"r1": (1, a), "r2": (1, b), "r3": (1, c)}
+    c_to_b = np.linalg.inv(truth) @ c_to_a
+    links = [link("r1", "r2", truth), link("r1", "r3", c_to_a), link("r2", "r3", c_to_b)]
+    cache = LayerCache()
+
+    def rebuild() -> tuple[int, Component]:
+        warps = cache.warps
+        (warm,) = build_components(maps, links, layers=cache)
+        assert same_maps([warm], build_components(maps, links))
+        return cache.warps - warps, warm
+
+    assert rebuild()[0] == 2
+    raw = build_components(maps, links)  # the solve's own placements, for the next check
+    links[2] = link("r2", "r3", rigid_matrix(1e-9, 1e-7, -1e-7) @ c_to_b)
+    warps, comp = rebuild()
+    assert warps == 0
+    assert all(np.array_equal(comp.transforms[r], raw[0].transforms[r]) for r in maps)
+
+    links[2] = link("r2", "r3", rigid_matrix(0.0, 1.5, 0.0) @ c_to_b)
+    warps, comp = rebuild()
+    assert warps == 2 and not np.array_equal(comp.transforms["r2"], raw[0].transforms["r2"])

@@ -59,7 +59,9 @@ def test_component_fuses_local_maps_in_a_fixed_order(halves: tuple) -> None:
     assert comp.anchor == "r1" and comp.members == ("r1", "r2")
     assert comp.versions == {"r1": 7, "r2": 4}
     # Exactly one fusion of the two local maps: never a fused map fused again.
-    direct = fuse_layers(a, [warp_layer(b, truth, np.diag([0.2, 0.2, 1e-5]))])
+    # ... at the placement snapped from the link (agent.placement), which is the link's
+    np.testing.assert_allclose(comp.transforms["r2"], truth, atol=1 / 64)
+    direct = fuse_layers(a, [warp_layer(b, comp.transforms["r2"], comp.covariances["r2"])])
     np.testing.assert_array_equal(comp.grid.logodds, direct.logodds)
     assert comp.digest == map_digest(direct)
 
@@ -100,7 +102,7 @@ def test_a_failing_blur_falls_back_to_plain_fusion_the_same_everywhere(halves: t
 
     (comp,) = build_components({"r1": (1, a), "r2": (1, b)}, [link("r1", "r2", truth)], fragile)
     assert comp.unblurred == ("r2",)
-    assert comp.digest == map_digest(fuse_maps(a, b, truth, np.zeros((3, 3))))
+    assert comp.digest == map_digest(fuse_maps(a, b, comp.transforms["r2"], np.zeros((3, 3))))
 
 
 def test_composed_covariance_matches_monte_carlo_along_a_reversed_chain() -> None:
@@ -169,7 +171,7 @@ def test_a_wrong_link_on_cycles_is_dropped_and_the_global_map_is_the_right_one(
     assert comp.used == tuple(ln.pair for ln in good if ln.pair != ("r2", "r3"))
     (clean,) = build_components(maps, [ln for ln in good if ln.pair != ("r2", "r3")])
     assert comp.digest == clean.digest
-    np.testing.assert_allclose(comp.transforms["r4"], place["r4"], atol=1e-6)
+    np.testing.assert_allclose(comp.transforms["r4"], place["r4"], atol=1 / 64)  # snapped
 
 
 def test_a_link_that_is_not_rigid_is_left_out_not_fatal() -> None:

@@ -25,7 +25,8 @@ def test_the_command_writes_its_tables(shared: Path, tmp_path: Path) -> None:
     assert main([*args, "--out", str(tmp_path)]) == 0
     (row,) = json.loads((tmp_path / "globalmap.json").read_text())
     assert (row["log"], row["robots"], row["members"]) == ("intel", 3, 3)
-    assert set(row["ratio_to_cold"]) == {"in_turn", "cold", "new_version", "unchanged"}
+    assert set(row["ratio_to_cold"]) == {"in_turn", "cold", "new_version", "unchanged", "re_solved"}
+    assert row["re_solved_warps"] == 0  # a re-solve by a hair re-warps nobody
     assert row["layers_mb"] > 0
     table = (tmp_path / "globalmap.md").read_text()
     assert "`python3 -m bench globalmap --robots 3 --logs intel --repeat 1`" in table
