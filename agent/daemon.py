@@ -157,6 +157,7 @@ class Agent:
             self.counters,
         )
         self._status_bytes = b"{}"
+        self._status_body = b""
         self.session: zenoh.Session | None = None  # while run() serves
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._source_error: str | None = None  # the last one logged
@@ -284,7 +285,13 @@ class Agent:
         )  # fmt: skip
         with self._lock:
             status = self.node.status(_now(), host)
-        self._status_bytes = json.dumps(status).encode()
+        stamp = status.pop("time")
+        body = json.dumps(status).encode()
+        if body == self._status_body:
+            return  # only the clock moved: readers see a change the moment one happens
+        self._status_body = body
+        # The time first, spliced: the rest is the body compared above, encoded once.
+        self._status_bytes = b'{"time": ' + json.dumps(stamp).encode() + b", " + body[1:]
         try:
             self.state.save_status(self._status_bytes)
         except OSError as exc:

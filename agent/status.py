@@ -6,6 +6,7 @@ and ``bench/`` read the ``status.json`` each agent writes.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
@@ -15,6 +16,8 @@ from agent.globalmap import Component
 from agent.links import LinkRecord
 from agent.trust import STATES
 from pgvd.grid import heading
+
+_Halves = tuple[dict[str, object], dict[str, object]]
 
 
 @dataclass(frozen=True)
@@ -44,8 +47,25 @@ def robots_json(
 
 def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]:
     """A link as the status shows it, with its rotation in degrees."""
+    head, tail = _record_json(rec)
+    # False for a link of older epochs that stands in while the current one is computed.
+    return {**head, "current": rec.current(versions), **tail}
+
+
+#: ``id(record) -> (weak reference, its JSON halves)``: a record never changes, and every
+#: status write shows every link held (about 120 at 16 robots, 190 writes per agent).
+_RECORD_JSON: dict[int, tuple[weakref.ref[LinkRecord], _Halves]] = {}
+
+
+def _record_json(rec: LinkRecord) -> _Halves:
+    """What :func:`link_json` shows of ``rec`` before and after ``current``, made once per
+    record while it lives."""
+    key = id(rec)
+    held = _RECORD_JSON.get(key)
+    if held is not None and held[0]() is rec:
+        return held[1]
     psi = float(np.degrees(heading(rec.matrix)))
-    return {
+    head = {
         "a": rec.a,
         "version_a": rec.version_a,
         "b": rec.b,
@@ -55,8 +75,8 @@ def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]
         "rotation_deg": round(psi, 3),
         "matrix": rec.matrix.tolist(),
         "decided_by": rec.decided_by,
-        # False for a link of older epochs that stands in while the current one is computed.
-        "current": rec.current(versions),
+    }
+    tail = {
         # the lifecycle (agent.trust): accepted and confirmed links enter the global map
         "state": rec.state,
         "margin": None if rec.margin is None else round(rec.margin, 4),
@@ -65,6 +85,14 @@ def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]
         "first_version_a": rec.first_a,
         "first_version_b": rec.first_b,
     }
+
+    def forget(ref: weakref.ref[LinkRecord]) -> None:
+        # Only this record's entry: its id may already name a newer record's.
+        if _RECORD_JSON.get(key, (None,))[0] is ref:
+            del _RECORD_JSON[key]
+
+    _RECORD_JSON[key] = (weakref.ref(rec, forget), (head, tail))
+    return head, tail
 
 
 def link_states(records: Iterable[LinkRecord], versions: Mapping[str, int]) -> dict[str, list[str]]:
