@@ -37,7 +37,7 @@ import zenoh
 from agent import actions as act
 from agent.failpoints import failpoint
 from agent.globalmap import Component, FuseFn
-from agent.inbox import MAX_BYTES, Inbox, map_tag, offer_or_drop
+from agent.inbox import MAX_BYTES, Inbox, held_already, map_tag, offer_or_drop
 from agent.memory import fix_mmap_threshold
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
@@ -422,10 +422,12 @@ class Agent:
         """The receiving thread: decode each queued message outside the core's lock, then
         feed it to the core, until ``halt`` is set."""
         while not halt.is_set():
-            item = self.inbox.get(timeout=0.1)
-            if item is None:
+            got = self.inbox.get_tagged(timeout=0.1)
+            if got is None:
                 continue
-            _, key, data = item
+            (_, key, data), tag = got
+            if held_already(tag, self.opts.robot, self.node.book.version):
+                continue  # the core would decode it to find nothing new
             try:
                 msg = self.node.read(key, data)
                 if halt.is_set():  # a decode outlasted the shutdown: the session may be gone
