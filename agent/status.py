@@ -7,8 +7,9 @@ and ``bench/`` read the ``status.json`` each agent writes.
 from __future__ import annotations
 
 import weakref
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from agent.trust import STATES
 from pgvd.grid import heading
 
 _Halves = tuple[dict[str, object], dict[str, object]]
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -95,14 +97,53 @@ def _record_json(rec: LinkRecord) -> _Halves:
     return head, tail
 
 
-def link_states(records: Iterable[LinkRecord], versions: Mapping[str, int]) -> dict[str, list[str]]:
-    """The pairs, ``a/b``, of the links of the current epochs of ``versions`` by lifecycle
-    state (every state listed): an older epoch's link standing in is in ``links`` only."""
+class _LastCall:
+    """``view(records, versions)`` remembered for the last records (by identity, in order)
+    and versions it was called with: between two status writes the links held mostly stay
+    the same records, while the status is written every second and at every new global map.
+    The result is shared between the calls that hit it, so it is never to be changed."""
+
+    def __init__(self, view: Callable[[Sequence[LinkRecord], Mapping[str, int]], _T]) -> None:
+        self._view = view
+        self._last: tuple[list[LinkRecord], dict[str, int], _T] | None = None
+
+    def __call__(self, records: Sequence[LinkRecord], versions: Mapping[str, int]) -> _T:
+        last = self._last  # one read: another thread may replace it meanwhile
+        if (
+            last is not None
+            and len(last[0]) == len(records)
+            and all(a is b for a, b in zip(last[0], records, strict=True))
+            and last[1] == versions
+        ):
+            return last[2]
+        out = self._view(records, versions)
+        self._last = (list(records), dict(versions), out)
+        return out
+
+
+def _links_json(
+    records: Sequence[LinkRecord], versions: Mapping[str, int]
+) -> list[dict[str, object]]:
+    return [link_json(rec, versions) for rec in records]
+
+
+#: ``[link_json(rec, versions) for rec in records]``, made anew only when they changed.
+links_json = _LastCall(_links_json)
+
+
+def _link_states(
+    records: Sequence[LinkRecord], versions: Mapping[str, int]
+) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {state: [] for state in STATES}
     for rec in records:
         if rec.current(versions):
             out[rec.state].append(f"{rec.a}/{rec.b}")
     return out
+
+
+#: The pairs, ``a/b``, of the links of the current epochs of ``versions`` by lifecycle state
+#: (every state listed): an older epoch's link standing in is in ``links`` only.
+link_states = _LastCall(_link_states)
 
 
 def component_json(comp: Component) -> dict[str, object]:

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from agent.cli import main
 from agent.cli.status import format_table
 from agent.links import LinkRecord
-from agent.status import link_json
+from agent.status import link_json, link_states, links_json
 from agent.status_reply import MAX_STATUS_BYTES, check_status, read_status
 from protocol.auth import seal
 
@@ -179,3 +179,21 @@ def test_link_json_of_a_held_record_follows_the_versions() -> None:
     assert abs(now["rotation_deg"]) == 90.0
     twin = LinkRecord("r1", V7, "r2", V3, True, turn.copy(), np.eye(3) * 0.1, 0.9, "r1")
     assert link_json(twin, {"r1": V7, "r2": V3}) == now
+
+
+def test_the_links_of_a_status_are_remade_only_when_records_or_versions_change() -> None:
+    """The list of the last call stands while the same records and versions come again; an
+    equal record made anew, or a newer version, makes it anew, with the same content."""
+    recs = [
+        LinkRecord("r1", V7, b, V3, True, np.eye(3), np.eye(3) * 0.1, 0.9, "r1")
+        for b in ("r2", "r3")
+    ]
+    versions = {"r1": V7, "r2": V3, "r3": V3}
+    first = links_json(recs, versions)
+    assert links_json(list(recs), dict(versions)) is first
+    assert first == [link_json(rec, versions) for rec in recs]
+    anew = [recs[0], LinkRecord("r1", V7, "r3", V3, True, np.eye(3), np.eye(3) * 0.1, 0.9, "r1")]
+    assert links_json(anew, versions) == first
+    newer = {**versions, "r3": V3 + (1 << 31)}
+    assert [link["current"] for link in links_json(anew, newer)] == [True, False]
+    assert link_states(anew, newer)["accepted"] == ["r1/r2"]
