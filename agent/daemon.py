@@ -37,7 +37,7 @@ import zenoh
 from agent import actions as act
 from agent.failpoints import failpoint
 from agent.globalmap import Component, FuseFn
-from agent.inbox import MAX_BYTES, Inbox, map_tag, offer_or_drop
+from agent.inbox import MAX_BYTES, Inbox, held_already, map_tag, offer_or_drop
 from agent.memory import fix_mmap_threshold
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.outputs import OutputOptions, Outputs
@@ -157,6 +157,7 @@ class Agent:
             self.counters,
         )
         self._status_bytes = b"{}"
+        self._status_body = b""
         self.session: zenoh.Session | None = None  # while run() serves
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._source_error: str | None = None  # the last one logged
@@ -284,7 +285,13 @@ class Agent:
         )  # fmt: skip
         with self._lock:
             status = self.node.status(_now(), host)
-        self._status_bytes = json.dumps(status).encode()
+        stamp = status.pop("time")
+        body = json.dumps(status).encode()
+        if body == self._status_body:
+            return  # only the clock moved: readers see a change the moment one happens
+        self._status_body = body
+        # The time first, spliced: the rest is the body compared above, encoded once.
+        self._status_bytes = b'{"time": ' + json.dumps(stamp).encode() + b", " + body[1:]
         try:
             self.state.save_status(self._status_bytes)
         except OSError as exc:
@@ -415,10 +422,12 @@ class Agent:
         """The receiving thread: decode each queued message outside the core's lock, then
         feed it to the core, until ``halt`` is set."""
         while not halt.is_set():
-            item = self.inbox.get(timeout=0.1)
-            if item is None:
+            got = self.inbox.get_tagged(timeout=0.1)
+            if got is None:
                 continue
-            _, key, data = item
+            (_, key, data), tag = got
+            if held_already(tag, self.opts.robot, self.node.book.version):
+                continue  # the core would decode it to find nothing new
             try:
                 msg = self.node.read(key, data)
                 if halt.is_set():  # a decode outlasted the shutdown: the session may be gone

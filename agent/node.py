@@ -66,8 +66,8 @@ from agent.status import (
     component_json,
     global_json,
     globalmap_line,
-    link_json,
     link_states,
+    links_json,
     robots_json,
     versions_of,
 )
@@ -395,7 +395,7 @@ class FleetNode:
             "own_version": versions.get(self.me),
             "last_update": self.last_update,
             "robots": robots_json(self.me, versions, self.alive),
-            "links": [link_json(rec, versions) for rec in links],
+            "links": links_json(links, versions),
             "link_states": link_states(links, versions),
             "components": [component_json(c) for c in comps],
             "global": global_json(component_of(comps, self.me)),

@@ -6,8 +6,10 @@ and ``bench/`` read the ``status.json`` each agent writes.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import weakref
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -15,6 +17,9 @@ from agent.globalmap import Component
 from agent.links import LinkRecord
 from agent.trust import STATES
 from pgvd.grid import heading
+
+_Halves = tuple[dict[str, object], dict[str, object]]
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -44,8 +49,25 @@ def robots_json(
 
 def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]:
     """A link as the status shows it, with its rotation in degrees."""
+    head, tail = _record_json(rec)
+    # False for a link of older epochs that stands in while the current one is computed.
+    return {**head, "current": rec.current(versions), **tail}
+
+
+#: ``id(record) -> (weak reference, its JSON halves)``: a record never changes, and every
+#: status write shows every link held (about 120 at 16 robots, 190 writes per agent).
+_RECORD_JSON: dict[int, tuple[weakref.ref[LinkRecord], _Halves]] = {}
+
+
+def _record_json(rec: LinkRecord) -> _Halves:
+    """What :func:`link_json` shows of ``rec`` before and after ``current``, made once per
+    record while it lives."""
+    key = id(rec)
+    held = _RECORD_JSON.get(key)
+    if held is not None and held[0]() is rec:
+        return held[1]
     psi = float(np.degrees(heading(rec.matrix)))
-    return {
+    head = {
         "a": rec.a,
         "version_a": rec.version_a,
         "b": rec.b,
@@ -55,8 +77,8 @@ def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]
         "rotation_deg": round(psi, 3),
         "matrix": rec.matrix.tolist(),
         "decided_by": rec.decided_by,
-        # False for a link of older epochs that stands in while the current one is computed.
-        "current": rec.current(versions),
+    }
+    tail = {
         # the lifecycle (agent.trust): accepted and confirmed links enter the global map
         "state": rec.state,
         "margin": None if rec.margin is None else round(rec.margin, 4),
@@ -66,15 +88,62 @@ def link_json(rec: LinkRecord, versions: Mapping[str, int]) -> dict[str, object]
         "first_version_b": rec.first_b,
     }
 
+    def forget(ref: weakref.ref[LinkRecord]) -> None:
+        # Only this record's entry: its id may already name a newer record's.
+        if _RECORD_JSON.get(key, (None,))[0] is ref:
+            del _RECORD_JSON[key]
 
-def link_states(records: Iterable[LinkRecord], versions: Mapping[str, int]) -> dict[str, list[str]]:
-    """The pairs, ``a/b``, of the links of the current epochs of ``versions`` by lifecycle
-    state (every state listed): an older epoch's link standing in is in ``links`` only."""
+    _RECORD_JSON[key] = (weakref.ref(rec, forget), (head, tail))
+    return head, tail
+
+
+class _LastCall:
+    """``view(records, versions)`` remembered for the last records (by identity, in order)
+    and versions it was called with: between two status writes the links held mostly stay
+    the same records, while the status is written every second and at every new global map.
+    The result is shared between the calls that hit it, so it is never to be changed."""
+
+    def __init__(self, view: Callable[[Sequence[LinkRecord], Mapping[str, int]], _T]) -> None:
+        self._view = view
+        self._last: tuple[list[LinkRecord], dict[str, int], _T] | None = None
+
+    def __call__(self, records: Sequence[LinkRecord], versions: Mapping[str, int]) -> _T:
+        last = self._last  # one read: another thread may replace it meanwhile
+        if (
+            last is not None
+            and len(last[0]) == len(records)
+            and all(a is b for a, b in zip(last[0], records, strict=True))
+            and last[1] == versions
+        ):
+            return last[2]
+        out = self._view(records, versions)
+        self._last = (list(records), dict(versions), out)
+        return out
+
+
+def _links_json(
+    records: Sequence[LinkRecord], versions: Mapping[str, int]
+) -> list[dict[str, object]]:
+    return [link_json(rec, versions) for rec in records]
+
+
+#: ``[link_json(rec, versions) for rec in records]``, made anew only when they changed.
+links_json = _LastCall(_links_json)
+
+
+def _link_states(
+    records: Sequence[LinkRecord], versions: Mapping[str, int]
+) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {state: [] for state in STATES}
     for rec in records:
         if rec.current(versions):
             out[rec.state].append(f"{rec.a}/{rec.b}")
     return out
+
+
+#: The pairs, ``a/b``, of the links of the current epochs of ``versions`` by lifecycle state
+#: (every state listed): an older epoch's link standing in is in ``links`` only.
+link_states = _LastCall(_link_states)
 
 
 def component_json(comp: Component) -> dict[str, object]:

@@ -455,7 +455,7 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
             reason="schema",
         )
     crcs = np.frombuffer(packed, "<u4", offset=bitmap)
-    checksums = {int(i): int(c) for i, c in zip(listed, crcs, strict=True)}
+    checksums = dict(zip(listed.tolist(), crcs.tolist(), strict=True))
     return Manifest(fleet, robot, version, geometry, checksums, base_version, digest, first_epoch)
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from agent.counters import Counters
-from agent.inbox import ITEM_OVERHEAD, Inbox, MapTag, map_tag, offer_or_drop
+from agent.inbox import ITEM_OVERHEAD, Inbox, MapTag, held_already, map_tag, offer_or_drop
 from agent.keys import FleetKeys
 from agent.wire import Inbound
 from pgvd.grid import Grid
@@ -167,3 +167,23 @@ def test_only_an_authentic_message_under_its_own_robots_key_supersedes(versions)
     for key, data in (("pgvd/lab/tiles/r2", forged[0]), ("pgvd/lab/tiles/r3", tiles2[0])):
         assert offer(inbox, counters, key, data)
     assert len(inbox) == 3 and counters.snapshot()["drops"] == {}
+
+
+def test_only_a_peers_message_of_the_version_held_is_left_undecoded(versions) -> None:
+    """r2's re-announced v2 manifest, taken with its tag, is of the version held; a v1 tile
+    is older (the core counts it stale), and neither r2 as this robot nor an untagged
+    payload is skipped."""
+    (tiles1, _), (_, manifest2) = versions
+    inbox, counters = Inbox(), Counters()
+    assert offer(inbox, counters, "pgvd/lab/manifest/r2", manifest2)
+    assert inbox.offer(("message", "pgvd/lab/link/r2", b"not a map"))
+    (_, manifest), (_, untagged) = (inbox.get_tagged(0.0) for _ in range(2))
+    older = tag("pgvd/lab/tiles/r2", tiles1[0])
+    holding = {"r2": V2}.get
+    assert [held_already(t, "r1", holding) for t in (manifest, older, untagged)] == [
+        True,
+        False,
+        False,
+    ]
+    assert not held_already(manifest, "r2", holding)
+    assert not held_already(manifest, "r1", {}.get)

@@ -1,16 +1,20 @@
-"""``pgvd status`` formatting and its bad input (the live query is in the fleet tests)."""
+"""``pgvd status`` formatting and its bad input (the live query is in the fleet tests), and
+the links a status shows."""
 
 from __future__ import annotations
 
 import json
 import socket
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from agent.cli import main
 from agent.cli.status import format_table
+from agent.links import LinkRecord
+from agent.status import link_json, link_states, links_json
 from agent.status_reply import MAX_STATUS_BYTES, check_status, read_status
 from protocol.auth import seal
 
@@ -160,3 +164,36 @@ def test_table_shows_each_links_state_margin_and_reason_and_counts_them() -> Non
     ) in text, text
     with pytest.raises(ValueError, match=r"links\[0\].margin has the wrong type"):
         check_status({"links": [{**candidate, "margin": "high"}]})
+
+
+def test_link_json_of_a_held_record_follows_the_versions() -> None:
+    """A record's JSON is made once, but ``current`` is the versions' of each call, and an
+    equal record made anew shows the same."""
+    turn = np.array([[0.0, -1.0, 5.0], [1.0, 0.0, 2.0], [0.0, 0.0, 1.0]])
+    rec = LinkRecord("r1", V7, "r2", V3, True, turn, np.eye(3) * 0.1, 0.9, "r1")
+    now = link_json(rec, {"r1": V7, "r2": V3})
+    later = link_json(rec, {"r1": V7, "r2": V3 + (1 << 31)})
+    assert (now["current"], later["current"]) == (True, False)
+    assert {**now, "current": False} == later
+    assert list(now)[8:11] == ["decided_by", "current", "state"]
+    assert abs(now["rotation_deg"]) == 90.0
+    twin = LinkRecord("r1", V7, "r2", V3, True, turn.copy(), np.eye(3) * 0.1, 0.9, "r1")
+    assert link_json(twin, {"r1": V7, "r2": V3}) == now
+
+
+def test_the_links_of_a_status_are_remade_only_when_records_or_versions_change() -> None:
+    """The list of the last call stands while the same records and versions come again; an
+    equal record made anew, or a newer version, makes it anew, with the same content."""
+    recs = [
+        LinkRecord("r1", V7, b, V3, True, np.eye(3), np.eye(3) * 0.1, 0.9, "r1")
+        for b in ("r2", "r3")
+    ]
+    versions = {"r1": V7, "r2": V3, "r3": V3}
+    first = links_json(recs, versions)
+    assert links_json(list(recs), dict(versions)) is first
+    assert first == [link_json(rec, versions) for rec in recs]
+    anew = [recs[0], LinkRecord("r1", V7, "r3", V3, True, np.eye(3), np.eye(3) * 0.1, 0.9, "r1")]
+    assert links_json(anew, versions) == first
+    newer = {**versions, "r3": V3 + (1 << 31)}
+    assert [link["current"] for link in links_json(anew, newer)] == [True, False]
+    assert link_states(anew, newer)["accepted"] == ["r1/r2"]

@@ -236,3 +236,17 @@ def test_truncated_stream_unknown_encoding_and_codec():
         unpack_layout(5, bytes(64), (8, 8), 1)
     with pytest.raises(ProtocolError, match="unknown compression codec 9"):
         decompress(9, deflate(bytes(64)), [(RAW, 64, (8, 8))])
+
+
+@settings(max_examples=100)
+@given(st.lists(st.tuples(st.integers(0, arith._CONTEXTS - 1), st.booleans()), max_size=3000))
+def test_arithmetic_decoder_reads_every_bit_the_encoder_coded(steps):
+    """Bit by bit, any context and any run (long runs of one context pass the rescaling):
+    the decoder's model is the encoder's."""
+    enc = arith._Encoder()
+    for ctx, bit in steps:
+        enc.bit(ctx, int(bit))
+    dec = arith._Decoder(enc.finish())
+    assert [dec.bit(ctx) for ctx, _ in steps] == [int(bit) for _, bit in steps]
+    dec.finish()
+    assert (dec.zeros, dec.ones) == (enc.zeros, enc.ones)

@@ -113,3 +113,20 @@ def test_any_other_digest_is_refused_by_the_constructor(digest):
     with pytest.raises(ProtocolError) as err:
         Manifest("f", "r", 2, GEOMETRY, {}, base_version=1, digest=digest)
     assert err.value.reason in ("schema", "value")
+
+
+@given(
+    st.dictionaries(st.integers(-3, GEOMETRY.n_tiles + 3), st.integers(-3, 2**32 + 3), max_size=12)
+)
+def test_manifest_checksums_read_alike_as_ints_and_as_numpy_ints(checksums):
+    """Plain ints (a decoded manifest's) are checked in bulk, numpy ints one by one: the
+    same manifest, or the same refusal of the first bad tile."""
+
+    def build(table):
+        try:
+            return Manifest("f", "r", 2, GEOMETRY, table)
+        except ProtocolError as exc:
+            return (exc.reason, str(exc))
+
+    as_numpy = {np.int64(k): np.int64(v) for k, v in checksums.items()}
+    assert build(checksums) == build(as_numpy)
