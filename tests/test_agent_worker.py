@@ -632,9 +632,9 @@ def test_a_recent_solution_keeps_predicting_while_it_joins_the_pair(monkeypatch)
     solves: list[int] = []
     solve = worker.solve
 
-    def counting(maps, links, *args):
+    def counting(maps, links, *args, **kwargs):
         solves.append(len(links))  # the accepted links solved over
-        return solve(maps, links, *args)
+        return solve(maps, links, *args, **kwargs)
 
     monkeypatch.setattr(worker, "solve", counting)
     h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
