@@ -5,7 +5,9 @@ links build the same global maps, bit for bit.  Hence everything here is ordered
 
 - robots are placed from all *accepted* links at once by the robust pose graph of
   :func:`pgvd.posegraph.solve`, which drops links inconsistent around a cycle (GNC-TLS)
-  and sorts its inputs, so the order links arrive in does not matter;
+  and sorts its inputs, so the order links arrive in does not matter; of a lone
+  inconsistent cycle it leaves out the link of lowest margin
+  (:func:`agent.trust.link_strength`), which the link records carry to every agent;
 - components are the connected components of the links it kept, each anchored at its
   robot whose first epoch is oldest, ties by robot id (:func:`anchor_rank`), whose pixel
   frame is the component's frame: a robot joining or returning never moves the frame of
@@ -40,6 +42,7 @@ import numpy as np
 from agent.fusecache import LayerCache
 from agent.links import LinkRecord
 from agent.placement import snap_placement
+from agent.trust import link_strength
 from pgvd.fusion import fuse_layers
 from pgvd.grid import Grid, relative_matrix
 from pgvd.posegraph import PoseGraphParams, Rank, link_problem, solve
@@ -184,7 +187,7 @@ def build_components(
     layers = LayerCache() if layers is None else layers
     accepted = accepted_links(maps, links)
     usable = usable_links(maps, accepted, sound)
-    sol = solve(maps, usable, params, anchor_rank(firsts or {}))
+    sol = solve(maps, usable, params, anchor_rank(firsts or {}), link_strength)
     # The one place the solve's placements become the fusion's (and the status's and TF's):
     # snapped, so a re-solve that moved a robot by a rounding error keeps its layer.
     snapped = {

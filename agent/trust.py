@@ -48,10 +48,21 @@ simply accepted or rejected on its first decision:
   accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the same
   pose stays confirmed.
 
-  What this does not stop (fleet bench, development buildings): a look-alike that searches
-  accept on two epochs (27 m off, at 0.63 and 0.62, shown wrong for 2.4 s), and a near miss
-  (0.4 deg, 3.3 cells) that the check carrying its search onto a just-begun newer epoch
-  converges on again from the same pose.  A newer epoch is more map, but not always enough.
+  A check carrying a search's provisional accept onto the maps of a newer epoch
+  (:func:`carried_verdict`) starts from that accept's own pose, so it is no evidence for
+  it: on maps barely grown it converged on a near miss (0.4 deg, 3.3 cells) again and
+  confirmed it.  Only an accept at or above :data:`HIGH_BAR` is carried; a provisional one
+  waits for the newer epoch's own decision (a search, or a check from the chain's
+  prediction).
+
+  A look-alike that searches accept on two epochs (27 m off, at 0.63 and 0.62) is
+  confirmed all the same.  Once right links close a cycle around it, the cycle is
+  inconsistent, and a lone cycle cannot say which link is wrong: the pose graph's GNC drops
+  the one its covariances leave with the largest residual, and kept the look-alike over a
+  right link of margin 0.82.  So links are graded by their margin (:func:`link_strength`)
+  and an inconsistent cycle's weakest link is the one left out
+  (:func:`pgvd.posegraph.solve`'s ``strength``), on every agent alike: the margin travels
+  in the link record.
 - **rejected**: no pose, a margin below the grey zone, or a candidate that a re-check
   contradicted (margin below :data:`GREY_FLOOR`, or the pose moved beyond the hold or out
   of the check's basin).
@@ -239,28 +250,30 @@ def first_verdict(
     return Verdict(REJECTED, reason or f"margin {m} below the grey zone")
 
 
-def carried_verdict(
-    found_margin: float | None,
-    accepted: bool,
-    margin: float | None,
-    held: bool,
-    min_margin: float,
-) -> Verdict | None:
-    """The state of a search's accepted pose (of margin ``found_margin``) checked on newer
-    versions of its maps, or None: nothing is taken.
+def link_strength(link: object) -> float:
+    """How far a link's pose is trusted where a cycle contradicts it: its margin (the
+    merge's acceptance statistic, :mod:`pgvd.decision`), ``-inf`` when none was scored (an
+    unscored accept cannot outrank a scored one; between unscored ones the pose graph's own
+    choice stands)."""
+    margin = getattr(link, "margin", None)
+    return float(margin) if margin is not None and np.isfinite(margin) else -np.inf
 
-    ``accepted``, ``margin``, ``held``: the check's outcome, its margin and whether its
-    refined pose is the search's within the hold.  A provisional accept is confirmed only
-    where the check holds at its pose: that is its re-check.
-    """
+
+def carries(found_margin: float | None, min_margin: float) -> bool:
+    """Whether a search's accept of margin ``found_margin`` may be carried onto the maps
+    of a newer epoch by a check from its own pose: only one at or above :data:`HIGH_BAR`.
+    For a provisional accept such a check is no confirmation (it starts from the pose it
+    would confirm, see the module docstring); the newer epoch's own decision is."""
+    return searched_accept(found_margin, min_margin).state == ACCEPTED
+
+
+def carried_verdict(accepted: bool, margin: float | None, min_margin: float) -> Verdict | None:
+    """The state of a search's accept (one that :func:`carries`) checked on newer versions
+    of its maps, or None: nothing is taken.  ``accepted``, ``margin``: the check's outcome
+    and its margin."""
     if not accepted:
         return None
-    m = _margin_text(margin)
-    if searched_accept(found_margin, min_margin).state == ACCEPTED:
-        return Verdict(ACCEPTED, f"margin {m} clears {min_margin}")
-    if held:
-        return Verdict(CONFIRMED, f"provisional accept holds on a newer epoch: margin {m}")
-    return None
+    return Verdict(ACCEPTED, f"margin {_margin_text(margin)} clears {min_margin}")
 
 
 def recheck_verdict(

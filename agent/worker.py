@@ -80,10 +80,12 @@ from agent.trust import (
     QUIET_S,
     Verdict,
     carried_verdict,
+    carries,
     clean_reason,
     first_verdict,
     holds,
     in_grey_zone,
+    link_strength,
     provisional,
     quiet_verdict,
     recheck_verdict,
@@ -389,9 +391,11 @@ def _rejection_stands(joins: Joins, links: list[LinkRecord], a: str, b: str) -> 
 def placements(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Solution:
     """The robust pose graph (:func:`pgvd.posegraph.solve`, GNC-TLS) of the accepted links.
 
-    A link inconsistent around a cycle is not kept, so it does not enter a prediction.
+    A link inconsistent around a cycle is not kept, so it does not enter a prediction; of a
+    lone inconsistent cycle, the link of lowest margin leaves (:func:`agent.trust.link_strength`),
+    as in the global map.
     """
-    return solve(maps, usable_links(maps, links))
+    return solve(maps, usable_links(maps, links), strength=link_strength)
 
 
 class Chains:
@@ -427,7 +431,7 @@ class Chains:
         which of them a rejection may rest)."""
         if self._solved is None:
             clock = _Clock.start()
-            sol = solve(self.maps, self.usable)
+            sol = solve(self.maps, self.usable, strength=link_strength)
             kept = [ln for ln, u in zip(self.usable, sol.used, strict=True) if u]
             self._solved = (sol, kept)
             log.debug("solved %d links: %.2f s, %.2f s CPU", len(self.usable), *clock.elapsed())
@@ -963,12 +967,13 @@ class FusionWorker:
         source's canvas, so the transform found is a prediction for the new maps as good
         as a chain's, and a check (tens of milliseconds) may confirm it.  Only a
         confirmation is taken; anything else leaves the pair to its next turn.  A search's
-        provisional accept (below :data:`agent.trust.HIGH_BAR`) is confirmed only where the
-        check holds at its pose: the maps are of a newer epoch than the search's, as a
-        confirmation needs (:mod:`agent.trust`).
+        provisional accept (below :data:`agent.trust.HIGH_BAR`) is not carried
+        (:func:`agent.trust.carries`): a check from its own pose is no evidence for it.
         """
         held_a, held_b = self.book.map_of(a), self.book.map_of(b)
         if self.check is None or held_a is None or held_b is None:
+            return
+        if not carries(found.margin, self.min_margin):
             return
         (na, grid_a), (nb, grid_b) = held_a, held_b
         key = (a, epoch_of(na), b, epoch_of(nb))
@@ -983,8 +988,7 @@ class FusionWorker:
             return
         if res is None:
             return
-        held = holds(found.matrix, res.matrix, grid_b)
-        verdict = carried_verdict(found.margin, res.accepted, res.margin, held, self.min_margin)
+        verdict = carried_verdict(res.accepted, res.margin, self.min_margin)
         if verdict is None:
             return
         self.counters.add("checks_confirmed")

@@ -29,7 +29,11 @@ wrong: the link left with the largest residual by the least squares is dropped, 
 need not be the wrong one.  A wrong link is identified where it lies on several cycles
 whose other links agree.  After GNC, rejected links are offered back one at a time
 (smallest residual first) and kept where every link used stays under the threshold, so
-the set used is maximal: no rejected link can be added without breaking a cycle.
+the set used is maximal: no rejected link can be added without breaking a cycle.  Where
+the caller grades its links (``strength``, e.g. the merge's margin), a lone cycle's
+choice is made by that grade instead: a rejected link stronger than a kept one takes its
+place where the set stays consistent (:func:`_stronger_kept`), so the weakest link of an
+inconsistent cycle is the one left out, whatever the covariances weigh.
 
 A link lying on no cycle (a bridge) has zero residual and is never rejected, so a graph
 without cycles comes out exactly as the composition along its tree
@@ -453,6 +457,30 @@ def _maximal(n: int, e: _Edges, keep: np.ndarray, params: PoseGraphParams) -> np
     return keep
 
 
+def _stronger_kept(
+    n: int, e: _Edges, keep: np.ndarray, grade: np.ndarray, params: PoseGraphParams
+) -> np.ndarray:
+    """Swap rejected links, strongest first, for kept ones of lower ``grade``, weakest
+    first, wherever the swap leaves the set consistent.
+
+    A lone inconsistent cycle is consistent without any one of its links, and GNC drops
+    the one the covariances leave with the largest residual: a wrong link with a narrow
+    covariance pushes a right one out.  The grades decide instead.  Each swap trades a
+    link for a stronger one, so the swaps end; ties go by the links' sorted order.
+    """
+    keep = keep.copy()
+    for d in sorted(np.flatnonzero(~keep), key=lambda k: (-grade[k], k)):
+        for k in sorted(np.flatnonzero(keep), key=lambda k: (grade[k], k)):
+            if grade[k] >= grade[d]:
+                break
+            trial = keep.copy()
+            trial[k], trial[d] = False, True
+            if _consistent(n, e, trial, params):
+                keep = trial
+                break
+    return keep
+
+
 def _sandwich_covariances(x: np.ndarray, e: _Edges) -> np.ndarray:
     """First-order covariance of the placements, ``A Sigma A^T`` with
     ``A = H^-1 J^T Omega`` the estimator's sensitivity to each link, ``Sigma`` the
@@ -568,6 +596,7 @@ def solve(
     links: Sequence[Link],
     params: PoseGraphParams | None = None,
     rank: Rank = _lowest_id,
+    strength: Callable[[Link], float] | None = None,
 ) -> Solution:
     """Place every node in its component's anchor frame from all links at once.
 
@@ -580,6 +609,9 @@ def solve(
     rank : each component is anchored at its node of least ``(rank(node), node)``
         (:func:`components`); by default at its lowest id.  The placements and their
         covariances, eq. (4), are relative to that anchor.
+    strength : a grade of each link (higher: more trusted); where a cycle is inconsistent,
+        its weakest links are the ones left out (:func:`_stronger_kept`).  None: GNC's
+        choice stands.
 
     Returns
     -------
@@ -607,6 +639,9 @@ def solve(
             continue
         e = _prepare(comp, [ordered[k] for k in idx], params)
         inliers = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
+        if strength is not None and not inliers.all():
+            grade = np.array([strength(ordered[k]) for k in idx], dtype=np.float64)
+            inliers = _stronger_kept(len(comp), e, inliers, grade, params)
         keep[idx] = inliers
     kept = [ln for ln, k in zip(ordered, keep, strict=True) if k]
     final = components(node_list, [(ln.a, ln.b) for ln in kept], rank)

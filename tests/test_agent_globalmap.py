@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from agent.globalmap import build_components, map_digest
 from agent.links import LinkRecord
 from pgvd.fusion import fuse_layers, fuse_maps, warp_layer
 from pgvd.grid import Grid, rigid_matrix
-from pgvd.posegraph import compose_transforms
+from pgvd.posegraph import compose_transforms, solve
 
 
 def link(a: str, b: str, m: np.ndarray, score: float = 0.9, accepted: bool = True) -> LinkRecord:
@@ -143,6 +144,45 @@ def test_composed_covariance_matches_monte_carlo_along_a_reversed_chain() -> Non
     assert np.trace(covs["d"][:2, :2]) > naive + 2.0
 
 
+def rolled(g: Grid, dx: int, dy: int) -> tuple[Grid, np.ndarray]:
+    """A copy of ``g`` shifted by ``(dx, dy)`` cells, and the copy-px -> g-px matrix."""
+    # (x, y) of g is (x + dx, y + dy) of the copy: copy px -> g px is a shift back
+    return Grid(np.roll(g.logodds, (dy, dx), axis=(0, 1)), g.resolution, g.origin), (
+        rigid_matrix(0.0, -dx, -dy)
+    )
+
+
+def test_a_lone_inconsistent_cycle_drops_its_link_of_lowest_margin(halves: tuple) -> None:
+    """Three real maps on one triangle; the link of lowest margin is a look-alike 30 px and
+    10 deg off with a narrow covariance, the two right ones wide (the model-error term).
+    GNC alone keeps the look-alike and drops a right link; graded by margin, the look-alike
+    leaves, in any order, and the global map is the one without it."""
+    a, b, truth = halves
+    c, c_to_a = rolled(a, 7, 4)
+    place = {"r1": np.eye(3), "r2": truth, "r3": c_to_a}
+    maps = {"r1": (1, a), "r2": (1, b), "r3": (1, c)}
+    wide = np.diag([4.0, 4.0, 1e-3])
+
+    def graded(p: str, q: str, m: np.ndarray, cov: np.ndarray, margin: float) -> LinkRecord:
+        return replace(link(p, q, m), covariance=cov, margin=margin)
+
+    right = [
+        graded(p, q, np.linalg.inv(place[p]) @ place[q], wide, margin)
+        for (p, q), margin in ((("r1", "r3"), 0.85), (("r2", "r3"), 0.82))
+    ]
+    off = rigid_matrix(np.radians(10.0), 30.0, 0.0) @ truth
+    wrong = graded("r1", "r2", off, np.diag([0.2, 0.2, 1e-5]), 0.62)
+    plain = solve(maps, [wrong, *right])
+    assert plain.used[0] and not all(plain.used)  # the covariances alone keep the look-alike
+    outcomes = {
+        (comp.used, comp.rejected, comp.digest)
+        for order in itertools.permutations([wrong, *right])
+        for comp in build_components(maps, list(order))
+    }
+    (clean,) = build_components(maps, right)
+    assert outcomes == {((("r1", "r3"), ("r2", "r3")), (("r1", "r2"),), clean.digest)}
+
+
 def test_a_wrong_link_on_cycles_is_dropped_and_the_global_map_is_the_right_one(
     halves: tuple,
 ) -> None:
@@ -150,13 +190,6 @@ def test_a_wrong_link_on_cycles_is_dropped_and_the_global_map_is_the_right_one(
     link) is inconsistent with the three cycles it lies on, and the global map comes out
     bit for bit as if it had never been published."""
     a, b, truth = halves
-
-    def rolled(g: Grid, dx: int, dy: int) -> tuple[Grid, np.ndarray]:
-        # (x, y) of g is (x + dx, y + dy) of the copy: copy px -> g px is a shift back
-        return Grid(np.roll(g.logodds, (dy, dx), axis=(0, 1)), g.resolution, g.origin), (
-            rigid_matrix(0.0, -dx, -dy)
-        )
-
     c, c_to_a = rolled(a, 7, 4)
     d, d_to_b = rolled(b, -6, 3)
     place = {"r1": np.eye(3), "r2": truth, "r3": c_to_a, "r4": truth @ d_to_b}

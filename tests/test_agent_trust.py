@@ -59,11 +59,11 @@ def test_a_search_accept_below_the_high_bar_is_provisional_until_re_checked() ->
         True, 0.6, True, "", bar, trust.CANDIDATE, True, searched=True, standing=True
     )
     assert again.state == trust.CONFIRMED and "newer epoch" in again.reason
-    # carried forward: a check of the search's pose on maps of a newer epoch
-    assert trust.carried_verdict(0.6, True, 0.8, True, bar).state == trust.CONFIRMED
-    assert trust.carried_verdict(0.6, True, 0.8, False, bar) is None
-    assert trust.carried_verdict(high, True, 0.8, False, bar).state == trust.ACCEPTED
-    assert trust.carried_verdict(high, False, 0.3, True, bar) is None
+    # carried forward: a check from the search's own pose on maps of a newer epoch is no
+    # evidence for a provisional accept, so only an accept above the high bar is carried
+    assert not trust.carries(0.6, bar) and trust.carries(high, bar)
+    assert trust.carried_verdict(True, 0.8, bar).state == trust.ACCEPTED
+    assert trust.carried_verdict(False, 0.3, bar) is None
 
 
 def test_the_high_bar_is_where_the_development_bench_puts_1_bad_winner_in_1000() -> None:

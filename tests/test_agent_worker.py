@@ -632,9 +632,9 @@ def test_a_recent_solution_keeps_predicting_while_it_joins_the_pair(monkeypatch)
     solves: list[int] = []
     solve = worker.solve
 
-    def counting(maps, links, *args):
+    def counting(maps, links, *args, **kwargs):
         solves.append(len(links))  # the accepted links solved over
-        return solve(maps, links, *args)
+        return solve(maps, links, *args, **kwargs)
 
     monkeypatch.setattr(worker, "solve", counting)
     h = Checking("r1", Registration(True, np.eye(3), np.eye(3) * 0.1, 0.95))
@@ -949,3 +949,28 @@ def test_memoised_open_keys_are_a_fresh_computation_over_a_replay(seed: int) -> 
         fresh = set(snap.rechecks) | {k for k in snap.needed if chains.linked(k[0], k[2])}
         assert checkable == fresh
         assert opened == open_keys(snap.needed, fresh, ring, holding)
+
+
+@pytest.mark.parametrize(("margin", "carried"), [(0.6, False), (0.95, True)])
+def test_only_an_accept_above_the_high_bar_is_carried_onto_a_newer_epoch(
+    intel_pair, margin: float, carried: bool
+) -> None:
+    """Real maps; both start a new epoch while the search runs.  A provisional accept
+    (below the high bar) is not checked from its own pose on the new maps, which converged
+    on a near miss again and confirmed it: the newer epoch's own decision confirms it.  An
+    accept above the high bar is carried, as before."""
+    a, b, truth = intel_pair
+    h = Checking("r1", Registration(True, truth, np.eye(3) * 0.1, 0.9, margin=0.9))
+
+    def searched(grid_a: Grid, grid_b: Grid) -> Registration:
+        h.book.put_map("r1", V(2), a)  # the maps move on meanwhile
+        h.book.put_map("r2", V(2), b)
+        return Registration(True, truth, np.eye(3) * 0.1, 0.9, margin=margin)
+
+    h.worker.register = searched
+    h.book.put_map("r1", V(1), a)
+    h.book.put_map("r2", V(1), b)
+    assert h.worker.step(now=0.0)
+    newer = [ln for ln in h.links if ln.key == ("r1", 2, "r2", 2)]
+    assert len(h.checked) == int(carried)
+    assert [ln.state for ln in newer] == (["accepted"] if carried else [])
