@@ -378,6 +378,15 @@ class FleetNode:
 
     # ----------------------------------------------------------------- status
 
+    def _source_json(self, source: Mapping[str, object]) -> dict[str, object]:
+        """The source's status entry, ``done`` only once its last map is published: the
+        source reads done when its last scan is in, but that map waits for the change gate
+        and for its persistence, and a reader that saw ``done`` beside the version before
+        it took that one for the last (the demo's and benches' agreement did, and stopped
+        a fleet before its final maps were decided)."""
+        waiting = self._pending is not None or self._unsaved is not None
+        return {**source, "done": bool(source.get("done")) and not waiting}
+
     def status(self, now: Instant, host: HostFacts) -> dict[str, object]:
         """The JSON status: robots, versions, links, components, traffic, drops."""
         glob = self._global
@@ -391,7 +400,7 @@ class FleetNode:
             "pid": host.pid,
             "time": now.wall,
             "started": self.started,
-            "source": host.source,
+            "source": self._source_json(host.source),
             "own_version": versions.get(self.me),
             "last_update": self.last_update,
             "robots": robots_json(self.me, versions, self.alive),

@@ -617,3 +617,20 @@ def test_a_candidate_received_is_held_apart_in_the_status_and_served_with_its_st
     comp = component(versions, crops[0], "cd" * 32)
     r1.on_global(GlobalState([comp], True, T0 + 1.0), at(1.0))
     assert any(r.getMessage().startswith("globalmap anchor=r1 robots=") for r in caplog.records)
+
+
+def test_the_source_reads_done_only_once_its_last_map_is_published(crops) -> None:
+    """A source whose last scan is in says done, but its last map waits to be persisted:
+    a status that said done beside the version before it let the demo's agreement stop a
+    fleet before its final maps were decided."""
+    r1 = node("r1")
+    publish(r1, crops[0], 0.0)
+    done = HostFacts(pid=1, source={"kind": "carmen", "done": True}, merges=0,
+                     merge_seconds=0.0, inbox_messages=0, inbox_bytes=0)  # fmt: skip
+    (persist,) = r1.on_source(crops[1], at(1.0), final=True)
+    waiting = r1.status(at(1.1), done)
+    assert waiting["source"] == {"kind": "carmen", "done": False}
+    r1.on_persisted("r1", persist.stored.version, at(1.2))
+    published = r1.status(at(1.3), done)
+    assert published["source"]["done"] is True
+    assert published["own_version"] == persist.stored.version != waiting["own_version"]
