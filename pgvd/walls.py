@@ -124,13 +124,16 @@ class WallMap:
         h, w = table.shape
         px, py = points[:, 0], points[:, 1]
         # the cell at the lower corner of the point; the table's extra last row and
-        # column make its right and lower neighbours valid cells too
-        col = np.clip(np.floor(px), 0, w - 2).astype(np.intp)
-        row = np.clip(np.floor(py), 0, h - 2).astype(np.intp)
+        # column make its right and lower neighbours valid cells too.  Clipped to the
+        # table first, a coordinate is >= 0, where truncation is the floor
+        col = np.clip(px, 0, w - 2).astype(np.intp)
+        cell = np.clip(py, 0, h - 2).astype(np.intp)
+        cell *= w
+        cell += col
         # the four candidates of every point, one corner a row (contiguous), squared
         # distances in place, then a scan of the corners that keeps the first of equals
         # (argmin's choice, without its per-point loop over a short axis)
-        corners = np.array([0, 1, w, w + 1])[:, None] + (row * w + col)
+        corners = np.array([0, 1, w, w + 1])[:, None] + cell
         cand = table.ravel()[corners]
         d2 = self._x[cand]
         d2 -= px
@@ -139,13 +142,14 @@ class WallMap:
         dy -= py
         dy *= dy
         d2 += dy
+        # rows of the scratch arrays d2 and cand, overwritten in place
         best, idx = d2[0], cand[0]
         for k in (1, 2, 3):
             closer = d2[k] < best
-            best = np.where(closer, d2[k], best)
-            idx = np.where(closer, cand[k], idx)
+            np.copyto(best, d2[k], where=closer)
+            np.copyto(idx, cand[k], where=closer)
         idx = idx.astype(np.intp)
-        dist = np.sqrt(best)
+        dist = np.sqrt(best, out=best)
         far = dist > reach
         dist[far], idx[far] = np.inf, n
         return dist, idx
