@@ -118,7 +118,7 @@ def contact_points(
     return cr, cc, valid
 
 
-def count_distribution(p: np.ndarray) -> np.ndarray:
+def count_distribution(p: np.ndarray, max_count: int | None = None) -> np.ndarray:
     """Distribution ``f(n, k)`` of the number of occupied contact points, eqs. (15)-(17).
 
     Parameters
@@ -127,11 +127,16 @@ def count_distribution(p: np.ndarray) -> np.ndarray:
         (s, n) occupancy probabilities of the contact points of ``s`` cells.
         Cells with fewer contacts are padded with 0 (a contact that is surely
         free leaves the distribution unchanged).
+    max_count : int, optional
+        Only ``k <= max_count``: ``f(j, k)`` needs ``f(j - 1, k - 1)`` and ``f(j - 1, k)``
+        alone, so these columns are those of the whole distribution, bit for bit, and
+        the PGVD (23), which reads ``k = 0, 1``, needs no more.  Default: every ``k``.
 
     Returns
     -------
     numpy.ndarray
-        (s, n + 1), ``f[i, k] = P(N_i = k)``, eq. (14); every row sums to 1 (Theorem 1).
+        (s, m + 1) with ``m = min(n, max_count)``, ``f[i, k] = P(N_i = k)``, eq. (14);
+        with every ``k``, every row sums to 1 (Theorem 1).
 
     Raises
     ------
@@ -148,13 +153,17 @@ def count_distribution(p: np.ndarray) -> np.ndarray:
         raise ValueError(f"count_distribution needs (cells, contacts), got shape {p.shape}")
     if np.any((p < 0) | (p > 1)) or not np.all(np.isfinite(p)):
         raise ValueError("contact probabilities must lie in [0, 1]")
+    if max_count is not None and max_count < 0:
+        raise ValueError(f"max_count must be >= 0, got {max_count}")
     s, n = p.shape
-    f = np.zeros((s, n + 1))
+    m = n if max_count is None else min(n, max_count)
+    f = np.zeros((s, m + 1))
     f[:, 0] = 1.0
     for j in range(n):
         pj = p[:, j : j + 1]
+        top = min(j + 1, m)  # the highest k that step j changes
         # eq. (15): f(j, k) = p(c_j) f(j-1, k-1) + (1 - p(c_j)) f(j-1, k), from k = j down.
-        f[:, 1 : j + 2] = pj * f[:, : j + 1] + (1.0 - pj) * f[:, 1 : j + 2]
+        f[:, 1 : top + 1] = pj * f[:, :top] + (1.0 - pj) * f[:, 1 : top + 1]
         f[:, 0] *= 1.0 - pj[:, 0]
     return f
 
@@ -229,6 +238,6 @@ def pgvd(
     cells = np.nonzero(s)
     cr, cc, valid = contact_points(free, cells)
     pc = np.where(valid, np.clip(prob[cr, cc], 0.0, 1.0), 0.0)
-    f = count_distribution(pc)
+    f = count_distribution(pc, max_count=1)
     sp[cells] = np.clip(1.0 - f[:, 0] - f[:, 1], 0.0, 1.0)
     return s, sp

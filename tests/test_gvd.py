@@ -44,11 +44,24 @@ def test_vectorised_rows_are_independent_and_padding_is_neutral(n, s, seed):
     np.testing.assert_allclose(f[row], _brute_force(list(p[row])), atol=1e-12)
 
 
+@settings(max_examples=30)
+@given(st.integers(0, 9), st.integers(1, 40), st.integers(0, 11), st.integers(0, 2**31 - 1))
+def test_counts_up_to_max_count_are_the_whole_distributions_bit_for_bit(n, s, max_count, seed):
+    rng = np.random.default_rng(seed)
+    p = rng.random((s, n)) * (rng.random((s, n)) > 0.3)  # some contacts surely free
+    whole = count_distribution(p)
+    low = count_distribution(p, max_count=max_count)
+    assert low.shape == (s, min(n, max_count) + 1)
+    assert np.array_equal(low, whole[:, : low.shape[1]])
+
+
 def test_invalid_probabilities_rejected():
     with pytest.raises(ValueError):
         count_distribution(np.array([[1.5]]))
     with pytest.raises(ValueError):
         count_distribution(np.array([0.5, 0.5]))
+    with pytest.raises(ValueError, match="max_count"):
+        count_distribution(np.array([[0.5]]), max_count=-1)
 
 
 def _corridor(far_wall: float) -> np.ndarray:
