@@ -100,12 +100,16 @@ def contact_points(
     rows, cols = (np.asarray(v, dtype=np.intp) for v in cells)
     if not free.any() or free.all():
         raise ValueError("contact_points needs both free and obstacle cells")
-    dist, (fr, fc) = ndi.distance_transform_edt(free, return_indices=True)
+    fr, fc = ndi.distance_transform_edt(free, return_distances=False, return_indices=True)
     h, w = free.shape
     nr = np.clip(rows[:, None] + _NEIGHBOURHOOD[:, 0], 0, h - 1)
     nc = np.clip(cols[:, None] + _NEIGHBOURHOOD[:, 1], 0, w - 1)
     cr, cc = fr[nr, nc], fc[nr, nc]
-    d = dist[rows, cols][:, None]
+    # each cell's exact distance to its nearest obstacle, from the feature transform as
+    # distance_transform_edt derives it (the same sum and root), at these cells only
+    dr = (cr[:, 4] - rows).astype(np.float64)
+    dc = (cc[:, 4] - cols).astype(np.float64)
+    d = np.sqrt(dr * dr + dc * dc)[:, None]
     valid = np.hypot(cr - rows[:, None], cc - cols[:, None]) <= d + tolerance
     # One obstacle touches the inscribed circle in several adjacent cells: keep
     # one contact per obstacle patch (the first in neighbourhood order).
