@@ -505,7 +505,13 @@ def propagate(
     shift = np.array([[1.0, 0.0, -lo[0]], [0.0, 1.0, -lo[1]], [0.0, 0.0, 1.0]])
     window = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
     # deviations from cval are blurred, so that cells outside B stay exactly cval
-    moved = warp(image, shift @ m, window, order=1, cval=cval).astype(np.float32) - cval
+    to_window = shift @ m
+    if window == np.shape(image) and np.array_equal(to_window, np.eye(3)):
+        # B blurred where it is (the fusion's own-frame blur): the bilinear read would
+        # return every cell as it is, at a third of the blur's cost
+        moved = np.asarray(image, dtype=np.float32) - np.float32(cval)
+    else:
+        moved = warp(image, to_window, window, order=1, cval=cval).astype(np.float32) - cval
     if s_pp > 0:
         moved = rotation_blur(moved, math.sqrt(s_pp), tuple(center_out - lo))
     out[lo[1] : hi[1], lo[0] : hi[0]] = translation_blur(moved, cov_t) + cval
