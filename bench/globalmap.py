@@ -15,7 +15,7 @@ process on one thread, median of ``--repeat``:
 
 * ``in turn``: the same placements, then every map fused into the growing canvas in turn
   with :func:`pgvd.fusion.fuse_maps` (warped, then blurred on that canvas), the rebuild
-  before the cache, as a baseline whose code does not change (:func:`fuse_in_turn`);
+  before the cache, as a baseline (:func:`fuse_in_turn`);
 * ``cold``: every map blurred in its own frame, warped into the anchor's pixels and the
   layers fused, empty cache;
 * ``new version``: the cache warm and one robot (a different one each repeat) at its next
