@@ -36,7 +36,7 @@ import zenoh
 
 from agent import actions as act
 from agent.failpoints import failpoint
-from agent.globalmap import Component, FuseFn
+from agent.globalmap import Component
 from agent.inbox import MAX_BYTES, Inbox, held_already, map_tag, offer_or_drop
 from agent.memory import fix_mmap_threshold
 from agent.node import FleetNode, Instant, NodeOptions
@@ -137,7 +137,6 @@ class Agent:
         self,
         opts: AgentOptions,
         register: RegisterFn | None = None,
-        fuse: FuseFn | None = None,
     ) -> None:
         fix_mmap_threshold()  # before the first merge: its arrays then never fragment the heap
         self.opts = opts
@@ -172,7 +171,6 @@ class Agent:
             lambda rec: self._call(self.node.on_link, rec, _now()),  # from the worker's thread
             lambda state: self._call(self.node.on_global, state, _now()),
             opts.link_timeout,
-            fuse,
             # an injected registration (tests) decides alone; the real one verifies first
             check=verify_check(opts.min_agreement) if register is None else None,
             counters=self.counters,

@@ -1,18 +1,31 @@
-"""Each robot's map warped into its component anchor's pixels, kept from one rebuild to the next.
+"""Each robot's map blurred and warped into its component anchor's pixels, kept from one
+rebuild to the next.
 
 A global map fuses every member's local map into the anchor's (eqs. (33)-(37)), and the
-bulk of that is the warp of each map with its placement's uncertainty, eq. (8)
-(:func:`pgvd.fusion.warp_layer`).  A layer is a function of the map and of its placement
-alone -- the matrix and covariance into the anchor's pixels -- not of the canvas it is
-fused on, so it is computed again only when one of them changed: a robot's new map
-version re-warps that robot only, and a robot that joins or leaves (however the canvas
-grows) re-warps nobody else, as long as the others' placements stay as they were.  A
-re-solved cycle moves every placement of the component by a rounding error; the
+bulk of that is eq. (8): each map blurred by its placement's uncertainty and warped.  The
+blur is the same kernel in the map's own frame wherever the map is placed -- the
+placement's covariance rotated into that frame (:func:`pgvd.fusion.own_frame_covariance`)
+-- so it is done there, before the warp (:func:`pgvd.fusion.warp_layer`), and both steps
+are kept:
+
+- a layer (the map blurred and warped) is a function of the map and of its placement
+  alone -- the matrix and covariance into the anchor's pixels -- not of the canvas it is
+  fused on, so it is computed again only when one of them changed: a robot's new map
+  version re-warps that robot only, and a robot that joins or leaves (however the canvas
+  grows) re-warps nobody else, as long as the others' placements stay as they were;
+- a placement that really moved (a new link re-solves the pose graph) but whose
+  covariance in the map's own frame stays the same only re-warps the map blurred before:
+  a bilinear read, not the blur.  That covariance is snapped to the placement lattice
+  (:func:`agent.placement.snap_covariance`) so that a heading that turned by a step leaves
+  it as it was.
+
+A re-solved cycle moves every placement of the component by a rounding error; the
 placements are snapped before they get here (:func:`agent.placement.snap_placement`), so
 only the robots that moved by a step or more are warped again.
 
-Fleet invariant 2 is untouched: a layer held is the very array a cold rebuild would
-compute, so warm and cold rebuilds give the same global map bit for bit.
+Fleet invariant 2 is untouched: what is held is the very array a cold rebuild would
+compute from the same map and placement, so warm and cold rebuilds give the same global
+map bit for bit.
 """
 
 from __future__ import annotations
@@ -22,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pgvd.fusion import Layer, warp_layer
+from agent.placement import snap_covariance
+from pgvd.fusion import Layer, blur_in_own_frame, own_frame_covariance, place_blurred
 from pgvd.grid import Grid
 
 
@@ -35,26 +49,41 @@ class _Held:
     unblurred: bool
 
 
-class LayerCache:
-    """The layers of the robots a rebuild fused, keyed by robot, map version and placement.
+@dataclass(frozen=True)
+class _Blurred:
+    """One robot's map blurred in its own frame, and what it was blurred with."""
 
-    Memory bound: at most one layer per robot, and :meth:`retain` after each rebuild
-    drops those of robots it did not fuse (gone, alone, or the anchor).  A layer is float32
-    over at most its map's footprint in the anchor's pixels: ``H x W`` cells turned by
-    ``psi`` cover ``(H |cos| + W |sin| + 2) (W |cos| + H |sin| + 2)`` cells, at most
+    key: tuple[int, bytes]
+    blurred: np.ndarray
+    unblurred: bool
+
+
+class LayerCache:
+    """The layers of the robots a rebuild fused, keyed by robot, map version and placement,
+    and their maps blurred in their own frames, keyed by robot, map version and covariance
+    in that frame.
+
+    Memory bound: at most one layer and one blurred map per robot, and :meth:`retain` after
+    each rebuild drops those of robots it did not fuse (gone, alone, or the anchor).  A
+    blurred map is float32 of its map's shape.  A layer is float32 over at most its map's
+    footprint in the anchor's pixels: ``H x W`` cells turned by ``psi`` cover
+    ``(H |cos| + W |sin| + 2) (W |cos| + H |sin| + 2)`` cells, at most
     ``(H + W)^2 / 2 + O(H + W)``, and usually much less since the unknown border is cut
-    off.  At 16 robots with maps of 500 x 500 cells that is under 16 x 2 MB.
+    off.  At 16 robots with maps of 500 x 500 cells that is under 16 x 3 MB.
 
     Attributes
     ----------
     warps : layers computed.
     reuses : layers served as held.
+    blurs : maps blurred; ``warps - blurs`` layers were warps of a blurred map held.
     """
 
     def __init__(self) -> None:
         self._held: dict[str, _Held] = {}
+        self._blurred: dict[str, _Blurred] = {}
         self.warps = 0
         self.reuses = 0
+        self.blurs = 0
 
     def layer(
         self, robot: str, version: int, grid: Grid, matrix: np.ndarray, covariance: np.ndarray
@@ -76,15 +105,39 @@ class LayerCache:
         if held is not None and held.key == key:
             self.reuses += 1
             return held.layer, held.unblurred
-        layer, unblurred = _warp(grid, matrix, covariance)
+        blurred = self._blur(robot, int(version), grid, matrix, covariance)
+        layer = place_blurred(blurred.blurred, grid.resolution, matrix)
         layer.logodds.setflags(write=False)  # shared by every rebuild until replaced
-        self._held[robot] = _Held(key, layer, unblurred)
+        self._held[robot] = _Held(key, layer, blurred.unblurred)
         self.warps += 1
-        return layer, unblurred
+        return layer, blurred.unblurred
+
+    def _blur(
+        self, robot: str, version: int, grid: Grid, matrix: np.ndarray, covariance: np.ndarray
+    ) -> _Blurred:
+        """``robot``'s map blurred in its own frame by ``covariance`` turned into it,
+        snapped; the one held if it was blurred with the same."""
+        try:
+            own = snap_covariance(own_frame_covariance(matrix, covariance))
+            key = (version, own.tobytes())
+            held = self._blurred.get(robot)
+            if held is not None and held.key == key:
+                return held
+            blurred = _Blurred(key, blur_in_own_frame(grid, own), False)
+        except (ValueError, ArithmeticError):
+            # The same inputs fail the same way on every agent, so warping without the
+            # uncertainty blur keeps them in agreement; a global map that never settles
+            # would be worse.
+            blurred = _Blurred((version, b""), blur_in_own_frame(grid, np.zeros((3, 3))), True)
+        blurred.blurred.setflags(write=False)
+        self._blurred[robot] = blurred
+        self.blurs += 1
+        return blurred
 
     def retain(self, robots: Collection[str]) -> None:
-        """Forget the layers of every robot not in ``robots``."""
+        """Forget the layers and blurred maps of every robot not in ``robots``."""
         self._held = {r: h for r, h in self._held.items() if r in robots}
+        self._blurred = {r: b for r, b in self._blurred.items() if r in robots}
 
     @property
     def robots(self) -> frozenset[str]:
@@ -92,16 +145,7 @@ class LayerCache:
         return frozenset(self._held)
 
     def held_bytes(self) -> int:
-        """Bytes of the layers held."""
-        return sum(h.layer.logodds.nbytes for h in self._held.values())
-
-
-def _warp(grid: Grid, matrix: np.ndarray, covariance: np.ndarray) -> tuple[Layer, bool]:
-    """:func:`pgvd.fusion.warp_layer`, or without the blur where the blur fails (then True)."""
-    try:
-        return warp_layer(grid, matrix, covariance), False
-    except (ValueError, ArithmeticError):
-        # The same inputs fail the same way on every agent, so warping without the
-        # uncertainty blur keeps them in agreement; a global map that never settles
-        # would be worse.
-        return warp_layer(grid, matrix, np.zeros((3, 3))), True
+        """Bytes of the layers and blurred maps held."""
+        return sum(h.layer.logodds.nbytes for h in self._held.values()) + sum(
+            b.blurred.nbytes for b in self._blurred.values()
+        )

@@ -14,10 +14,10 @@ links build the same global maps, bit for bit.  Hence everything here is ordered
   the robots already merged, unless it is older than their anchor, and when two
   components join the older anchor's frame stays;
 - local maps are fused into the anchor's map, then the others' in increasing robot id: each
-  is warped into the anchor's pixels with its placement's covariance blurring it per eqs.
-  (4)-(8) (:func:`pgvd.fusion.warp_layer`, kept between rebuilds by
-  :class:`agent.fusecache.LayerCache`), then the layers are fused in that order, eqs.
-  (33)-(37) (:func:`pgvd.fusion.fuse_layers`).
+  is blurred in its own frame by its placement's covariance turned into that frame, eqs.
+  (4)-(8), then warped into the anchor's pixels (:func:`pgvd.fusion.warp_layer`; both kept
+  between rebuilds by :class:`agent.fusecache.LayerCache`), then the layers are fused in
+  that order, eqs. (33)-(37) (:func:`pgvd.fusion.fuse_layers`).
 
 The canvas of a global map is the smallest that holds every member's map whole, computed
 before anything is fused, and each layer is warped and blurred on its own map's footprint
@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,11 +44,10 @@ from agent.links import LinkRecord
 from agent.placement import snap_placement
 from agent.trust import link_strength
 from pgvd.fusion import fuse_layers
-from pgvd.grid import Grid, relative_matrix
+from pgvd.grid import Grid
 from pgvd.posegraph import PoseGraphParams, Rank, link_problem, solve
 from protocol.quantize import quantise
 
-FuseFn = Callable[[Grid, Grid, np.ndarray, np.ndarray], Grid]
 #: ``{id(record): (record, sound)}``: whether a link record is a rigid transform with a
 #: covariance (:func:`pgvd.posegraph.link_problem`).  The record is held so that its id
 #: cannot be reused while the entry lives.
@@ -153,11 +152,11 @@ def usable_links(
 def build_components(
     maps: Mapping[str, tuple[int, Grid]],
     links: Iterable[LinkRecord],
-    fuse: FuseFn | None = None,
     params: PoseGraphParams | None = None,
     sound: Soundness | None = None,
     layers: LayerCache | None = None,
     firsts: Mapping[str, int] | None = None,
+    fuse: bool = True,
 ) -> list[Component]:
     """Every component's global map from the latest local maps and one link per pair.
 
@@ -166,19 +165,17 @@ def build_components(
     maps : ``{robot: (version, local grid)}``, the latest local map of each robot.
     links : at most one link per pair (:func:`agent.links.select_links`); rejected
         ones and those of robots without a map are ignored.
-    fuse : a stand-in for the fusion, ``fuse(base, other, other_px_to_base_px, covariance)
-        -> Grid``, applied map by map on a growing canvas: its ``origin`` says where the base
-        went, so matrices are re-expressed through :func:`pgvd.grid.relative_matrix`.  None
-        (the agents' fusion) warps each map into the anchor's pixels and fuses the layers,
-        see the module's docstring.
     params : the pose graph's floors and threshold (:class:`pgvd.posegraph.PoseGraphParams`).
     sound : the links' soundness judged before (:func:`usable_links`); filled in.
     layers : the layers of the last rebuild (:class:`agent.fusecache.LayerCache`), reused
         where a robot's version and placement are unchanged; left holding this build's.
-        None: a cold build.  Not used with ``fuse``.
+        None: a cold build.
     firsts : ``{robot: first epoch}`` that came with those maps; each component is
         anchored at its oldest robot (:func:`anchor_rank`), and without ``firsts`` at its
         lowest robot id.
+    fuse : False: the placements alone, each component's ``grid`` its anchor's map (for a
+        simulation that charges the fusion's cost rather than spending it); ``layers`` is
+        then not used.
 
     Returns
     -------
@@ -204,10 +201,10 @@ def build_components(
         members = tuple(sorted(placed))
         anchor, order = placed[0], placed[1:]
         inside = [(ln.pair, u) for ln, u in zip(usable, sol.used, strict=True) if ln.a in members]
-        if fuse is None:
+        if fuse:
             grid, unblurred = _fuse_component(maps, anchor, order, mats, covs, layers)
         else:
-            grid, unblurred = _fuse_in_turn(maps, anchor, order, mats, covs, fuse)
+            grid, unblurred = maps[anchor][1], ()
         out.append(
             Component(
                 anchor=anchor,
@@ -227,7 +224,7 @@ def build_components(
                 ),
             )
         )
-    if fuse is None:
+    if fuse:
         layers.retain({r for c in out for r in c.members if r != c.anchor})
     return out
 
@@ -251,31 +248,6 @@ def _fuse_component(
     got = [(r, *layers.layer(r, maps[r][0], maps[r][1], mats[r], covs[r])) for r in order]
     grid = fuse_layers(maps[anchor][1], [layer for _, layer, _ in got])
     return grid, tuple(r for r, _, unblurred in got if unblurred)
-
-
-def _fuse_in_turn(
-    maps: Mapping[str, tuple[int, Grid]],
-    anchor: str,
-    order: tuple[str, ...],
-    mats: Mapping[str, np.ndarray],
-    covs: Mapping[str, np.ndarray],
-    fuse: FuseFn,
-) -> tuple[Grid, tuple[str, ...]]:
-    """Local maps fused into ``anchor``'s in ``order`` by a stand-in ``fuse``, one after
-    another on a growing canvas; also the robots fused without their blur."""
-    base = maps[anchor][1]
-    fused = base
-    unblurred: list[str] = []
-    for robot in order:
-        # The canvas of `fused` may have grown: anchor px -> fused px, then compose.
-        to_fused = relative_matrix(fused, base) @ mats[robot]
-        try:
-            fused = fuse(fused, maps[robot][1], to_fused, covs[robot])
-        except (ValueError, ArithmeticError):
-            # as agent.fusecache does: the same inputs fail the same way on every agent
-            fused = fuse(fused, maps[robot][1], to_fused, np.zeros((3, 3)))
-            unblurred.append(robot)
-    return fused, tuple(unblurred)
 
 
 def component_of(components: Iterable[Component], robot: str) -> Component | None:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent.globalmap import Component, FuseFn, build_components
+from agent.globalmap import Component, build_components
 from agent.links import LinkRecord
 from agent.worker import RegisterFn, merge_registration
 from pgvd.grid import Grid
@@ -114,7 +114,6 @@ def _working_maps(grids: Sequence[Grid]) -> tuple[list[Grid], list[np.ndarray]]:
 def merge_many(
     grids: Sequence[Grid],
     register: RegisterFn | None = None,
-    fuse: FuseFn | None = None,
     params: PoseGraphParams | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> ManyMerge:
@@ -125,7 +124,6 @@ def merge_many(
     grids : two or more maps, in input order (the first of a component is its anchor).
     register : pairwise registration; the agents' :func:`agent.worker.merge_registration`
         by default.
-    fuse : fusion for :func:`agent.globalmap.build_components`.
     params : the pose graph's floors and threshold.
     progress : called with one line per registration.
 
@@ -153,5 +151,5 @@ def merge_many(
             )
         )
     maps = {r: (0, g) for r, g in zip(ids, work, strict=True)}
-    comps = build_components(maps, links, fuse, params)
+    comps = build_components(maps, links, params)
     return ManyMerge(ids, tuple(scales), tuple(work), tuple(links), tuple(comps))

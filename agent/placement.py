@@ -95,10 +95,10 @@ def snap_placement(
         round(m[0, 2] / TRANSLATION_STEP_PX) * TRANSLATION_STEP_PX,
         round(m[1, 2] / TRANSLATION_STEP_PX) * TRANSLATION_STEP_PX,
     )
-    return snapped, _snap_covariance(c)
+    return snapped, snap_covariance(c)
 
 
-def _snap_covariance(c: np.ndarray) -> np.ndarray:
+def snap_covariance(c: np.ndarray) -> np.ndarray:
     """``c`` rebuilt from its snapped standard deviations and correlations, PSD."""
     variances = np.clip(np.diag(c), 0.0, None)
     sigma = np.sqrt(variances)

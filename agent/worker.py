@@ -60,7 +60,7 @@ from agent.book import FleetBook, Snapshot
 from agent.counters import Counters
 from agent.footprints import MARGIN_M, FootprintCache
 from agent.fusecache import LayerCache
-from agent.globalmap import Component, FuseFn, Soundness, build_components, usable_links
+from agent.globalmap import Component, Soundness, build_components, usable_links
 from agent.links import (
     LinkKey,
     LinkRecord,
@@ -466,7 +466,6 @@ class FusionWorker:
     on_link : called with each link this worker decided (to publish and persist it).
     on_global : called with each new :class:`GlobalState`.
     link_timeout : seconds to wait for the lower robot's agent before registering.
-    fuse : fusion function for :func:`agent.globalmap.build_components`.
     check : checks a pair's predicted transform before a full search (:data:`CheckFn`);
         None always searches.
     counters : where ``searches``, ``checks``, ``checks_confirmed``, ``checks_rejected``,
@@ -487,7 +486,6 @@ class FusionWorker:
         on_link: Callable[[LinkRecord], None],
         on_global: Callable[[GlobalState], None],
         link_timeout: float = 4.0,
-        fuse: FuseFn | None = None,
         check: CheckFn | None = None,
         counters: Counters | None = None,
         poses: Mapping[str, Pose] | None = None,
@@ -499,7 +497,6 @@ class FusionWorker:
         self.on_link = on_link
         self.on_global = on_global
         self.link_timeout = link_timeout
-        self.fuse = fuse
         self.check = check
         self.counters = counters or Counters()
         self.poses = dict(poses or {})
@@ -1173,7 +1170,6 @@ class FusionWorker:
         components = build_components(
             snap.maps,
             snap.links,
-            self.fuse,
             sound=self._soundness(snap),
             layers=layers,
             firsts=snap.firsts,

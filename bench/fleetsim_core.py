@@ -87,12 +87,6 @@ def _identity(ln) -> tuple[object, ...]:
     return (*ln.key, ln.revision, ln.decided_by, ln.version_a, ln.version_b, ln.accepted, ln.state)
 
 
-def _no_fusion(base, other, matrix, covariance):
-    """A fusion that keeps the base map: the rebuilds not sampled (module docstring)."""
-    del other, matrix, covariance
-    return base
-
-
 @dataclass
 class Rebuilds:
     """:func:`agent.globalmap.build_components` with sampling and memo (module docstring)."""
@@ -118,7 +112,7 @@ class Rebuilds:
         maps = sum(n for n, _ in fused)
         return sum(s for _, s in fused) / maps if maps else 0.0
 
-    def __call__(self, maps, links, fuse=None, params=None, sound=None, layers=None, firsts=None):
+    def __call__(self, maps, links, params=None, sound=None, layers=None, firsts=None):
         with self.meter.excluding():
             signature = hashlib.sha256(
                 repr(
@@ -131,7 +125,7 @@ class Rebuilds:
             ).digest()
             held = self._memo.get(signature)
             if held is None:
-                held = self._build(signature, maps, links, fuse, params, sound, layers, firsts)
+                held = self._build(signature, maps, links, params, sound, layers, firsts)
         self._memo[signature] = held
         self._memo.move_to_end(signature)
         while len(self._memo) > MEMO_SIZE:
@@ -140,9 +134,7 @@ class Rebuilds:
         self.meter.charge(held[1])
         return held[0]
 
-    def _build(
-        self, signature, maps, links, fuse, params, sound, layers, firsts
-    ) -> tuple[list, float]:
+    def _build(self, signature, maps, links, params, sound, layers, firsts) -> tuple[list, float]:
         # A sampled rebuild runs with the asking agent's layer cache, so its CPU is a warm
         # rebuild's where the agent's own last build left layers to reuse.
         real = (len(maps) > 1 and not self._fused()) or (
@@ -152,11 +144,11 @@ class Rebuilds:
         comps = build_components(
             maps,
             links,
-            fuse if real else _no_fusion,
             params,
             sound,
             layers=layers if real else None,
             firsts=firsts,
+            fuse=real,
         )
         cpu = time.thread_time() - t0
         if real:

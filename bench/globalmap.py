@@ -13,9 +13,11 @@ each with the covariance ``diag(1 px^2, 1 px^2, (0.3 deg)^2)``.  Rebuilds
 (:func:`agent.globalmap.build_components`, the worker's ``_rebuild``), CPU time of this
 process on one thread, median of ``--repeat``:
 
-* ``in turn``: every map fused into the growing canvas in turn with
-  :func:`pgvd.fusion.fuse_maps`, the rebuild before the cache, as a baseline;
-* ``cold``: every map warped into the anchor's pixels and the layers fused, empty cache;
+* ``in turn``: the same placements, then every map fused into the growing canvas in turn
+  with :func:`pgvd.fusion.fuse_maps` (warped, then blurred on that canvas), the rebuild
+  before the cache, as a baseline (:func:`fuse_in_turn`);
+* ``cold``: every map blurred in its own frame, warped into the anchor's pixels and the
+  layers fused, empty cache;
 * ``new version``: the cache warm and one robot (a different one each repeat) at its next
   map version, the rest of its scans added, its links unchanged (a new minor version within
   its registration epoch): that robot's map alone is warped again;
@@ -24,12 +26,17 @@ process on one thread, median of ``--repeat``:
   estimate a hair away (:data:`HAIR`), as a re-check that confirms it gives: the pose
   graph re-solves every cycle it lies on and moves every placement of the component by a
   rounding-size amount, which the snapped placements (:mod:`agent.placement`) absorb.
-  Also reported: the layers it warped again, on average.
+  Also reported: the layers it warped again, on average;
+* ``moved``: the cache warm and one link (a different one each repeat) replaced by an
+  estimate :data:`MOVE` away, a real move as a new registration gives: the robots whose
+  placement moved are warped again, but their maps blurred in their own frames are
+  reused where their covariance there stayed on the same lattice point.  Also reported:
+  the layers warped and the maps blurred again, on average.
 
 The ratios to ``cold`` in the same run are what to compare across machines.  Also
-reported: the bytes of layers the cache holds, the peak memory Python and numpy allocate
-during one rebuild in turn and one cold (tracemalloc: scipy's FFT work buffers are not
-counted), and the fused map's cells.  Writes
+reported: the bytes of layers and blurred maps the cache holds, the peak memory Python and
+numpy allocate during one rebuild in turn and one cold (tracemalloc: scipy's FFT work
+buffers are not counted), and the fused map's cells.  Writes
 ``globalmap.md`` and ``globalmap.json`` in ``--out``.
 """
 
@@ -58,7 +65,7 @@ from agent.links import LinkRecord  # noqa: E402
 from agent.scenario import random_frames, segments  # noqa: E402
 from agent.sources import CarmenSource, SourceSpec  # noqa: E402
 from pgvd.fusion import fuse_maps  # noqa: E402
-from pgvd.grid import rigid_matrix  # noqa: E402
+from pgvd.grid import Grid, relative_matrix, rigid_matrix  # noqa: E402
 from pgvd.integrate import integrate_scan  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -71,6 +78,8 @@ NEIGHBOURS = 2
 FIRST_VERSION_SHARE = 0.9
 #: How far a re-solved link's estimate moves: far below what a registration resolves.
 HAIR = rigid_matrix(1e-9, 1e-7, -1e-7)
+#: How far a moved link's estimate moves: about the median move of a placement in a fleet.
+MOVE = rigid_matrix(math.radians(0.05), 0.6, -0.4)
 
 
 class Fleet:
@@ -127,13 +136,27 @@ def peak_mb(run: Callable[[], object]) -> float:
         tracemalloc.stop()
 
 
+def fuse_in_turn(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> Grid:
+    """The one component's map fused in turn on a growing canvas: the placements of
+    :func:`agent.globalmap.build_components`, then each map fused into the canvas so far
+    in robot id order by :func:`pgvd.fusion.fuse_maps` (the rebuild before the cache)."""
+    (comp,) = build_components(maps, links, fuse=False)
+    base = fused = maps[comp.anchor][1]
+    for robot in comp.members:
+        if robot != comp.anchor:
+            # the canvas grew: anchor px -> canvas px, then compose
+            to_fused = relative_matrix(fused, base) @ comp.transforms[robot]
+            fused = fuse_maps(fused, maps[robot][1], to_fused, comp.covariances[robot])
+    return fused
+
+
 def bench_fleet(log: Path, n: int, repeat: int) -> dict:
-    """The five rebuilds of the module's docstring on ``n`` robots of ``log``."""
+    """The six rebuilds of the module's docstring on ``n`` robots of ``log``."""
     fleet = Fleet(log, n)
     maps, links = fleet.maps, fleet.links
     robots = sorted(maps)
     cache = LayerCache()
-    in_turn = [cpu_seconds(lambda: build_components(maps, links, fuse_maps)) for _ in range(repeat)]
+    in_turn = [cpu_seconds(lambda: fuse_in_turn(maps, links)) for _ in range(repeat)]
     cold = [cpu_seconds(lambda: build_components(maps, links)) for _ in range(repeat)]
     build_components(maps, links, layers=cache)
     new_version = []
@@ -152,9 +175,17 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
         warps = cache.warps
         re_solved.append(cpu_seconds(lambda: build_components(maps, links, layers=cache)))
         re_warps.append(cache.warps - warps)
+    moved, moved_warps, moved_blurs = [], [], []
+    for k in range(repeat):
+        i = (k * 5 + 1) % len(links)
+        links[i] = dataclasses.replace(links[i], matrix=MOVE @ links[i].matrix)
+        warps, blurs = cache.warps, cache.blurs
+        moved.append(cpu_seconds(lambda: build_components(maps, links, layers=cache)))
+        moved_warps.append(cache.warps - warps)
+        moved_blurs.append(cache.blurs - blurs)
     (comp,) = build_components(maps, links, layers=cache)
     peaks = {
-        "in_turn": peak_mb(lambda: build_components(maps, links, fuse_maps)),
+        "in_turn": peak_mb(lambda: fuse_in_turn(maps, links)),
         "cold": peak_mb(lambda: build_components(maps, links)),
     }
     med = {
@@ -165,6 +196,7 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
             ("new_version", new_version),
             ("unchanged", unchanged),
             ("re_solved", re_solved),
+            ("moved", moved),
         )
     }
     return {
@@ -173,8 +205,10 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
         "members": len(comp.members),
         "map_cells": int(np.mean([g.logodds.size for _, g in maps.values()])),
         "fused_shape": list(comp.grid.shape),
-        "layers_mb": cache.held_bytes() / 1e6,
+        "held_mb": cache.held_bytes() / 1e6,
         "re_solved_warps": float(np.mean(re_warps)),
+        "moved_warps": float(np.mean(moved_warps)),
+        "moved_blurs": float(np.mean(moved_blurs)),
         "peak_mb": peaks,
         "cpu_s": med,
         "ratio_to_cold": {k: v / med["cold"] for k, v in med.items()},
@@ -184,18 +218,20 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
 def table(rows: list[dict]) -> str:
     out = [
         "| log | robots | in turn (s) | cold (s) | new version (s) | unchanged (s) "
-        "| re-solved (s) | new version / cold | unchanged / cold | re-solved / cold "
-        "| re-solved warps | cold / in turn | layers held (MB) | peak in turn / cold (MB) "
-        "| fused map |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| re-solved (s) | moved (s) | new version / cold | unchanged / cold | re-solved / cold "
+        "| moved / cold | re-solved warps | moved warps / blurs | cold / in turn "
+        "| held (MB) | peak in turn / cold (MB) | fused map |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         s, q = r["cpu_s"], r["ratio_to_cold"]
         out.append(
             f"| {r['log']} | {r['robots']} | {s['in_turn']:.2f} | {s['cold']:.2f} "
             f"| {s['new_version']:.3f} | {s['unchanged']:.3f} | {s['re_solved']:.3f} "
-            f"| {q['new_version']:.3f} | {q['unchanged']:.3f} | {q['re_solved']:.3f} "
-            f"| {r['re_solved_warps']:.1f} | {s['cold'] / s['in_turn']:.2f} | {r['layers_mb']:.1f} "
+            f"| {s['moved']:.3f} | {q['new_version']:.3f} | {q['unchanged']:.3f} "
+            f"| {q['re_solved']:.3f} | {q['moved']:.3f} | {r['re_solved_warps']:.1f} "
+            f"| {r['moved_warps']:.1f} / {r['moved_blurs']:.1f} "
+            f"| {s['cold'] / s['in_turn']:.2f} | {r['held_mb']:.1f} "
             f"| {r['peak_mb']['in_turn']:.0f} / {r['peak_mb']['cold']:.0f} "
             f"| {r['fused_shape'][0]} x {r['fused_shape'][1]} |"
         )
@@ -232,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "globalmap.md").write_text(
         "# Global-map rebuild: the fusion cache warm against cold\n\n"
         f"`{command}`: CPU seconds of one rebuild on one thread, median of {args.repeat}; "
-        "see `bench/globalmap.py` for the fleets and the five rebuilds.\n\n"
+        "see `bench/globalmap.py` for the fleets and the six rebuilds.\n\n"
         f"{table(rows)}\n"
     )
     return 0

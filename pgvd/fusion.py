@@ -3,7 +3,10 @@
 Two maps: :func:`fuse_maps`.  Many maps into one base, with the warp of each kept apart
 from the combine so that a caller can keep the warps: :func:`warp_layer` moves one map
 into the base's pixels with its uncertainty, eq. (8), and :func:`fuse_layers` fuses such
-layers into the base in a fixed order, eqs. (33)-(37).
+layers into the base in a fixed order, eqs. (33)-(37).  :func:`warp_layer` is itself two
+steps a caller can keep apart: the blur in the map's own frame, which does not depend on
+where the map is placed (:func:`own_frame_covariance`, :func:`blur_in_own_frame`), and
+the move (:func:`place_blurred`).
 """
 
 from __future__ import annotations
@@ -20,8 +23,8 @@ from pgvd.grid import (
     pixel_to_world,
     probability_to_logodds,
 )
-from pgvd.transform import footprint, union_canvas
-from pgvd.uncertainty import propagate
+from pgvd.transform import footprint, union_canvas, warp
+from pgvd.uncertainty import check_covariance, propagate
 
 
 def entropy(p: np.ndarray) -> np.ndarray:
@@ -202,6 +205,125 @@ class Layer:
     resolution: float
 
 
+def own_frame_covariance(matrix: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """The covariance of a transform's ``(tx, ty, psi)`` rotated into the moved map's frame.
+
+    Eqs. (1)-(4): a point ``p`` of B moves by ``dpsi R J p + dT`` (``R`` the transform's
+    rotation, ``J = R^-1 dR/dpsi``), that is by ``R (dpsi J p + R^T dT)``.  In B's own
+    frame the displacement is ``dpsi J p + R^T dT``: eq. (4) with ``(R^T dT, dpsi)``,
+    whose covariance is ``A Sigma_tr A^T``, ``A = diag(R^T, 1)``.  Eq. (8)'s blur is thus
+    a blur in B's own frame by that covariance (rotation about B's pixel origin), moved
+    rigidly by the transform: it depends on the heading of the transform, not on where it
+    puts B.
+
+    Parameters
+    ----------
+    matrix : numpy.ndarray
+        3x3 rigid matrix, B pixel -> base pixel.
+    covariance : numpy.ndarray
+        3x3 over ``(tx px, ty px, psi rad)`` of ``matrix``, eq. (3).
+
+    Returns
+    -------
+    numpy.ndarray
+        3x3 symmetric covariance over ``(x px, y px, psi rad)`` in B's pixel frame.
+
+    Raises
+    ------
+    ValueError
+        If ``matrix`` is not a finite 3x3 array, or ``covariance`` is not a finite,
+        symmetric, positive semi-definite 3x3 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (1)-(4).
+    """
+    a = np.eye(3)
+    a[:2, :2] = finite_3x3(matrix, "matrix")[:2, :2].T
+    out = a @ check_covariance(covariance) @ a.T
+    return (out + out.T) / 2.0
+
+
+def blur_in_own_frame(
+    b: Grid, covariance: np.ndarray, center: tuple[float, float] = (0.0, 0.0)
+) -> np.ndarray:
+    """Eq. (8)'s blur of map B in B's own pixels: the step of :func:`warp_layer` that does
+    not depend on where B is placed.
+
+    :func:`pgvd.uncertainty.propagate` with the identity on B's probabilities, over B's
+    own cells: nothing is blurred past B's edges.
+
+    Parameters
+    ----------
+    b : Grid
+        The map to blur.
+    covariance : numpy.ndarray
+        3x3 over ``(x px, y px, psi rad)`` in B's frame (:func:`own_frame_covariance`).
+    center : tuple of float, optional
+        B pixel about which the heading error acts, as in :func:`fuse_maps`.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32, B's shape: the blurred probabilities minus 0.5, so that unknown is 0.
+
+    Raises
+    ------
+    ValueError
+        If ``covariance`` is not a finite, symmetric, positive semi-definite 3x3 array.
+
+    References
+    ----------
+    .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
+       using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (4)-(8).
+    """
+    blurred = propagate(b.probability(), np.eye(3), covariance, b.shape, center=center, cval=0.5)
+    blurred -= np.float32(0.5)
+    return blurred
+
+
+def place_blurred(blurred: np.ndarray, resolution: float, matrix: np.ndarray) -> Layer:
+    """A map blurred in its own frame (:func:`blur_in_own_frame`) moved into a base map's
+    pixels by ``matrix`` (bilinear), eq. (1): the step of :func:`warp_layer` that depends
+    on the placement.
+
+    Parameters
+    ----------
+    blurred : numpy.ndarray
+        The map's blurred probabilities minus 0.5, in its own pixels.
+    resolution : float
+        Metres per cell of the map.
+    matrix : numpy.ndarray
+        3x3, map pixel -> base pixel.
+
+    Returns
+    -------
+    Layer
+        Cut to the cells the map knows after the blur, as :func:`warp_layer`.
+
+    Raises
+    ------
+    ValueError
+        If ``matrix`` is not a finite 3x3 array.
+    """
+    matrix = finite_3x3(matrix, "matrix")
+    lo, hi = footprint(blurred.shape, matrix)
+    to_box = np.array([[1.0, 0.0, -lo[0]], [0.0, 1.0, -lo[1]], [0.0, 0.0, 1.0]])
+    shape = (int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1))
+    moved = warp(blurred, to_box @ matrix, shape, order=1, cval=0.0).astype(np.float32)
+    rows, cols = np.flatnonzero(moved.any(axis=1)), np.flatnonzero(moved.any(axis=0))
+    r0, c0 = (int(rows[0]), int(cols[0])) if rows.size else (0, 0)
+    r1, c1 = (int(rows[-1]) + 1, int(cols[-1]) + 1) if rows.size else (0, 0)
+    probability = moved[r0:r1, c0:c1] + np.float32(0.5)
+    return Layer(
+        probability_to_logodds(np.clip(probability, 0.0, 1.0)),
+        (int(lo[0]) + c0, int(lo[1]) + r0),
+        (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])),
+        float(resolution),
+    )
+
+
 def warp_layer(
     b: Grid,
     matrix: np.ndarray,
@@ -211,12 +333,15 @@ def warp_layer(
 ) -> Layer:
     """Map B moved into a base map's pixels and blurred by the transform's covariance, eq. (8).
 
-    The warp step of :func:`fuse_layers`.  The blur is computed on B's own footprint in
-    the base's pixels (:func:`pgvd.transform.footprint`), whatever canvas it will be fused
-    on: the layer is then a function of ``b``, ``matrix`` and ``covariance`` alone, and
-    placing it on a canvas that grew is a shift by whole cells, exact.  (In
-    :func:`fuse_maps` the blur reaches to the edges of the two maps' canvas instead; the
-    two differ in cells within the blur's reach of B's footprint's edge.)
+    The warp step of :func:`fuse_layers`.  The blur is the same kernel in B's own frame
+    whatever B's placement (:func:`own_frame_covariance`), so it is applied there first
+    (:func:`blur_in_own_frame`) and the blurred map is then moved (:func:`place_blurred`):
+    a caller that keeps the blurred map moves it again without blurring it again.  The
+    layer is a function of ``b``, ``matrix`` and ``covariance`` alone, and placing it on a
+    canvas that grew is a shift by whole cells, exact.  (:func:`fuse_maps` warps first
+    and blurs on the two maps' canvas instead: the two differ by the bilinear read's
+    rounding, and in cells within the blur's reach of B's edge, which this blur does not
+    cross.)
 
     Parameters
     ----------
@@ -248,21 +373,8 @@ def warp_layer(
     .. [1] Saeedi, S., Paull, L., Trentini, M., Seto, M., and Li, H., "Map merging
        using probabilistic generalized Voronoi diagrams", IROS 2012, eqs. (3)-(8).
     """
-    matrix = finite_3x3(matrix, "matrix")
-    lo, hi = footprint(b.shape, matrix)
-    to_box = np.array([[1.0, 0.0, -lo[0]], [0.0, 1.0, -lo[1]], [0.0, 0.0, 1.0]])
-    shape = (int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1))
-    cov = covariance if propagation else np.zeros((3, 3))
-    moved = _moved_logodds(b, to_box @ matrix, cov, shape, center)
-    rows, cols = np.flatnonzero(moved.any(axis=1)), np.flatnonzero(moved.any(axis=0))
-    r0, c0 = (int(rows[0]), int(cols[0])) if rows.size else (0, 0)
-    r1, c1 = (int(rows[-1]) + 1, int(cols[-1]) + 1) if rows.size else (0, 0)
-    return Layer(
-        moved[r0:r1, c0:c1].copy(),  # a copy: the footprint's array is freed
-        (int(lo[0]) + c0, int(lo[1]) + r0),
-        (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])),
-        float(b.resolution),
-    )
+    cov = own_frame_covariance(matrix, covariance if propagation else np.zeros((3, 3)))
+    return place_blurred(blur_in_own_frame(b, cov, center), b.resolution, matrix)
 
 
 def fuse_layers(base: Grid, layers: Sequence[Layer]) -> Grid:

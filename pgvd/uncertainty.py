@@ -197,11 +197,12 @@ _CACHED_KEY: set[tuple[object, ...]] = set()
 @lru_cache(maxsize=1)
 def _polar_geometry(
     shape: tuple[int, int], center: tuple[float, float], n_theta: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
     """Polar bins of every pixel about ``center``: linear in radius, nearest in angle.
 
     Returns the two flat bin indices (N, 2), their weights (N, 2), the
-    per-bin total weight of all pixels, and the number of rings.
+    per-bin total weight of all pixels, the number of rings, and which angle
+    bins hold a pixel (n_theta,) bool.
     """
     h, w = shape
     # offsets in float64 first: the same pixel gets the same bins whichever window it is in
@@ -220,6 +221,8 @@ def _polar_geometry(
     a = np.rint(t).astype(itype)
     a[a < 0] += n_theta
     a[a >= n_theta] -= n_theta
+    held = np.zeros(n_theta, bool)
+    held[a] = True
     idx = np.empty((r.size, 2), itype)
     np.multiply(ring.astype(itype), n_theta, out=idx[:, 0])
     idx[:, 0] += a
@@ -228,9 +231,9 @@ def _polar_geometry(
     np.subtract(np.float32(1.0), fr, out=wts[:, 0])
     wts[:, 1] = fr
     totals = np.bincount(idx.ravel(), wts.ravel(), minlength=n_rings * n_theta).astype(np.float32)
-    for arr in (idx, wts, totals):
+    for arr in (idx, wts, totals, held):
         arr.setflags(write=False)
-    return idx, wts, totals, n_rings
+    return idx, wts, totals, n_rings, held
 
 
 def rotation_blur(
@@ -294,7 +297,7 @@ def rotation_blur(
         # not after, which held both at once (~20 MB more on a 550 x 550 global map)
         release_caches()
         _CACHED_KEY.add(key)
-    idx, wts, totals, n_rings = _polar_geometry(*key)
+    idx, wts, totals, n_rings, _ = _polar_geometry(*key)
     # nearest-bin splat and read each add the variance of a uniform bin (1/12 bin^2)
     sigma_bins = round(math.sqrt(max((sigma_psi * n_theta / (2 * math.pi)) ** 2 - 1 / 6, 0)), 9)
     if sigma_bins == 0:  # under a bin's own quantisation: scipy would divide by 0
@@ -304,9 +307,7 @@ def rotation_blur(
     # once as can be. The float64 counts go as soon as they are float32.
     binned = np.bincount(idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=totals.size)
     binned = binned.astype(np.float32)
-    polar = ndimage.gaussian_filter1d(
-        binned.reshape(n_rings, n_theta), sigma_bins, axis=1, mode="wrap", truncate=3.0
-    ).ravel()
+    polar = _angular_blur(binned.reshape(n_rings, n_theta), sigma_bins, _arc(key, sigma_bins))
     del binned
     norm = _blurred_totals(*key, sigma_bins)
     empty = norm <= 1e-6
@@ -320,12 +321,49 @@ def _blurred_totals(
     shape: tuple[int, int], center: tuple[float, float], n_theta: int, sigma_bins: float
 ) -> np.ndarray:
     """The normaliser of the polar blur: the blurred per-bin pixel weights."""
-    _, _, totals, n_rings = _polar_geometry(shape, center, n_theta)
-    out = ndimage.gaussian_filter1d(
-        totals.reshape(n_rings, n_theta), sigma_bins, axis=1, mode="wrap", truncate=3.0
-    ).ravel()
+    key = (shape, center, n_theta)
+    _, _, totals, n_rings, _ = _polar_geometry(*key)
+    out = _angular_blur(totals.reshape(n_rings, n_theta), sigma_bins, _arc(key, sigma_bins))
     out.setflags(write=False)
     return out
+
+
+def _arc(
+    key: tuple[tuple[int, int], tuple[float, float], int], sigma_bins: float
+) -> np.ndarray | None:
+    """The angle bins, in order around the circle, that the polar blur of
+    :func:`rotation_blur` needs: those holding a pixel and ``3 sigma_bins`` on either side;
+    None when that is the whole circle.
+
+    A centre at or beyond the image's edge sees the image under an angle of 180 degrees or
+    less (90 at a corner, the fusion's own frame), so most bins hold nothing, and blurring
+    them costs as much as the rest.
+    """
+    held = _polar_geometry(*key)[4]
+    n_theta = held.size
+    reach = int(3.0 * sigma_bins + 0.5)  # gaussian_filter1d's radius at truncate=3
+    cols = np.flatnonzero(held)
+    # the widest run of empty bins, around the circle: from cols[k] to cols[k + 1]
+    gaps = np.diff(cols, append=cols[0] + n_theta) - 1
+    k = int(np.argmax(gaps))
+    if gaps[k] <= 2 * reach:
+        return None
+    start = int(cols[(k + 1) % cols.size]) - reach
+    return (start + np.arange(n_theta - int(gaps[k]) + 2 * reach)) % n_theta
+
+
+def _angular_blur(bins: np.ndarray, sigma_bins: float, arc: np.ndarray | None) -> np.ndarray:
+    """``bins`` (rings x angle) blurred along the angle, flat; only over ``arc`` (:func:`_arc`)
+    when given, where the bins beyond it are empty: the same sums, bit for bit, as the
+    blur around the whole circle, at the bins any pixel reads."""
+    if arc is None:
+        out = ndimage.gaussian_filter1d(bins, sigma_bins, axis=1, mode="wrap", truncate=3.0)
+        return out.ravel()
+    out = np.zeros_like(bins)
+    out[:, arc] = ndimage.gaussian_filter1d(
+        bins[:, arc], sigma_bins, axis=1, mode="constant", truncate=3.0
+    )
+    return out.ravel()
 
 
 def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
@@ -467,7 +505,13 @@ def propagate(
     shift = np.array([[1.0, 0.0, -lo[0]], [0.0, 1.0, -lo[1]], [0.0, 0.0, 1.0]])
     window = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
     # deviations from cval are blurred, so that cells outside B stay exactly cval
-    moved = warp(image, shift @ m, window, order=1, cval=cval).astype(np.float32) - cval
+    to_window = shift @ m
+    if window == np.shape(image) and np.array_equal(to_window, np.eye(3)):
+        # B blurred where it is (the fusion's own-frame blur): the bilinear read would
+        # return every cell as it is, at a third of the blur's cost
+        moved = np.asarray(image, dtype=np.float32) - np.float32(cval)
+    else:
+        moved = warp(image, to_window, window, order=1, cval=cval).astype(np.float32) - cval
     if s_pp > 0:
         moved = rotation_blur(moved, math.sqrt(s_pp), tuple(center_out - lo))
     out[lo[1] : hi[1], lo[0] : hi[0]] = translation_blur(moved, cov_t) + cval

@@ -16,10 +16,12 @@ import pytest
 from agent import wire
 from agent.actions import PersistMap, Publish, Reply
 from agent.evaluate import link_error
+from agent.fusecache import LayerCache
 from agent.globalmap import Component, build_components
 from agent.links import LinkRecord, epoch_of
 from agent.node import FleetNode, Instant, NodeOptions
 from agent.state import StateDir, StoredMap
+from pgvd.fusion import fuse_layers
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 from pgvd.io import read_map
 from pgvd.posegraph import components, solve
@@ -250,16 +252,15 @@ def test_fusion_takes_the_anchor_as_base_then_the_others_by_id(lab) -> None:
         LinkRecord(a, 1, b, 1, True, truth(to_r2, a, b), COV, 0.9, a)
         for a, b in itertools.combinations(sorted(grids), 2)
     ]
-    fused: list[tuple[Grid, Grid]] = []
-
-    def fuse(base: Grid, other: Grid, m: np.ndarray, cov: np.ndarray) -> Grid:
-        fused.append((base, other))
-        return base
-
-    (comp,) = build_components(maps, links, fuse, firsts={"r3": 1, "r1": 2, "r2": 2})
+    (comp,) = build_components(maps, links, firsts={"r3": 1, "r1": 2, "r2": 2})
     assert comp.anchor == "r3" and comp.members == ("r1", "r2", "r3")
-    assert len(fused) == 2 and all(base is grids["r3"] for base, _ in fused)
-    assert fused[0][1] is grids["r1"] and fused[1][1] is grids["r2"]
+    mats, covs = comp.transforms, comp.covariances
+    r1, r2 = (LayerCache().layer(r, 1, grids[r], mats[r], covs[r])[0] for r in ("r1", "r2"))
+    in_order = fuse_layers(grids["r3"], [r1, r2])
+    assert comp.grid.origin == in_order.origin
+    np.testing.assert_array_equal(comp.grid.logodds, in_order.logodds)
+    # the entropy filter (37) makes the order tell
+    assert not np.array_equal(comp.grid.logodds, fuse_layers(grids["r3"], [r2, r1]).logodds)
 
 
 def test_a_damaged_first_epoch_is_one_error_line_not_a_crash(lab, tmp_path: Path) -> None:

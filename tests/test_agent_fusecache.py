@@ -14,7 +14,7 @@ from agent.fusecache import LayerCache
 from agent.globalmap import Component, build_components
 from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import FusionWorker, Registration
-from pgvd.fusion import fuse_layers, warp_layer
+from pgvd.fusion import blur_in_own_frame, fuse_layers, warp_layer
 from pgvd.grid import Grid, relative_matrix, rigid_matrix
 
 COV = np.diag([0.2, 0.2, 1e-5])
@@ -83,12 +83,12 @@ def test_a_failing_blur_falls_back_to_the_plain_warp_the_same_everywhere(
 ) -> None:
     a, b, truth = halves
 
-    def fragile(grid: Grid, m: np.ndarray, cov: np.ndarray) -> object:
+    def fragile(grid: Grid, cov: np.ndarray) -> np.ndarray:
         if cov.any():
             raise ZeroDivisionError("float division by zero")
-        return warp_layer(grid, m, cov)
+        return blur_in_own_frame(grid, cov)
 
-    monkeypatch.setattr(agent.fusecache, "warp_layer", fragile)
+    monkeypatch.setattr(agent.fusecache, "blur_in_own_frame", fragile)
     cache = LayerCache()
     maps = {"r1": (1, a), "r2": (1, b)}
     for _ in range(2):  # cold, then warm: the fallback is held with the layer

@@ -50,10 +50,6 @@ def tiny(seed: int) -> Grid:
     return Grid(lo, 0.1)
 
 
-def shifted_fuse(base: Grid, other: Grid, m: np.ndarray, cov: np.ndarray) -> Grid:
-    return Grid(base.logodds + other.logodds, base.resolution, base.origin)
-
-
 class Harness:
     def __init__(self, me: str) -> None:
         self.book = FleetBook()
@@ -61,8 +57,7 @@ class Harness:
         self.links: list[LinkRecord] = []
         self.globals: list[GlobalState] = []
         self.worker = FusionWorker(
-            me, self.book, self.register, self.links.append, self.globals.append, 4.0,
-            shifted_fuse,
+            me, self.book, self.register, self.links.append, self.globals.append, 4.0
         )  # fmt: skip
 
     def register(self, a: Grid, b: Grid) -> Registration:
@@ -382,7 +377,7 @@ def test_a_canvas_that_moved_lets_no_older_epochs_chain_reject_a_true_link(intel
 
     book, decided = FleetBook(), []
     worker = FusionWorker(
-        "r1", book, search, decided.append, lambda state: None, 4.0, shifted_fuse,
+        "r1", book, search, decided.append, lambda state: None, 4.0,
         check=verify_check(),
     )  # fmt: skip
     for robot, grid in (("r1", a), ("r2", b), ("r3", a)):

@@ -25,9 +25,13 @@ def test_the_command_writes_its_tables(shared: Path, tmp_path: Path) -> None:
     assert main([*args, "--out", str(tmp_path)]) == 0
     (row,) = json.loads((tmp_path / "globalmap.json").read_text())
     assert (row["log"], row["robots"], row["members"]) == ("intel", 3, 3)
-    assert set(row["ratio_to_cold"]) == {"in_turn", "cold", "new_version", "unchanged", "re_solved"}
+    assert set(row["ratio_to_cold"]) == {
+        "in_turn", "cold", "new_version", "unchanged", "re_solved", "moved"
+    }  # fmt: skip
     assert row["re_solved_warps"] == 0  # a re-solve by a hair re-warps nobody
-    assert row["layers_mb"] > 0
+    # a real move re-warps the robots it moved, reusing their maps blurred in their frames
+    assert row["moved_warps"] > 0 and row["moved_blurs"] < row["moved_warps"]
+    assert row["held_mb"] > 0
     table = (tmp_path / "globalmap.md").read_text()
     assert "`python3 -m bench globalmap --robots 3 --logs intel --repeat 1`" in table
     assert "| intel | 3 |" in table

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from pgvd import uncertainty
 from pgvd.covariance import CovarianceModel
 from pgvd.grid import matrix_to_pose, rigid_matrix
 from pgvd.transform import warp
@@ -216,6 +218,33 @@ def test_rotation_blur_below_one_angle_bin_is_identity_not_a_crash() -> None:
     # by 0); found by a fleet agent fusing a link with a tiny heading variance.
     img = np.random.default_rng(0).random((200, 200)).astype(np.float32)
     out = rotation_blur(img, 0.0025)
+    assert out.shape == img.shape and np.isfinite(out).all()
+
+
+@pytest.mark.parametrize("center", [(0.0, 0.0), (-40.0, 10.0), (0.0, 60.0), (45.5, 30.5)])
+def test_the_polar_blur_over_the_bins_it_needs_is_the_whole_circles_bit_for_bit(
+    center: tuple[float, float],
+) -> None:
+    """A centre at a corner, outside, on an edge and inside: the angle bins no pixel holds
+    are left out of the polar blur (_arc), which changes no bin any pixel reads."""
+    rng = np.random.default_rng(3)
+    img = rng.random((80, 90)).astype(np.float32) - 0.5
+    sigma_psi = 0.01
+    out = rotation_blur(img, sigma_psi, center)
+    (key,) = uncertainty._CACHED_KEY
+    idx, wts, _, n_rings, _ = uncertainty._polar_geometry(*key)
+    n_theta = key[2]
+    sigma_bins = round(math.sqrt((sigma_psi * n_theta / (2 * math.pi)) ** 2 - 1 / 6), 9)
+    binned = np.bincount(
+        idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=n_rings * n_theta
+    )
+    bins = binned.astype(np.float32).reshape(n_rings, n_theta)
+    arc = uncertainty._arc(key, sigma_bins)
+    assert (arc is None) == (center == (45.5, 30.5))  # inside: every angle holds a pixel
+    restricted = uncertainty._angular_blur(bins, sigma_bins, arc)
+    whole = uncertainty._angular_blur(bins, sigma_bins, None)
+    read = np.unique(idx)
+    assert restricted[read].tobytes() == whole[read].tobytes()
     assert out.shape == img.shape and np.isfinite(out).all()
 
 
