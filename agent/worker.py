@@ -549,6 +549,8 @@ class FusionWorker:
         self.quiet_s = QUIET_S
         #: When each of this agent's provisional accepts on the maps held was first seen.
         self._quiet_since: dict[tuple[object, ...], float] = {}
+        #: Whether one of them may yet enter the map (:meth:`_quiet`): not settled.
+        self._quiet_waiting = False
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
         self._thread = threading.Thread(
@@ -695,27 +697,29 @@ class FusionWorker:
         saying so, and waits no more while they do: its record is the decision.
         """
         versions = {r: v for r, (v, _) in snap.maps.items()}
-        waiting: dict[tuple[object, ...], tuple[LinkRecord, Verdict | None]] = {}
-        for ln in snap.links:
-            if not (
-                ln.decided_by == self.me
-                and standing_accept(ln.state, ln.margin, ln.first_margin, self.min_margin)
-                and (ln.version_a, ln.version_b) == (versions.get(ln.a), versions.get(ln.b))
-            ):
-                continue
-            verdict = self._settled_verdict(snap, ln)
-            if verdict is None or verdict.state != CANDIDATE or verdict.reason != ln.reason:
-                waiting[(ln.identity, ln.version_a, ln.version_b)] = (ln, verdict)
-        self._quiet_since = {k: self._quiet_since.get(k, now) for k in waiting}
+        standing = {
+            (ln.a, ln.version_a, ln.b, ln.version_b): ln
+            for ln in snap.links
+            if ln.decided_by == self.me
+            and standing_accept(ln.state, ln.margin, ln.first_margin, self.min_margin)
+            and (ln.version_a, ln.version_b) == (versions.get(ln.a), versions.get(ln.b))
+        }
+        # by versions, not by record: a refusal recorded keeps the time its accept was ripe
+        self._quiet_since = {k: self._quiet_since.get(k, now) for k in standing}
         ripe = [
-            (ln, verdict)
-            for k, (ln, verdict) in waiting.items()
-            if verdict is not None
-            and (self._final(snap, ln) or now - self._quiet_since[k] >= self.quiet_s)
+            (ln, self._settled_verdict(snap, ln))
+            for k, ln in standing.items()
+            if self._final(snap, ln) or now - self._quiet_since[k] >= self.quiet_s
         ]
-        if not ripe:
+        # a refusal on record: the accept stays a candidate, as its record already says
+        refused = sum(
+            v is not None and (v.state, v.reason) == (CANDIDATE, ln.reason) for ln, v in ripe
+        )
+        new = [(ln, v) for ln, v in ripe if v is not None and v.reason != ln.reason]
+        self._quiet_waiting = len(standing) > refused
+        if not new:
             return False
-        held, verdict = min(ripe, key=lambda r: r[0].pair)
+        held, verdict = min(new, key=lambda r: r[0].pair)
         res = Registration(True, held.matrix, held.covariance, held.score, "", held.margin)
         base = replace(held, revision=held.revision + 1)
         how = "final" if self._final(snap, held) else "quiet"
@@ -1225,5 +1229,5 @@ class FusionWorker:
             len(components), layers.warps - warps, *clock.elapsed(),
         )  # fmt: skip
         # an own provisional accept still waiting on final or quiet maps may yet enter the map
-        settled = snap.settled and not self._quiet_since
+        settled = snap.settled and not self._quiet_waiting
         self.on_global(GlobalState(components, settled, time.time()))
