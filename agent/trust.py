@@ -44,12 +44,12 @@ simply accepted or rejected on its first decision:
   3. it is a search's provisional accept on maps that will not change
      (:func:`settled_verdict`): both robots' *final* maps, their sources' last versions,
      which their manifests mark (:class:`protocol.messages.Manifest`), at once; or maps
-     that stayed unchanged for
-     :data:`QUIET_S`, for sources that never say they are done (a parked robot, a live
-     SLAM that stopped).  It is the same evidence as a one-shot ``pgvd merge`` of the same
-     two maps: no newer version can come to re-check it on, and holding the link back for
-     ever would do worse than that merge.  Waiting on final maps bought nothing but the
-     wait: 10 s of the fleet bench's 13-17 s to agree after the last update at 8 robots.
+     that stayed unchanged for :data:`QUIET_S`, for sources that never say they are done
+     (a parked robot, a live SLAM that stopped).  It is the same evidence as a one-shot
+     ``pgvd merge`` of the same two maps: no newer version can come to re-check it on, and
+     holding the link back for ever would do worse than that merge.  Waiting on final
+     maps bought nothing but the wait: 10 s of the fleet bench's 13-17 s to agree after
+     the last update at 8 robots.
 
      Being a lone pair's decision on the merge's own bar, it is the weakest evidence, and
      never overrides other evidence: if links in the map already place its two robots
