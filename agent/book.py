@@ -35,7 +35,8 @@ def next_version(held: int | None, now: float, new_epoch: bool) -> int:
 @dataclass(frozen=True)
 class Snapshot:
     """A consistent view: ``maps`` ``{robot: (version, grid)}``, the links to use, settled;
-    ``firsts`` ``{robot: first epoch}`` of the maps whose first epoch is known."""
+    ``firsts`` ``{robot: first epoch}`` of the maps whose first epoch is known; ``finals``
+    the robots whose map held is their source's last version."""
 
     maps: dict[str, tuple[int, Grid]]
     links: list[LinkRecord]
@@ -53,6 +54,7 @@ class Snapshot:
     #: The book's generation this snapshot lists: equal generations, equal maps, links used
     #: and keys needed (a worker reuses what it made of them).  None: not the book's.
     generation: int | None = None
+    finals: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)
@@ -161,12 +163,14 @@ class _Pairs:
 
 
 class FleetBook:
-    """Latest maps, each with its robot's first epoch when known, and link cache."""
+    """Latest maps, each with its robot's first epoch when known and whether it is the
+    robot's last, and link cache."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._maps: dict[str, tuple[int, Grid]] = {}
         self._firsts: dict[str, int] = {}
+        self._finals: set[str] = set()
         self._links = LinkCache()
         self._pairs = _Pairs()
         self._alive: frozenset[str] | None = None
@@ -193,11 +197,19 @@ class FleetBook:
         with self._lock:
             return self._maps.get(robot)
 
-    def put_map(self, robot: str, version: int, grid: Grid, first_epoch: int | None = None) -> bool:
+    def put_map(
+        self,
+        robot: str,
+        version: int,
+        grid: Grid,
+        first_epoch: int | None = None,
+        final: bool = False,
+    ) -> bool:
         """Store ``grid`` if ``version`` is newer than what is held; True if stored.
 
         ``first_epoch`` is the epoch of the robot's first version, as the version's
-        manifest said (None: unknown); it goes with the version.
+        manifest said (None: unknown), and ``final`` whether the manifest marked the
+        version the robot's last; both go with the version.
         """
         with self._lock:
             held = self._maps.get(robot)
@@ -208,6 +220,10 @@ class FleetBook:
                 self._firsts.pop(robot, None)
             else:
                 self._firsts[robot] = first_epoch
+            if final:
+                self._finals.add(robot)
+            else:
+                self._finals.discard(robot)
             versions = {r: v for r, (v, _) in self._maps.items()}
             self._links.prune(versions, robot)
             if held is None:
@@ -221,6 +237,7 @@ class FleetBook:
         with self._lock:
             held = self._maps.pop(robot, None)
             self._firsts.pop(robot, None)
+            self._finals.discard(robot)
             self._links.forget(robot)
             self._pairs.drop(robot)
             self._generation += 1
@@ -273,4 +290,5 @@ class FleetBook:
                 held.link_ids,
                 held.accepted_ids,
                 held.generation,
+                frozenset(self._finals),
             )

@@ -270,9 +270,11 @@ class FleetNode:
     ) -> list[Action]:
         """The own source's map changed: publish it when the change gate says it is due.
 
-        ``final`` marks the source's last map (published whatever the gate says, in a new
-        registration epoch); ``resume``
-        is what the source needs to continue from this map after a restart.
+        ``final`` marks the source's last map: published whatever the gate says, in a new
+        registration epoch, its manifest marked final (:class:`protocol.messages.Manifest`)
+        so that peers confirm a decision on it without waiting for a newer version
+        (:mod:`agent.trust`); ``resume`` is what the source needs to continue from this map
+        after a restart.
         """
         self._pending = (grid, final, dict(resume or {}))
         return self._publish_pending(now)
@@ -284,7 +286,7 @@ class FleetNode:
             return []
         self._unsaved = None
         self.outbound.install(unsaved)
-        self.book.put_map(self.me, version, unsaved.grid, unsaved.first_epoch)
+        self.book.put_map(self.me, version, unsaved.grid, unsaved.first_epoch, unsaved.final)
         self.last_update = now.wall
         tiles, manifest = unsaved.published
         key = self.keys.tiles(self.me)
@@ -469,8 +471,8 @@ class FleetNode:
             if self.inbound.incomplete(msg.robot):
                 self.fetches.later(msg.robot, now.mono)  # tiles may still be in flight
             return []
-        version, grid, first = done
-        if not self.book.put_map(msg.robot, version, grid, first):
+        version, grid, first, final = done
+        if not self.book.put_map(msg.robot, version, grid, first, final):
             return []
         self.counters.add("maps_received")
         self.fetches.cancel(msg.robot)
@@ -488,14 +490,14 @@ class FleetNode:
         held = self.book.map_of(self.me)
         try:
             sent = wire.on_the_wire(grid)
-            # A source's last map always starts an epoch: peers cannot tell it is the last,
-            # and a pair rejected on an early version of this epoch is decided once more on
-            # the final maps (a candidate is re-checked at every version anyway).
+            # A source's last map always starts an epoch: a pair rejected on an early
+            # version of this epoch is decided once more on the final maps (a candidate is
+            # re-checked at every version anyway).
             new_epoch = final or epoch_due(self._epoch_base, sent, self.opts.epoch_change)
             version = next_version(None if held is None else held[0], now.wall, new_epoch)
             # A robot's first version fixes its age for good (persisted with every version).
             first = epoch_of(version) if self._first_epoch is None else self._first_epoch
-            self._unsaved = self.outbound.encode(version, sent, held, first)
+            self._unsaved = self.outbound.encode(version, sent, held, first, final)
         except ProtocolError as exc:  # e.g. a map beyond the wire's limits: keep serving
             return [Drop("own_map_unencodable", self.me, str(exc))]
         self._first_epoch = first

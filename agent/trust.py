@@ -41,8 +41,25 @@ simply accepted or rejected on its first decision:
   2. it lies on a consistent cycle: the accepted links of the current epochs already place
      its robots where its pose does, within the hold (at any version: a cycle's evidence is
      other pairs' decisions, not more of the same two maps); or
-  3. it is a search's provisional accept whose maps stayed unchanged for :data:`QUIET_S`
-     (:func:`quiet_verdict`).
+  3. it is a search's provisional accept on maps that will not change
+     (:func:`settled_verdict`): both robots' *final* maps, their sources' last versions,
+     which their manifests mark (:class:`protocol.messages.Manifest`), at once; or maps
+     that stayed unchanged for :data:`QUIET_S`, for sources that never say they are done
+     (a parked robot, a live SLAM that stopped).  It is the same evidence as a one-shot
+     ``pgvd merge`` of the same two maps: no newer version can come to re-check it on, and
+     holding the link back for ever would do worse than that merge.  Waiting on final
+     maps bought nothing but the wait: 10 s of the fleet bench's 13-17 s to agree after
+     the last update at 8 robots.
+
+     Being a lone pair's decision on the merge's own bar, it is the weakest evidence, and
+     never overrides other evidence: if links in the map already place its two robots
+     together (accepted links of current epochs, the pose graph's robust solution), it is
+     confirmed only where they predict it, within the hold, as a cycle is; elsewhere it
+     stays a candidate, its reason saying how far off it is (on a held-out run, a fleet of
+     6 ended with a robot wrong, placed by a link the quiet rule confirmed).  While links
+     of older epochs join the two robots (their prediction maps the pixels of older maps,
+     metres off), it waits for their current decisions.  The final mark is not persisted:
+     an agent restarted holds its maps as not final, and waits :data:`QUIET_S` on them.
 
   A search on a newer epoch that accepts another pose is a first try of its own.  An
   accepted or confirmed link whose pair a new epoch re-decides in the grey zone at the same
@@ -102,10 +119,11 @@ IN_MAP = frozenset({ACCEPTED, CONFIRMED})
 #: confidence by count alone, the tail's 0.1 % resting on the fit.
 HIGH_BAR = 0.89
 #: Seconds a provisional accept's two maps must stay unchanged before the agent that decided
-#: it confirms it on the merge's own bar (:func:`quiet_verdict`).  Finished maps (a saved
-#: map, a robot parked, a replay's last version) bring no newer version to re-check on, and
-#: holding their link back for ever would do worse than a one-shot ``pgvd merge``.  Twice
-#: the 5 s map interval of gmapping and slam_toolbox: a robot still mapping re-checks first.
+#: it confirms it on the merge's own bar (:func:`settled_verdict`), unless both are marked
+#: final.  Finished maps that do not say so (a robot parked, a SLAM that stopped) bring no
+#: newer version to re-check on, and holding their link back for ever would do worse than a
+#: one-shot ``pgvd merge``.  Twice the 5 s map interval of gmapping and slam_toolbox: a
+#: robot still mapping re-checks first.
 QUIET_S = 10.0
 #: Lowest margin of the grey zone, the merge's own (:class:`pgvd.params.DecisionParams`):
 #: below it, on the development bench, almost no right pose is worth keeping
@@ -152,11 +170,16 @@ def pose_change(before: np.ndarray, after: np.ndarray, b: Grid) -> tuple[float, 
     return shift, turn
 
 
+def within_hold(shift: float, turn: float) -> bool:
+    """Whether a pose moved by ``shift`` metres and ``turn`` degrees (:func:`pose_change`)
+    stays within :data:`HOLD_M` and :data:`HOLD_DEG`."""
+    return shift <= HOLD_M and turn <= HOLD_DEG
+
+
 def holds(before: np.ndarray, after: np.ndarray, b: Grid) -> bool:
     """Whether the pose ``after`` of map ``b`` is ``before`` within :data:`HOLD_M` and
     :data:`HOLD_DEG`."""
-    shift, turn = pose_change(before, after, b)
-    return shift <= HOLD_M and turn <= HOLD_DEG
+    return within_hold(*pose_change(before, after, b))
 
 
 def _margin_text(margin: float | None) -> str:
@@ -176,20 +199,43 @@ def standing_accept(
     """Whether a link is a search's provisional accept (its first decision's margin
     ``first_margin`` cleared ``min_margin``) that its re-checks left above the bar: the kind
     a newer epoch's accept at the same pose confirms (:func:`first_verdict`), and
-    :func:`quiet_verdict` too.  A grey-zone candidate that a re-check lifted above the bar
+    :func:`settled_verdict` too.  A grey-zone candidate that a re-check lifted above the bar
     is not: the check weighs only rivals within its basin, so no search of its epochs ever
     accepted it."""
     return provisional(state, margin, min_margin) and provisional(state, first_margin, min_margin)
 
 
-def quiet_verdict(margin: float | None, quiet_s: float) -> Verdict:
-    """A provisional accept whose maps stayed unchanged for ``quiet_s`` (:data:`QUIET_S`):
-    confirmed on the merge's own bar, as a one-shot merge of the same two maps would be."""
+def settled_verdict(
+    margin: float | None, quiet_s: float | None, off: tuple[float, float] | None
+) -> Verdict:
+    """A search's provisional accept on maps that will not change: confirmed on the merge's
+    own bar, as a one-shot merge of the same two maps would be, unless other links in the
+    map place its robots elsewhere.
+
+    Parameters
+    ----------
+    margin : the accept's margin.
+    quiet_s : None when both maps are their robots' final versions; else the seconds both
+        stayed unchanged (:data:`QUIET_S`).
+    off : how far the accept's pose lies from the one the links in the map predict for the
+        pair, ``(metres, degrees)`` (:func:`pose_change`); None when no such link places
+        the two robots together.  Beyond the hold (:func:`within_hold`) the accept stays a
+        candidate: the weakest evidence never overrides other evidence.
+    """
     m = _margin_text(margin)
-    return Verdict(
-        CONFIRMED,
-        f"provisional accept unchallenged on unchanged maps for {quiet_s:.0f} s: margin {m}",
+    why = (
+        "on both robots' final maps"
+        if quiet_s is None
+        else f"unchallenged on unchanged maps for {quiet_s:.0f} s"
     )
+    if off is not None and not within_hold(*off):
+        return Verdict(
+            CANDIDATE,
+            f"not confirmed {why}: the links in the map place the pair {off[0]:.2f} m and "
+            f"{off[1]:.1f} deg from its pose (hold {HOLD_M} m, {HOLD_DEG} deg): margin {m}",
+        )
+    agree = "" if off is None else ", where the links in the map place the pair"
+    return Verdict(CONFIRMED, f"provisional accept {why}{agree}: margin {m}")
 
 
 def searched_accept(margin: float | None, min_margin: float, why: str = "") -> Verdict:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -85,13 +86,25 @@ class TileBudget:
 class Prepared:
     """One own version encoded: ``published`` goes out on the tiles and manifest keys, ``whole``
     (every tile, default message size) answers the ``latest`` queryable. Each is
-    ``(tile messages, manifest)``; both manifests carry ``first_epoch``."""
+    ``(tile messages, manifest)``; both manifests carry ``first_epoch`` and, for the
+    source's last version, the ``final`` mark."""
 
     version: int
     grid: Grid
     published: tuple[list[bytes], bytes]
     whole: tuple[list[bytes], bytes]
     first_epoch: int | None = None
+    final: bool = False
+
+
+class Received(NamedTuple):
+    """A peer's version completed: its number, grid, the robot's first epoch (None when
+    the manifest did not say) and whether the manifest marked it the robot's last."""
+
+    version: int
+    grid: Grid
+    first_epoch: int | None
+    final: bool
 
 
 class Outbound:
@@ -115,19 +128,22 @@ class Outbound:
         grid: Grid,
         previous: tuple[int, Grid] | None,
         first_epoch: int | None = None,
+        final: bool = False,
     ) -> Prepared:
         """``version`` encoded, to publish (a delta against ``previous`` if given) and to serve;
         its manifests carry the robot's ``first_epoch`` (the merged frame's anchor is chosen
-        by it, :func:`agent.globalmap.anchor_rank`).
+        by it, :func:`agent.globalmap.anchor_rank`) and, with ``final``, the mark of the
+        source's last version (:class:`protocol.messages.Manifest`).
 
         Nothing changes until :meth:`install`: a version that is not yet persisted must not be
         served to a fetch.
         """
-        full = self._encode(version, grid, None, False, first_epoch=first_epoch)
+        marks = {"first_epoch": first_epoch, "final": final}
+        full = self._encode(version, grid, None, False, **marks)
         if previous is None and not self.datagrams:
-            return Prepared(version, grid, full, full, first_epoch)
-        published = self._encode(version, grid, previous, self.datagrams, first_epoch=first_epoch)
-        return Prepared(version, grid, published, full, first_epoch)
+            return Prepared(version, grid, full, full, first_epoch, final)
+        published = self._encode(version, grid, previous, self.datagrams, **marks)
+        return Prepared(version, grid, published, full, first_epoch, final)
 
     def install(self, prepared: Prepared) -> None:
         """Serve ``prepared`` as the latest version from now on."""
@@ -153,6 +169,7 @@ class Outbound:
         packed: bool,
         indices: frozenset[int] | None = None,
         first_epoch: int | None = None,
+        final: bool = False,
     ) -> tuple[list[bytes], bytes]:
         since = {} if previous is None else {"since": previous[1], "base_version": previous[0]}
         packing = {"max_message_bytes": DATAGRAM_BYTES, "lone_oversize": True} if packed else {}
@@ -165,6 +182,7 @@ class Outbound:
             tile_size=self._tile_size,
             indices=indices,
             first_epoch=first_epoch,
+            final=final,
             **since,
             **packing,
         )
@@ -212,8 +230,8 @@ class Inbound:
         (:func:`protocol.codec.peek_map`: cheap, nothing is decompressed)."""
         return peek_map(data, self.key, self.limits)
 
-    def feed(self, msg: MapTiles | Manifest) -> tuple[int, Grid, int | None] | None:
-        """Feed a map message; ``(version, grid, first epoch)`` when a version completes.
+    def feed(self, msg: MapTiles | Manifest) -> Received | None:
+        """Feed a map message; :class:`Received` when a version completes.
 
         Raises ProtocolError for a manifest whose first epoch is newer than its version's.
         """
@@ -233,7 +251,7 @@ class Inbound:
         if grid is None:
             return None
         assert reasm.version is not None
-        return reasm.version, grid, reasm.first_epoch
+        return Received(reasm.version, grid, reasm.first_epoch, reasm.final)
 
     def wanted(self, robot: str) -> tuple[int, list[int]] | None:
         """The version of ``robot`` being assembled and the tiles it lacks, if a manifest waits."""

@@ -86,9 +86,10 @@ from agent.trust import (
     holds,
     in_grey_zone,
     link_strength,
+    pose_change,
     provisional,
-    quiet_verdict,
     recheck_verdict,
+    settled_verdict,
     standing_accept,
 )
 from pgvd.grid import Grid
@@ -545,6 +546,8 @@ class FusionWorker:
         self.quiet_s = QUIET_S
         #: When each of this agent's provisional accepts on the maps held was first seen.
         self._quiet_since: dict[tuple[object, ...], float] = {}
+        #: Whether one of them may yet enter the map (:meth:`_quiet`): not settled.
+        self._quiet_waiting = False
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
         self._thread = threading.Thread(
@@ -681,29 +684,60 @@ class FusionWorker:
         return held[1], held[2]
 
     def _quiet(self, snap: Snapshot, now: float) -> bool:
-        """Confirm one of this agent's provisional accepts whose maps have not changed for
-        :attr:`quiet_s` (:func:`agent.trust.quiet_verdict`); True if one was.
+        """Decide one of this agent's provisional accepts whose maps will not change: both
+        final at once, else once unchanged for :attr:`quiet_s`
+        (:func:`agent.trust.settled_verdict`, :meth:`_settled_verdict`); True if one was.
 
         Only the agent that decided the accept confirms it, so the fleet publishes one
         record for it; the record, not the clock, is what every agent's global map follows.
+        An accept that the links in the map contradict is recorded once as a candidate
+        saying so, and waits no more while they do: its record is the decision.
         """
         versions = {r: v for r, (v, _) in snap.maps.items()}
-        waiting = {
-            (ln.identity, ln.version_a, ln.version_b): ln
+        standing = {
+            (ln.a, ln.version_a, ln.b, ln.version_b): ln
             for ln in snap.links
             if ln.decided_by == self.me
             and standing_accept(ln.state, ln.margin, ln.first_margin, self.min_margin)
             and (ln.version_a, ln.version_b) == (versions.get(ln.a), versions.get(ln.b))
         }
-        self._quiet_since = {k: self._quiet_since.get(k, now) for k in waiting}
-        ripe = [waiting[k] for k, t in self._quiet_since.items() if now - t >= self.quiet_s]
-        if not ripe:
+        # by versions, not by record: a refusal recorded keeps the time its accept was ripe
+        self._quiet_since = {k: self._quiet_since.get(k, now) for k in standing}
+        ripe = [
+            (ln, self._settled_verdict(snap, ln))
+            for k, ln in standing.items()
+            if self._final(snap, ln) or now - self._quiet_since[k] >= self.quiet_s
+        ]
+        # a refusal on record: the accept stays a candidate, as its record already says
+        refused = sum(
+            v is not None and (v.state, v.reason) == (CANDIDATE, ln.reason) for ln, v in ripe
+        )
+        new = [(ln, v) for ln, v in ripe if v is not None and v.reason != ln.reason]
+        self._quiet_waiting = len(standing) > refused
+        if not new:
             return False
-        held = min(ripe, key=lambda ln: ln.pair)
+        held, verdict = min(new, key=lambda r: r[0].pair)
         res = Registration(True, held.matrix, held.covariance, held.score, "", held.margin)
         base = replace(held, revision=held.revision + 1)
-        self._record(base, res, quiet_verdict(held.margin, self.quiet_s), "quiet", _Clock.start())
+        how = "final" if self._final(snap, held) else "quiet"
+        self._record(base, res, verdict, how, _Clock.start())
         return True
+
+    @staticmethod
+    def _final(snap: Snapshot, ln: LinkRecord) -> bool:
+        """Whether both maps of ``ln`` held are their robots' last versions."""
+        return ln.a in snap.finals and ln.b in snap.finals
+
+    def _settled_verdict(self, snap: Snapshot, ln: LinkRecord) -> Verdict | None:
+        """:func:`agent.trust.settled_verdict` of the provisional accept ``ln`` on maps that
+        will not change, against the pose the accepted links predict for its pair
+        (:meth:`_chain_pose`); None while links of older epochs join its robots."""
+        a, b = ln.pair
+        current, predicted = self._chain_pose(snap, a, b)
+        if not current:
+            return None
+        off = None if predicted is None else pose_change(predicted, ln.matrix, snap.maps[b][1])
+        return settled_verdict(ln.margin, None if self._final(snap, ln) else self.quiet_s, off)
 
     def _own_group(self, snap: Snapshot) -> tuple[str, ...]:
         """The robots the accepted links place with this agent's own."""
@@ -845,15 +879,27 @@ class FusionWorker:
         """
         if self.check is None:
             return False
+        _, predicted = self._chain_pose(snap, a, b, provisional)
+        return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
+
+    def _chain_pose(
+        self, snap: Snapshot, a: str, b: str, provisional: bool = False
+    ) -> tuple[bool, np.ndarray | None]:
+        """What the accepted links say of ``(a, b)``: whether those joining the two are all
+        of current epochs (:func:`_current_chain`; False: no prediction to trust yet), and
+        the pose they predict (:func:`predict`), None when they do not place the two
+        together.  ``provisional``: the other pairs' provisional accepts count as links
+        (:meth:`_on_cycle`)."""
         chains = self._chains_of(snap)
         if provisional:
             links, chains = self._provisional_chains(snap, (a, b))
             snap = replace(snap, links=links)
         group = next((g for g in chains.groups if a in g and b in g), None)
-        if group is None or not _current_chain(snap, group):
-            return False
-        predicted = predict(chains.solved()[0], a, b)
-        return predicted is not None and holds(predicted, matrix, snap.maps[b][1])
+        if group is None:
+            return True, None
+        if not _current_chain(snap, group):
+            return False, None
+        return True, predict(chains.solved()[0], a, b)
 
     def _provisional_chains(
         self, snap: Snapshot, pair: tuple[str, str]
@@ -1178,6 +1224,6 @@ class FusionWorker:
             "built %d components, %d maps warped: %.2f s, %.2f s CPU",
             len(components), layers.warps - warps, *clock.elapsed(),
         )  # fmt: skip
-        # an own provisional accept still waiting on quiet maps may yet enter the map
-        settled = snap.settled and not self._quiet_since
+        # an own provisional accept still waiting on final or quiet maps may yet enter the map
+        settled = snap.settled and not self._quiet_waiting
         self.on_global(GlobalState(components, settled, time.time()))

@@ -8,9 +8,10 @@ Messages (:mod:`protocol.messages`, frozen dataclasses)
     ``Tile(index, checksum, cells: int8 ndarray, base_checksum=None)``,
     ``MapTiles(fleet, robot, version, geometry, tiles, base_version=None)``,
     ``Manifest(fleet, robot, version, geometry, checksums: {tile index: crc32},
-    base_version=None, digest=None, first_epoch=None)`` (a delta manifest when
-    base_version is set; ``first_epoch``, the epoch of the robot's first version, a
-    trailing field a manifest may leave out),
+    base_version=None, digest=None, first_epoch=None, final=False)`` (a delta manifest when
+    base_version is set; ``first_epoch``, the epoch of the robot's first version, and
+    ``final``, the mark of the robot's last version, trailing fields a manifest may leave
+    out: an older manifest reads as not saying and not final),
     ``Link(fleet, decided_by, robot_a, robot_b, version_a, version_b, accepted,
     matrix 3x3, covariance 3x3, score, trust=None)``, ``trust`` a
     ``LinkTrust(state, margin, first_margin, reason, first_version_a, first_version_b, holds,
@@ -30,7 +31,8 @@ Bytes (:mod:`protocol.codec`)
 Maps (:mod:`protocol.mapsync`)
     ``encode_map(fleet, robot, version, grid, key=None, since=None,
     base_version=None, max_message_bytes=60_000, tile_size=128, indices=None,
-    lone_oversize=False, first_epoch=None) -> (tile_messages: list[bytes], manifest: bytes)``:
+    lone_oversize=False, first_epoch=None, final=False) -> (tile_messages: list[bytes],
+    manifest: bytes)``:
     log-odds quantised to int8 (:mod:`protocol.quantize`), cut into 128x128
     tiles, only tiles holding knowledge sent, each in the smallest of three
     byte layouts, the layouts of one message compressed as one stream by
@@ -51,8 +53,8 @@ Maps (:mod:`protocol.mapsync`)
     the newest manifest is held (older versions are ignored; tiles ahead of
     their manifest are buffered, bounded by ``limits.max_buffered_cells``);
     ``missing() -> list[int]`` names the tile indices to fetch, e.g. a delta
-    whose base this receiver never had; ``version``, ``quantised`` and
-    ``first_epoch`` hold the last complete one; ``dropped`` counts buffered
+    whose base this receiver never had; ``version``, ``quantised``,
+    ``first_epoch`` and ``final`` hold the last complete one; ``dropped`` counts buffered
     messages that contradicted their manifest.  A sender's versions must keep
     growing across its restarts.
 

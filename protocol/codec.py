@@ -150,7 +150,7 @@ def _body(msg: Message) -> list[Any]:
         return [
             KIND_MANIFEST, msg.fleet, msg.robot, msg.version, _geometry(msg.geometry),
             pack_checksums(msg.geometry, msg.checksums), msg.base_version, msg.digest,
-            *([] if msg.first_epoch is None else [msg.first_epoch]),
+            *_manifest_tail(msg),
         ]  # fmt: skip
     if isinstance(msg, Link):
         return [
@@ -164,6 +164,15 @@ def _body(msg: Message) -> list[Any]:
     if isinstance(msg, Status):
         return [KIND_STATUS, msg.fleet, msg.robot, msg.seq, dict(msg.counters)]
     raise ProtocolError(f"cannot encode a {type(msg).__name__}", reason="schema")
+
+
+def _manifest_tail(msg: Manifest) -> list[Any]:
+    """A manifest's trailing fields, each left out when it says nothing: the first epoch,
+    then the final mark (present only when true, after a nil first epoch if that is
+    unknown).  Manifests of earlier agents end before either."""
+    if msg.final:
+        return [msg.first_epoch, True]
+    return [] if msg.first_epoch is None else [msg.first_epoch]
 
 
 def _trust(trust: LinkTrust) -> list[Any]:
@@ -292,6 +301,10 @@ class _Fields:
     def more(self) -> bool:
         """Whether fields remain: a body that grew a trailing field reads both forms."""
         return self._next < len(self._values)
+
+    def left(self) -> int:
+        """How many fields remain."""
+        return len(self._values) - self._next
 
     def done(self) -> None:
         extra = len(self._values) - self._next
@@ -436,8 +449,13 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
     packed = fields.take("checksums", bytes)
     base_version = fields.take("base_version", int, nullable=True)
     digest = fields.take("digest", int, nullable=True)
-    # A manifest that does not say its robot's first epoch ends here.
-    first_epoch = fields.take("first_epoch", int) if fields.more() else None
+    # A manifest that does not say its robot's first epoch ends here; one of its robot's
+    # last version carries the final mark after it (the first epoch nil when unknown).
+    marked = fields.left() > 1
+    first_epoch = fields.take("first_epoch", int, nullable=marked) if fields.more() else None
+    final = fields.take("final", bool) if marked else False
+    if marked and not final:
+        raise ProtocolError("a manifest's final mark, when present, must be true", reason="value")
     fields.done()
     n = geometry.n_tiles
     bitmap = -(-n // 8)
@@ -456,7 +474,9 @@ def _parse_manifest(fields: _Fields, limits: Limits) -> Manifest:
         )
     crcs = np.frombuffer(packed, "<u4", offset=bitmap)
     checksums = dict(zip(listed.tolist(), crcs.tolist(), strict=True))
-    return Manifest(fleet, robot, version, geometry, checksums, base_version, digest, first_epoch)
+    return Manifest(
+        fleet, robot, version, geometry, checksums, base_version, digest, first_epoch, final
+    )
 
 
 def _matrix(fields: _Fields, name: str) -> list[list[Any]]:

@@ -65,6 +65,7 @@ def encode_map(
     indices: Collection[int] | None = None,
     lone_oversize: bool = False,
     first_epoch: int | None = None,
+    final: bool = False,
 ) -> tuple[list[bytes], bytes]:
     """Encode one version of a robot's own map as tile messages and a manifest.
 
@@ -93,6 +94,7 @@ def encode_map(
         :func:`protocol.codec.encode_tiles`).
     first_epoch : the registration epoch of ``robot``'s first map version, carried by
         the manifest (:class:`protocol.messages.Manifest`); None leaves it out.
+    final : mark the manifest as of ``robot``'s last version (:class:`Manifest`).
 
     Returns
     -------
@@ -104,7 +106,9 @@ def encode_map(
     q = quantise_grid(grid)
     geometry = Geometry(grid.shape, grid.resolution, tuple(grid.origin), tile_size)
     checksums = manifest_checksums(q, geometry)
-    manifest = Manifest(fleet, robot, version, geometry, checksums, first_epoch=first_epoch)
+    manifest = Manifest(
+        fleet, robot, version, geometry, checksums, first_epoch=first_epoch, final=final
+    )
     base = None if since is None else _as_quantised(since)
     if base is not None and base.shape != q.shape:
         base, base_version = None, None
@@ -134,8 +138,9 @@ def _delta_manifest(full: Manifest, base: np.ndarray, base_version: int) -> Mani
     changes.update({i: zero_checksum(g, i) for i in before if i not in full.checksums})
     digest = manifest_digest(g, full.checksums)
     return Manifest(
-        full.fleet, full.robot, full.version, g, changes, base_version, digest, full.first_epoch
-    )
+        full.fleet, full.robot, full.version, g, changes, base_version, digest, full.first_epoch,
+        full.final,
+    )  # fmt: skip
 
 
 #: Delta manifests a reassembler keeps while their base versions complete.
@@ -166,6 +171,8 @@ class MapReassembler:
         self.quantised: np.ndarray | None = None
         #: The first epoch its manifest carried (:class:`Manifest`), or None.
         self.first_epoch: int | None = None
+        #: Whether its manifest marked it its robot's last version (:class:`Manifest`).
+        self.final = False
         #: Buffered tile messages dropped when their manifest arrived and contradicted them.
         self.dropped = 0
         self._manifest: Manifest | None = None  # full manifest being assembled
@@ -309,7 +316,7 @@ class MapReassembler:
         assembler.forget(manifest.checksums)
         q.flags.writeable = False
         self.version, self.quantised, self._manifest = manifest.version, q, None
-        self.first_epoch = manifest.first_epoch
+        self.first_epoch, self.final = manifest.first_epoch, manifest.final
         self._base = manifest
         g = manifest.geometry
         grid = Grid(dequantise(q), g.resolution, g.origin)

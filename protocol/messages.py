@@ -289,6 +289,10 @@ class Manifest:
     high part of a version, ``version >> 31`` for an agent's versions): the robot's age,
     which every receiver needs alike to anchor a merged frame at its oldest robot.  An
     unsigned 32-bit integer, or None for a manifest that does not say.
+
+    ``final`` marks the robot's last map version (a replay's last map, a saved map): no
+    newer version of its map will come, so a receiver need not wait for one before it
+    trusts a decision on it.  False for a manifest that does not say.
     """
 
     fleet: str
@@ -299,6 +303,7 @@ class Manifest:
     base_version: int | None = None
     digest: int | None = None
     first_epoch: int | None = None
+    final: bool = False
 
     def __post_init__(self) -> None:
         _check_map_header(self.fleet, self.robot, self.version, self.geometry, self.base_version)
@@ -311,6 +316,10 @@ class Manifest:
         if self.first_epoch is not None:
             first = check_unsigned(self.first_epoch, "first_epoch", FIRST_EPOCH_BITS)
             object.__setattr__(self, "first_epoch", first)
+        if not isinstance(self.final, bool):
+            raise ProtocolError(
+                f"final must be a bool, got {type(self.final).__name__}", reason="schema"
+            )
         if not isinstance(self.checksums, Mapping):
             raise ProtocolError("checksums must map tile index -> checksum", reason="schema")
         clean = _plain_checksums(self.checksums, self.geometry.n_tiles)
@@ -326,7 +335,7 @@ class Manifest:
     def _key(self) -> tuple:
         return (
             self.fleet, self.robot, self.version, self.geometry, dict(self.checksums),
-            self.base_version, self.digest, self.first_epoch,
+            self.base_version, self.digest, self.first_epoch, self.final,
         )  # fmt: skip
 
     def __eq__(self, other: object) -> bool:

@@ -67,7 +67,7 @@ def expand_manifest(delta: Manifest, base: Mapping[int, int]) -> Manifest:
         )
     return Manifest(
         delta.fleet, delta.robot, delta.version, delta.geometry, full,
-        first_epoch=delta.first_epoch,
+        first_epoch=delta.first_epoch, final=delta.final,
     )  # fmt: skip
 
 

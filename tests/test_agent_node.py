@@ -413,6 +413,27 @@ def test_versions_start_a_new_epoch_only_when_the_map_changed_enough(crops) -> N
     assert epoch_of(v4) == int(T0 + 6.0) and v4 & MINOR_MASK == 0
 
 
+def test_the_sources_last_map_is_marked_final_for_every_peer(crops) -> None:
+    """The manifest of the source's last version carries the final mark, the delta one
+    published and the whole one served alike; a peer's book holds that robot as final, and
+    as not final again once a newer version without the mark comes (a source resumed)."""
+    r1, r2 = ungated("r1"), node("r2")
+    inbound = wire.Inbound("lab", KEY)
+    first = publish(r1, crops[0], 0.0, final=False)
+    deliver(r2, first, 0.1)
+    assert not inbound.decode(first[-1].payload).final and r2.book.snapshot().finals == set()
+    last = publish(r1, crops[1], 2.0)  # final: a delta against the first version
+    assert inbound.decode(last[-1].payload).final
+    served = [a for a in r1.answer_latest(None, None) if a.key.endswith("/m")]
+    assert [inbound.decode(m.payload).final for m in served] == [True]
+    deliver(r2, last, 2.1)
+    snap = r2.book.snapshot()
+    assert snap.finals == {"r1"} and snap.maps["r1"][0] == _version(last)
+    assert r1.book.snapshot().finals == {"r1"}  # its own map, as its worker reads it
+    deliver(r2, publish(r1, crops[0], 4.0, final=False), 4.1)
+    assert r2.book.snapshot().finals == set()
+
+
 def _version(sent: list[Publish]) -> int:
     return wire.Inbound("lab", KEY).decode(sent[-1].payload).version
 

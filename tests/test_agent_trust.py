@@ -357,18 +357,21 @@ def near_miss(truth: np.ndarray, b: Grid, deg: float) -> np.ndarray:
     return truth @ turn
 
 
-def pair_of_agents(intel_pair, margin: float, pose: np.ndarray | None = None) -> dict[str, Agent]:
-    """r1 and r2 holding the first versions; r1 decides the pair by ``searching_at``
-    ``pose`` (the truth unless given)."""
+def pair_of_agents(
+    intel_pair, margin: float, pose: np.ndarray | None = None, finals: tuple[str, ...] = ()
+) -> dict[str, Agent]:
+    """r1 and r2 holding the first versions, those of ``finals`` marked their robots' last;
+    r1 decides the pair by ``searching_at`` ``pose`` (the truth unless given), r2 hears the
+    links r1 decided."""
     map_a, maps_b, truth = intel_pair
     agents = {me: Agent(me) for me in ("r1", "r2")}
     agents["r1"].worker.register = searching_at(truth if pose is None else pose, margin)
     for agent in agents.values():
-        agent.book.put_map("r1", V(1), map_a)
-        agent.book.put_map("r2", V(1), maps_b[0])
+        agent.book.put_map("r1", V(1), map_a, final="r1" in finals)
+        agent.book.put_map("r2", V(1), maps_b[0], final="r2" in finals)
         agent.step(now=0.0)  # r1 registers the pair (its turn); r2 waits for r1's link
-    (decided,) = agents["r1"].links
-    agents["r2"].book.add_link(decided)
+    for decided in agents["r1"].links:
+        agents["r2"].book.add_link(decided)
     agents["r2"].step(now=0.5)
     return agents
 
@@ -423,10 +426,25 @@ def test_a_first_try_at_the_high_bar_enters_at_once(intel_pair) -> None:
     )
 
 
+def test_a_first_try_below_the_high_bar_on_final_maps_enters_without_waiting(intel_pair) -> None:
+    """No newer version of either map can come: the quiet rule's evidence, without its wait."""
+    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2, finals=("r1", "r2"))
+    first, final = agents["r1"].links  # both at step time 0: no clock in between
+    assert first.state == trust.CANDIDATE and first.reason.startswith("provisional"), first
+    assert final.state == trust.CONFIRMED and final.revision == 1, final
+    assert "final maps" in final.reason and np.array_equal(final.matrix, first.matrix)
+    assert agents["r2"].links == []  # r2 follows r1's record
+    digests = {tuple(c.digest for c in a.globals[-1].components) for a in agents.values()}
+    assert all(a.joined("r1", "r2") and a.globals[-1].settled for a in agents.values())
+    assert len(digests) == 1, digests
+
+
+@pytest.mark.parametrize("finals", [(), ("r2",)], ids=["unmarked", "one-final"])
 def test_a_first_try_below_the_high_bar_on_maps_that_stay_unchanged_enters_after_the_quiet(
-    intel_pair,
+    intel_pair, finals
 ) -> None:
-    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2)
+    """Without the final mark on both maps, a newer version may yet come: the quiet rule."""
+    agents = pair_of_agents(intel_pair, trust.HIGH_BAR - 0.2, finals=finals)
     r1 = agents["r1"]
     r1.step(now=0.5 + trust.QUIET_S - 1.0)  # not yet quiet long enough
     assert r1.record("r1", "r2").state == trust.CANDIDATE and not r1.joined("r1", "r2")
@@ -442,3 +460,44 @@ def test_a_first_try_below_the_high_bar_on_maps_that_stay_unchanged_enters_after
     digests = {tuple(c.digest for c in a.globals[-1].components) for a in agents.values()}
     assert all(a.joined("r1", "r2") and a.globals[-1].settled for a in agents.values())
     assert len(digests) == 1, digests
+
+
+@pytest.mark.parametrize("off_px", [0.0, 20.0], ids=["agrees", "one-metre-off"])
+def test_a_final_maps_accept_must_agree_with_the_links_that_place_its_robots(
+    intel_pair, off_px
+) -> None:
+    """r3 (a copy of r1's map) is placed on r1 and r2 by accepted links of current epochs,
+    which thereby predict r2 on r1 at the truth.  r1's provisional accept of (r1, r2) on
+    final maps is confirmed where they predict it; 1 m away, it stays a candidate that says
+    why, once, and the map it is left out of is settled."""
+    map_a, maps_b, truth = intel_pair
+    pose = rigid_matrix(0.0, off_px, 0.0) @ truth
+    r1 = Agent("r1")
+    r1.worker.register = searching_at(pose, trust.HIGH_BAR - 0.2)
+    r1.book.put_map("r1", V(1), map_a, final=True)
+    r1.book.put_map("r2", V(1), maps_b[0], final=True)
+    assert r1.worker.step(now=0.0)  # the search's provisional accept, nothing more yet
+    (first,) = r1.links
+    assert first.state == trust.CANDIDATE and first.margin < trust.HIGH_BAR, first
+    cov = np.diag([0.25, 0.25, 1e-5])
+    r1.book.put_map("r3", V(1), map_a, final=True)
+    for b, a, matrix in (("r3", "r1", np.eye(3)), ("r3", "r2", np.linalg.inv(truth))):
+        placed = LinkRecord(a, V(1), b, V(1), True, matrix, cov, 0.95, "r3", margin=0.95)
+        r1.book.add_link(placed)
+    r1.step(now=0.1)
+    r1.step(now=0.2)  # nothing more to decide
+    decided = r1.links[1:]
+    assert [ln.pair for ln in decided] == [("r1", "r2")], decided
+    if off_px == 0.0:
+        assert decided[0].state == trust.CONFIRMED, decided[0]
+        assert "where the links in the map place the pair" in decided[0].reason
+        assert r1.joined("r1", "r2")
+    else:
+        assert decided[0].state == trust.CANDIDATE and not decided[0].accepted, decided[0]
+        why = decided[0].reason
+        assert why.startswith("not confirmed on both robots' final maps: the links in the map")
+        assert "1.00 m" in why, why
+        (comp,) = r1.globals[-1].components  # placed by the links, not by the accept
+        placed = np.linalg.inv(comp.transforms["r1"]) @ comp.transforms["r2"]
+        assert trust.holds(truth, placed, maps_b[0])
+    assert r1.globals[-1].settled

@@ -106,6 +106,7 @@ def sample_messages() -> list:
         Manifest("fleet", "r1", 3, g, {0: checksum(cells), 3: 7}),
         Manifest("fleet", "r1", 4, g, {1: 9}, base_version=3, digest=2**64 - 1),
         Manifest("fleet", "r1", 5, g, {1: 9}, base_version=4, digest=7, first_epoch=2**32 - 1),
+        Manifest("fleet", "r1", 6, g, {1: 9}, first_epoch=5, final=True),
         Link("fleet", "r1", "r1", "r2", 3, 4, True, np.eye(3), np.eye(3) * 0.5, 0.93),
         Link(
             "fleet",
@@ -225,14 +226,18 @@ def test_a_links_lifecycle_is_checked_strictly(trust, reason, why):
 
 
 @given(
-    robot=ids, version=versions, first=st.integers(0, 2**32 - 1), delta=st.booleans(),
+    robot=ids, version=versions, first=st.none() | st.integers(0, 2**32 - 1),
+    delta=st.booleans(), final=st.booleans(),
     tiles=st.dictionaries(st.integers(0, 3), st.integers(0, 2**32 - 1), max_size=4),
 )  # fmt: skip
-def test_manifest_with_a_first_epoch_round_trips(robot, version, first, delta, tiles):
+def test_manifest_with_a_first_epoch_and_a_final_mark_round_trips(
+    robot, version, first, delta, final, tiles
+):
     g = Geometry((20, 30), 0.05, (1.0, -2.0, 0.1), 16)
     since = {"base_version": version - 1, "digest": 3} if delta and version else {}
-    msg = Manifest("f", robot, version, g, tiles, **since, first_epoch=first)
-    assert decode(encode(msg, KEY), KEY) == msg
+    msg = Manifest("f", robot, version, g, tiles, **since, first_epoch=first, final=final)
+    got = decode(encode(msg, KEY), KEY)
+    assert got == msg and got.final is final
 
 
 def manifest_body(*trailing) -> list:
@@ -247,6 +252,19 @@ def test_a_manifest_without_a_first_epoch_is_read_as_not_saying():
     assert decode(raw(manifest_body(9))).first_epoch == 9
 
 
+def test_a_manifest_without_the_final_mark_is_read_as_not_final():
+    """Manifests of earlier agents end before the mark (or before the first epoch)."""
+    assert [decode(raw(manifest_body(*t))).final for t in ((), (9,))] == [False, False]
+    marked = decode(raw(manifest_body(9, True)))
+    assert (marked.first_epoch, marked.final) == (9, True)
+    unknown_age = decode(raw(manifest_body(None, True)))
+    assert (unknown_age.first_epoch, unknown_age.final) == (None, True)
+    # a manifest that is not final says nothing more than an older one: the same bytes
+    g = Geometry((20, 30), 0.05, (0.0, 0.0, 0.0), 16)
+    plain = encode(Manifest("f", "r1", 3, g, {}, first_epoch=9))
+    assert msgpack.unpackb(plain[4:-4])[8:] == [9]  # after the digest: the first epoch alone
+
+
 @pytest.mark.parametrize(
     ("trailing", "reason", "why"),
     [
@@ -255,10 +273,14 @@ def test_a_manifest_without_a_first_epoch_is_read_as_not_saying():
         ((1.5,), "schema", "field 'first_epoch' has the wrong type float"),
         ((None,), "schema", "field 'first_epoch' has the wrong type NoneType"),
         ((True,), "schema", "field 'first_epoch' has the wrong type bool"),
-        ((1, 2), "schema", "manifest message has 1 unknown trailing fields"),
+        ((1, 2), "schema", "field 'final' has the wrong type int"),
+        ((1, None), "schema", "field 'final' has the wrong type NoneType"),
+        ((1, False), "value", "final mark, when present, must be true"),
+        ((None, False), "value", "final mark, when present, must be true"),
+        ((1, True, 2), "schema", "manifest message has 1 unknown trailing fields"),
     ],
 )
-def test_a_manifests_first_epoch_is_checked_strictly(trailing, reason, why):
+def test_a_manifests_first_epoch_and_final_mark_are_checked_strictly(trailing, reason, why):
     with refused(reason, why):
         decode(raw(manifest_body(*trailing)))
 

@@ -87,6 +87,8 @@ def test_full_map_round_trips_in_any_order(spec, order, keyed, first):
     first=first_epochs,
 )  # fmt: skip
 def test_deltas_rebuild_every_version(spec, order, steps, first):
+    """Each version is rebuilt exactly, with its first epoch, and the last with its final
+    mark, which delta manifests carry too."""
     h, w, ts, density, seed = spec
     rng = np.random.default_rng(seed)
     q = random_quantised(rng, (h, w), density)
@@ -99,12 +101,13 @@ def test_deltas_rebuild_every_version(spec, order, steps, first):
         new = mutate(rng, q)
         tiles, manifest = encode_map(
             "f", "r1", version, as_grid(new), since=as_grid(q), base_version=version - 1,
-            tile_size=ts, max_message_bytes=1500, first_epoch=first,
+            tile_size=ts, max_message_bytes=1500, first_epoch=first, final=version == 1 + steps,
         )  # fmt: skip
         wires = [*tiles, manifest]
         order.shuffle(wires)
         deliver(reasm, wires)
         assert reasm.version == version and reasm.first_epoch == first
+        assert reasm.final is (version == 1 + steps)
         assert np.array_equal(reasm.quantised, new)
         q = new
 
