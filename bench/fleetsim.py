@@ -5,7 +5,9 @@ Every robot is a real :class:`agent.node.FleetNode` with its real
 :mod:`bench.fleet` does (:mod:`bench.fleetsim_fleet`), over a simulated network with latency,
 jitter, loss, bandwidth, partitions and churn (:mod:`bench.fleetsim_net`).  Registrations
 are real merge and check outcomes drawn from a cache by true overlap, charged at their
-measured CPU cost (:mod:`bench.fleetsim_merges`); global-map rebuilds really run, at a sample
+measured CPU cost (:mod:`bench.fleetsim_merges`); the agent's search gate runs as in ``pgvd
+agent``, its verdicts real ones on the replayed map versions, cached and charged at their
+measured CPU (:mod:`bench.fleetsim_gate`); global-map rebuilds really run, at a sample
 (:mod:`bench.fleetsim_core`).  Above 16 robots the replay slows by 17 / (N + 1), so that each
 robot's segment lasts as many simulated seconds as at 16 robots (``--no-slowdown``: not).
 Each agent has a computer of its own unless ``--cores`` makes them share that many cores, as
@@ -13,9 +15,10 @@ Each agent has a computer of its own unless ``--cores`` makes them share that ma
 a smaller number, a fraction too, stands for a machine other jobs load (``--cores 0.5``: the
 fleet gets half a core).
 
-Per N: searches and checks per epoch, messages and bytes received per robot, global-map
-rebuild CPU, agreement time after the last update, bytes of grids held per agent, CPU per
-agent per epoch relative to 16 robots.  At 8 and 16 robots the counts stand beside
+Per N: searches, gated searches and checks per epoch, messages and bytes received per robot,
+global-map rebuild CPU, agreement time after the last update, bytes of grids held per agent,
+CPU per agent per epoch relative to 16 robots, and that CPU by term (searches, checks, gate,
+rebuilds, the core's own work, the host's).  At 8 and 16 robots the counts stand beside
 :mod:`bench.fleet`'s, run by run, with their mean and spread (``--real FILE ...``: result
 files of ``bench.fleet --robots 8 16 --out DIR``; default ``bench/results/fleet.json``).
 
@@ -36,6 +39,7 @@ from agent.scenario import LOG
 from bench.fleet_accuracy import OneLineParser
 from bench.fleetsim_core import Meter, Rebuilds, SimClock
 from bench.fleetsim_fleet import Churn, Scenario, SimFleet
+from bench.fleetsim_gate import GateCache
 from bench.fleetsim_merges import load_outcomes
 from bench.fleetsim_net import NetParams, Partition
 from bench.fleetsim_report import load_real_runs, summarise, write_results
@@ -81,7 +85,7 @@ def parser() -> argparse.ArgumentParser:
     first = __doc__.split("\n")[0]
     ap = OneLineParser(prog="python3 -m bench fleetsim", description=first, error_prefix="fleetsim")
     ap.add_argument("--robots", type=_robots, nargs="+", default=[16, 32, 64, 128])
-    ap.add_argument("--quick", action="store_true", help="rarer polls, fewer real rebuilds")
+    ap.add_argument("--quick", action="store_true", help="rarer worker polls (1 s, not 0.2 s)")
     ap.add_argument("--speed", type=_positive, default=100.0, help="replay speed at <= 16 robots")
     ap.add_argument("--no-slowdown", action="store_true", help="same speed at every N")
     ap.add_argument("--latency", type=float, default=0.002, help="one-way latency (s)")
@@ -139,14 +143,15 @@ def scenario(args: argparse.Namespace, n: int) -> Scenario:
     )
 
 
-def run_one(sc: Scenario, outcomes, quick: bool) -> dict:
-    """Simulate ``sc`` and summarise it."""
-    rebuilds = Rebuilds(Meter(SimClock()), budget=4 if quick else 12)
+def run_one(sc: Scenario, outcomes, gates: GateCache) -> dict:
+    """Simulate ``sc`` and summarise it; the gate verdicts it adds are saved."""
+    rebuilds = Rebuilds(Meter(SimClock()))
     t0 = time.perf_counter()
-    fleet = SimFleet(sc, outcomes, rebuilds)
+    fleet = SimFleet(sc, outcomes, rebuilds, gates)
     _progress(f"{sc.robots} robots: set up in {time.perf_counter() - t0:.0f} s")
     fleet.run()
     wall = time.perf_counter() - t0
+    gates.save()
     row = summarise(fleet, wall)
     _progress(
         f"{sc.robots} robots: simulated {row['sim_s']:.0f} s in {wall:.0f} s, "
@@ -169,12 +174,16 @@ def main(argv: list[str] | None = None) -> int:
         outcomes = load_outcomes(args.cache, args.log)
         if args.exact_poses:
             outcomes = [o.exact() for o in outcomes]
-        rows = [run_one(sc, outcomes, args.quick) for sc in scenarios]
+        gates = GateCache.beside(args.cache)
+        rows: list[dict] = []
+        for sc in scenarios:
+            rows.append(run_one(sc, outcomes, gates))
+            # written after each N: a run stopped at a large N keeps the smaller ones
+            write_results(rows, args, args.out, real_runs)
+            _progress(f"results of {[r['robots'] for r in rows]} robots in {args.out}")
     except ValueError as exc:
         print(f"fleetsim: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
-    write_results(rows, args, args.out, real_runs)
-    _progress(f"results in {args.out}")
     return 0
 
 

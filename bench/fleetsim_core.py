@@ -8,22 +8,28 @@ not changed: this module only wraps it from the bench's side.
 
 CPU is charged as follows (:class:`Meter`): a worker's step costs the real CPU seconds
 (``time.thread_time``) the core spent in it, minus what the simulation's stand-ins spent, plus
-what those stand-ins charge (a drawn registration's measured cost, :mod:`bench.fleetsim_merges`;
-a rebuild's cost).  A rebuild runs the real :func:`agent.globalmap.build_components` on the
-robots' real maps: for the first rebuild of two maps or more and then at a sample of the
-distinct inputs (every ``every``-th by their hash, up to ``budget`` per run) with the real
-fusion, its measured CPU charged; for the others with the same pose graph but no fusion
-(each component's map is its anchor's), charged the real pose-graph CPU plus the sampled
-rebuilds' CPU per map (over those of two maps or more) times the maps.  Any two agents
-holding the same maps and links get the same global maps (fleet invariant 2), so a rebuild
-of inputs seen before returns the same components at the same charged cost without running
-again.
+what those stand-ins charge (a drawn registration's measured cost,
+:mod:`bench.fleetsim_merges`; the search gate's, :mod:`bench.fleetsim_gate`; a rebuild's cost),
+tallied by kind so that a run tells which term of an agent's cost grows with the fleet.  A
+rebuild runs the real :func:`agent.globalmap.build_components` on the robots' real maps, first
+with the same pose graph but no fusion (each component's map is its anchor's), which counts
+the maps it fuses (the members of its components of two robots or more).  When that count is
+at least :data:`SAMPLE_GROWTH` times the largest of the samples so far (the first rebuild
+that fuses, then 4, 8, ... maps: the fleet's components as they grow), it runs again with the
+real fusion, its measured CPU charged; its fusion CPU (less the pose graph's) per map fused is
+kept as a sample.  Any other rebuild is charged the pose graph's real CPU plus, per map it
+fuses, the fusion CPU per map of the sample nearest in maps fused.  (Counting every map held
+instead, lone ones included, would price a whole fleet's fusion at the first sample's, two
+maps fused of sixteen held.)  Any two agents holding the same maps and links get the same
+global maps (fleet invariant 2), so a rebuild of inputs seen before returns the same
+components at the same charged cost without running again.
 """
 
 from __future__ import annotations
 
 import contextlib
 import hashlib
+import math
 import time
 from collections import OrderedDict
 from collections.abc import Iterator
@@ -37,6 +43,9 @@ from agent.sources import SourceSpec
 
 #: Distinct rebuild inputs remembered (their components hold fused maps).
 MEMO_SIZE = 64
+#: A rebuild is run with the real fusion when it fuses this many times the maps of the
+#: largest sample so far (module docstring).
+SAMPLE_GROWTH = 2
 
 
 class SimClock:
@@ -63,10 +72,14 @@ class Meter:
     excluded: float = 0.0
     #: Wall seconds per CPU second of the job at hand (> 1 when agents share cores).
     stretch: float = 1.0
+    #: ``charged`` by what the stand-in stood for (search, check, gate, rebuild).
+    by_kind: dict[str, float] = field(default_factory=dict)
 
-    def charge(self, seconds: float) -> None:
-        """A stand-in's cost: ``seconds`` of CPU, the worker busy ``stretch`` times longer."""
+    def charge(self, seconds: float, kind: str) -> None:
+        """A stand-in's cost: ``seconds`` of CPU of ``kind``, the worker busy ``stretch``
+        times longer."""
         self.charged += seconds
+        self.by_kind[kind] = self.by_kind.get(kind, 0.0) + seconds
         self.clock.now += seconds * self.stretch
 
     @contextlib.contextmanager
@@ -92,9 +105,7 @@ class Rebuilds:
     """:func:`agent.globalmap.build_components` with sampling and memo (module docstring)."""
 
     meter: Meter
-    every: int = 8
-    budget: int = 12
-    #: (maps, real CPU s) of each rebuild run with the real fusion.
+    #: (maps fused, fusion CPU s) of each rebuild run with the real fusion.
     samples: list[tuple[int, float]] = field(default_factory=list)
     #: charged CPU s of every rebuild asked for, by every agent.
     charged: list[float] = field(default_factory=list)
@@ -102,15 +113,18 @@ class Rebuilds:
     def __post_init__(self) -> None:
         self._memo: OrderedDict[bytes, tuple[list, float]] = OrderedDict()
 
-    def _fused(self) -> list[tuple[int, float]]:
-        """The samples that fused maps (a lone robot's rebuild fuses none)."""
-        return [(n, s) for n, s in self.samples if n > 1]
-
     def per_map(self) -> float:
-        """Real rebuild CPU seconds per map, from the samples that fused (0 before any)."""
-        fused = self._fused()
-        maps = sum(n for n, _ in fused)
-        return sum(s for _, s in fused) / maps if maps else 0.0
+        """Fusion CPU seconds per map fused, over every sample (0 before any)."""
+        maps = sum(n for n, _ in self.samples)
+        return sum(s for _, s in self.samples) / maps if maps else 0.0
+
+    def fusion_cost(self, fused: int) -> float:
+        """The fusion CPU of a rebuild that fuses ``fused`` maps: per map fused as in the
+        sample nearest in maps fused (in ratio, the larger on a tie)."""
+        if not self.samples or not fused:
+            return 0.0
+        n, cpu = min(self.samples, key=lambda s: (abs(math.log(s[0] / fused)), -s[0]))
+        return cpu / n * fused
 
     def __call__(self, maps, links, params=None, sound=None, layers=None, firsts=None):
         with self.meter.excluding():
@@ -125,36 +139,29 @@ class Rebuilds:
             ).digest()
             held = self._memo.get(signature)
             if held is None:
-                held = self._build(signature, maps, links, params, sound, layers, firsts)
+                held = self._build(maps, links, params, sound, layers, firsts)
         self._memo[signature] = held
         self._memo.move_to_end(signature)
         while len(self._memo) > MEMO_SIZE:
             self._memo.popitem(last=False)
         self.charged.append(held[1])
-        self.meter.charge(held[1])
+        self.meter.charge(held[1], "rebuild")
         return held[0]
 
-    def _build(self, signature, maps, links, params, sound, layers, firsts) -> tuple[list, float]:
+    def _build(self, maps, links, params, sound, layers, firsts) -> tuple[list, float]:
+        t0 = time.thread_time()
+        comps = build_components(maps, links, params, sound, firsts=firsts, fuse=False)
+        graph = time.thread_time() - t0
+        fused = sum(len(c.members) for c in comps if len(c.members) > 1)
+        if not fused or fused < SAMPLE_GROWTH * max((n for n, _ in self.samples), default=0):
+            return comps, graph + self.fusion_cost(fused)
         # A sampled rebuild runs with the asking agent's layer cache, so its CPU is a warm
         # rebuild's where the agent's own last build left layers to reuse.
-        real = (len(maps) > 1 and not self._fused()) or (
-            len(self.samples) < self.budget and signature[0] % self.every == 0
-        )
         t0 = time.thread_time()
-        comps = build_components(
-            maps,
-            links,
-            params,
-            sound,
-            layers=layers if real else None,
-            firsts=firsts,
-            fuse=real,
-        )
+        comps = build_components(maps, links, params, sound, layers=layers, firsts=firsts)
         cpu = time.thread_time() - t0
-        if real:
-            self.samples.append((len(maps), cpu))
-            return comps, cpu
-        return comps, cpu + self.per_map() * len(maps)
+        self.samples.append((fused, max(cpu - graph, 0.0)))
+        return comps, cpu
 
 
 def _shared_scans(load):

@@ -2,19 +2,20 @@
 process, in simulated time: the host :class:`agent.daemon.Agent` is, without Zenoh or threads.
 
 Each robot replays its segment of a CARMEN log through the real
-:class:`agent.sources.CarmenSource` (as ``pgvd demo`` and :mod:`bench.fleet` do), and every
-0.1 simulated s, as the daemon's loop, hands a new map to :meth:`FleetNode.on_source` and
-calls :meth:`FleetNode.tick`.  The actions come out as the daemon carries them out:
-``Publish`` is a put to every robot (:mod:`bench.fleetsim_net`), ``Fetch`` a query answered
-by the target's ``answer_latest`` / ``answer_links``, ``PersistMap`` of the own map is on
-disk at once (``on_persisted``), ``Register`` wakes the worker, ``Drop`` is counted, and the
-files (links, status, global map) are not written.  A worker steps as the real one: one job
-per :meth:`FusionWorker.step`, the next right after it while there is more, else a poll
-``poll`` s later or a wake; its decisions and rebuilds reach the node when the step's charged
-CPU (:mod:`bench.fleetsim_core`) has passed.  The host's own work (decoding, reassembly,
-encoding, the source's ray casting) is charged at its real CPU time and keeps its main thread
-busy that long: messages wait in the robot's inbox meanwhile, in order, as in the daemon's.
-Queries are answered at once (Zenoh's threads answer them in the daemon).
+:class:`agent.sources.CarmenSource` (as ``pgvd demo`` and :mod:`bench.fleet` do), and every 0.1
+simulated s, as the daemon's loop, hands a new map to :meth:`FleetNode.on_source` and calls
+:meth:`FleetNode.tick`.  The actions come out as the daemon carries them out: ``Publish`` is a
+put to every robot (:mod:`bench.fleetsim_net`), ``Fetch`` a query answered by the target's
+``answer_latest`` / ``answer_links``, ``PersistMap`` of the own map is on disk at once
+(``on_persisted``), ``Register`` wakes the worker, ``Drop`` is counted, and the files (links,
+status, global map) are not written.  The worker runs the agent's search gate (``gate=``, as
+``pgvd agent`` builds it) on real verdicts (:mod:`bench.fleetsim_gate`).  A worker steps as the
+real one: one job per :meth:`FusionWorker.step`, the next right after it while there is more,
+else a poll ``poll`` s later or a wake; its decisions and rebuilds reach the node when the
+step's charged CPU (:mod:`bench.fleetsim_core`) has passed.  The host's own work (decoding,
+reassembly, encoding, the source's ray casting) is charged at its real CPU time and keeps its
+main thread busy that long: messages wait in the robot's inbox meanwhile, in order, as in the
+daemon's.  Queries are answered at once (Zenoh's threads answer them in the daemon).
 
 Start-up: a core is made at 0 s and its daemon's loop first turns ``startup`` s later, when
 the robot also comes online.  The real daemon opens its Zenoh session in between, which
@@ -43,6 +44,7 @@ from agent.sources import CarmenSource, SourceSpec
 from agent.status import versions_of
 from agent.worker import FusionWorker, GlobalState
 from bench.fleetsim_core import Rebuilds, SimClock, simulated_core
+from bench.fleetsim_gate import GateCache
 from bench.fleetsim_merges import DrawnMerges, PairOutcome, RobotTruth
 from bench.fleetsim_net import EventLoop, NetParams, Network
 
@@ -98,6 +100,8 @@ class SimRobot:
     source: CarmenSource
     host_cpu: float = 0.0
     worker_cpu: float = 0.0
+    #: The part of ``worker_cpu`` the core itself spent (no stand-in's charge).
+    core_cpu: float = 0.0
     busy_until: float = 0.0
     host_busy_until: float = 0.0
     inbox: deque[tuple[str, bytes]] = field(default_factory=deque)
@@ -110,9 +114,19 @@ class SimRobot:
 
 
 class SimFleet:
-    """A simulated fleet of :class:`Scenario`; :meth:`run` until agreement or ``limit``."""
+    """A simulated fleet of :class:`Scenario`; :meth:`run` until agreement or ``limit``.
 
-    def __init__(self, scenario: Scenario, outcomes: list[PairOutcome], rebuilds: Rebuilds):
+    Its workers draw registrations from ``outcomes`` and the search gate's verdicts from
+    ``gates`` (:mod:`bench.fleetsim_gate`; default: a cache of this fleet's own).
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        outcomes: list[PairOutcome],
+        rebuilds: Rebuilds,
+        gates: GateCache | None = None,
+    ):
         self.sc = scenario
         self.rebuilds = rebuilds
         self.meter = rebuilds.meter
@@ -121,6 +135,7 @@ class SimFleet:
         self.net = Network(self.loop, scenario.net, self._deliver, self._query)
         self.robots: dict[str, SimRobot] = {}
         self.merges = DrawnMerges(outcomes, {}, self.meter.charge)
+        self.gates = gates or GateCache()
         self.agreed_at: float | None = None
         self.last_update: float | None = None
         segs, frames = (
@@ -153,6 +168,7 @@ class SimFleet:
             sc.link_timeout,
             check=self.merges.check(),
             counters=node.counters,
+            gate=self.gates.gate(self.meter),
         )
         robot = SimRobot(name, node, worker, source)
         return robot
@@ -311,6 +327,7 @@ class SimFleet:
         overhead = max(time.thread_time() - t0 - (self.meter.excluded - excluded), 0.0)
         robot.busy_until = self.clock.now + overhead * self.meter.stretch
         robot.worker_cpu += self.meter.charged - charged + overhead
+        robot.core_cpu += overhead
         reports, robot.reports = robot.reports, []
         for report in reports:
             self.loop.at(robot.busy_until, report)

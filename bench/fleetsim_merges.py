@@ -215,7 +215,8 @@ class DrawnMerges:
     ----------
     outcomes : the real outcomes to draw from.
     truths : each robot's :class:`RobotTruth`, by robot id.
-    charge : called with the CPU seconds each registration costs its worker.
+    charge : called with the CPU seconds each registration costs its worker, and its kind
+        (``"search"`` or ``"check"``).
     """
 
     def __init__(
@@ -264,7 +265,7 @@ class DrawnMerges:
 
         def search(a: Grid, b: Grid) -> Registration:
             drawn, truth = self.nearest(a, b)
-            self.charge(drawn.search_cpu)
+            self.charge(drawn.search_cpu, "search")
             return drawn.search.at(truth)
 
         return search
@@ -275,7 +276,7 @@ class DrawnMerges:
 
         def check(a: Grid, b: Grid, predicted: np.ndarray) -> Registration | None:
             drawn, truth = self.nearest(a, b)
-            self.charge(drawn.check_cpu)
+            self.charge(drawn.check_cpu, "check")
             off = np.linalg.inv(truth) @ np.asarray(predicted, np.float64)
             shift_m = float(np.hypot(off[0, 2], off[1, 2])) * a.resolution
             turn_deg = abs(math.degrees(math.atan2(off[1, 0], off[0, 0])))

@@ -40,7 +40,8 @@ def summarise(fleet: SimFleet, wall_s: float) -> dict:
     robots = list(fleet.robots.values())
     n = len(robots)
     counts = [r.node.counters.snapshot()["counts"] for r in robots]
-    total = {k: sum(c.get(k, 0) for c in counts) for k in ("searches", "checks", "epochs")}
+    kinds = ("searches", "searches_gated", "checks", "epochs")
+    total = {k: sum(c.get(k, 0) for c in counts) for k in kinds}
     epochs = max(total["epochs"] / n, 1.0)
     traffic = [fleet.net.traffic.get(r.name, Traffic()) for r in robots]
     worker = [r.worker_cpu for r in robots]
@@ -66,6 +67,9 @@ def summarise(fleet: SimFleet, wall_s: float) -> dict:
         "checks_per_epoch": round(total["checks"] / epochs, 2),
         "searches_per_epoch_per_robot": round(total["searches"] / epochs / n, 3),
         "checks_per_epoch_per_robot": round(total["checks"] / epochs / n, 3),
+        "searches_gated": total["searches_gated"],
+        "searches_gated_per_epoch_per_robot": round(total["searches_gated"] / epochs / n, 3),
+        "gate_verdicts_computed": fleet.gates.computed,
         "messages_received_per_robot": round(recv_msgs, 1),
         "bytes_received_per_robot": int(recv_bytes),
         "bytes_sent_per_robot": int(_mean([t.sent_bytes for t in traffic])),
@@ -83,7 +87,23 @@ def summarise(fleet: SimFleet, wall_s: float) -> dict:
         "cpu_s_per_agent_per_epoch": round(_mean(cpu) / epochs, 4),
         "grid_bytes_per_agent": int(_mean(grid_bytes)),
         "grid_bytes_max_agent": int(max(grid_bytes)),
+        **cpu_terms(fleet, epochs),
     }
+
+
+#: The terms of an agent's CPU: stand-ins' charges by kind (:class:`bench.fleetsim_core.Meter`),
+#: the core's own work in its worker, and its host's (decoding, encoding, the source).
+CPU_TERMS = ("search", "check", "gate", "rebuild", "core", "host")
+
+
+def cpu_terms(fleet: SimFleet, epochs: float) -> dict:
+    """Each of :data:`CPU_TERMS`, in CPU seconds per agent per epoch."""
+    robots = list(fleet.robots.values())
+    spent = dict(fleet.meter.by_kind)
+    spent["core"] = sum(r.core_cpu for r in robots)
+    spent["host"] = sum(r.host_cpu for r in robots)
+    per = len(robots) * epochs
+    return {f"cpu_{t}_s_per_agent_per_epoch": round(spent.get(t, 0.0) / per, 4) for t in CPU_TERMS}
 
 
 def add_relative(rows: list[dict]) -> None:
@@ -152,6 +172,7 @@ COLUMNS = (
     ("checks_per_epoch", "checks / epoch (fleet)"),
     ("searches_per_epoch_per_robot", "full searches / epoch / robot"),
     ("checks_per_epoch_per_robot", "checks / epoch / robot"),
+    ("searches_gated_per_epoch_per_robot", "gated searches / epoch / robot"),
     ("messages_received_per_robot_per_epoch", "messages received / robot / epoch"),
     ("bytes_received_per_robot_per_epoch", "bytes received / robot / epoch"),
     ("bytes_growth_over_linear", "bytes growth / linear"),
@@ -168,6 +189,21 @@ def table(rows: list[dict]) -> str:
     lines = ["| " + " | ".join(h for _, h in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for r in rows:
         lines.append("| " + " | ".join(str(r[k]) for k, _ in COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+def terms_table(rows: list[dict]) -> str:
+    """Per-agent CPU per epoch by term (:data:`CPU_TERMS`), each with its ratio to the
+    reference N's (the growth a term adds over N is its ratio over N's)."""
+    ref = next(r for r in rows if r["robots"] == rows[0]["cpu_reference_robots"])
+    head = " | ".join(f"{t} (s) | {t} vs {ref['robots']}" for t in CPU_TERMS)
+    lines = [f"| N | {head} |", "|---|" + "---|---|" * len(CPU_TERMS)]
+    for r in rows:
+        cells = []
+        for t in CPU_TERMS:
+            key = f"cpu_{t}_s_per_agent_per_epoch"
+            cells += [str(r[key]), f"{r[key] / ref[key]:.2f}" if ref[key] else "-"]
+        lines.append(f"| {r['robots']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -247,11 +283,14 @@ def write_results(
     flags += " --real " + " ".join(str(p) for p in args.real)
     md = (
         f"# Fleet simulator{'' if not args.tag else f' ({args.tag})'}\n\n"
-        f"`python3 -m bench fleetsim --robots {' '.join(map(str, args.robots))}{flags}`, "
+        f"`python3 -m bench fleetsim --robots {' '.join(str(r['robots']) for r in rows)}{flags}`, "
         f"{stamp}.  Real fleet cores in simulated time; registrations drawn from real "
         "outcomes, charged at their measured CPU (see the module docstrings of "
         "bench/fleetsim*.py).\n\n"
         + table(rows)
+        + "\n\nCPU per agent per epoch by term (stand-ins' charges by kind, the core's own "
+        "work in its worker, its host's):\n\n"
+        + terms_table(rows)
         + "\n\nTargets:\n\n"
         + "\n".join(targets(rows))
         + "\n\nBeside bench.fleet (real processes on this machine) at the same N, run by run:\n\n"
