@@ -191,14 +191,24 @@ def _wrapped_max(values: np.ndarray, radius: int) -> np.ndarray:
     """The largest value within ``radius`` cells (a square) of each cell, the array wrapping
     around (``scipy.ndimage.maximum_filter(values, 2 radius + 1, mode="wrap")``).
 
-    OpenCV's dilation of the wrap-padded array: a maximum is exact whichever way it
-    is taken, and this one costs about half as much on the overlays of a merge.
+    A square's maximum is the maximum of the rows' maxima; each is taken by doubling
+    (:func:`_wrapped_max_along`), which costs about a third of SciPy's filter on the
+    overlays of a merge.
     """
-    import cv2
+    return _wrapped_max_along(_wrapped_max_along(values, radius, 0), radius, 1)
 
-    padded = np.pad(values, radius, mode="wrap")
-    top = cv2.dilate(padded, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8))
-    return top[radius : radius + values.shape[0], radius : radius + values.shape[1]]
+
+def _wrapped_max_along(values: np.ndarray, radius: int, axis: int) -> np.ndarray:
+    """The largest of the ``2 radius + 1`` values around each along ``axis``, wrapping:
+    maxima over spans of 1, 2, 4, ... cells, then the two largest spans that cover the
+    window (they overlap: a maximum is the same however often a cell is counted)."""
+    n, side, span = values.shape[axis], 2 * radius + 1, 1
+    pad = [(radius, radius) if k == axis else (0, 0) for k in range(values.ndim)]
+    top = np.moveaxis(np.pad(values, pad, mode="wrap"), axis, 0)
+    while 2 * span <= side:
+        top = np.maximum(top[:-span], top[span:])
+        span *= 2
+    return np.moveaxis(np.maximum(top[:n], top[side - span : side - span + n]), 0, axis)
 
 
 class OverlayScores:

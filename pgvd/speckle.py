@@ -30,6 +30,7 @@ have, as raw images with half a per cent of speckle do.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 #: ``pgvd merge --despeckle``'s ``OffParams.speckle_radius`` (m): 3 cells at 0.05 m, where
 #: a laser's dotted wall still has a dot every cell or two, and speckle at 0.5 % of the free
@@ -66,20 +67,14 @@ def lone_walls(walls: np.ndarray, radius: int, most: int) -> np.ndarray:
     ValueError
         If ``radius`` or ``most`` is below 1.
     """
-    import cv2
-
     if not 1 <= radius <= 127 or most < 1:
         raise ValueError(f"radius must be in 1..127 and most >= 1, got {radius} and {most}")
     walls = np.asarray(walls, dtype=bool)
-    if walls.size == 0:  # OpenCV refuses an empty image
-        return walls.copy()
-    side = 2 * radius + 1
-    # uint8 in, 16-bit counts out (a square of up to 255x255 cells): a quarter of the
-    # memory of float32 counts on a map at --max-cells
-    count = cv2.boxFilter(
-        np.ascontiguousarray(walls).view(np.uint8), cv2.CV_16U, (side, side), normalize=False,
-        borderType=cv2.BORDER_CONSTANT,
-    )  # fmt: skip
+    # the square's count as two 1-D sums, 16-bit (a square of up to 255x255 cells): a
+    # quarter of the memory of float32 counts on a map at --max-cells
+    ones = np.ones(2 * radius + 1)
+    count = ndimage.correlate1d(walls.view(np.uint8), ones, 0, np.uint16, mode="constant")
+    count = ndimage.correlate1d(count, ones, 1, np.uint16, mode="constant")
     return walls & (count <= most)
 
 

@@ -8,6 +8,7 @@ overlay counts, the refinement and the covariance.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from pgvd.morphology import surface
@@ -81,25 +82,23 @@ class WallMap:
         """(H + 1, W + 1) index into :attr:`walls` of each cell's nearest wall cell (built
         once); the last row and column repeat the ones before."""
         if self._table is None:
-            import cv2
-
             h, w = self.free.shape
-            open_cells = np.ones((h, w), np.uint8)
-            open_cells.flat[self._flat] = 0
-            # one more row and column (copies of the last) so that every point has four
-            # cells around it in the table.  The labels are written straight into the
-            # table and made to count from 0 in place: no map-sized copy (17 MB at 2000^2)
-            table = np.empty((h + 1, w + 1), np.int32)
-            inner = table[:h, :w]
-            # each wall cell is its own label, numbered from 1 in row-major order: the
-            # order of self.walls.  The 5x5 chamfer transform finds a nearest wall to
-            # within a few per cent of the distance; nearest() measures it exactly.
-            _, label = cv2.distanceTransformWithLabels(
-                open_cells, cv2.DIST_L2, 5, labels=inner, labelType=cv2.DIST_LABEL_PIXEL
+            open_cells = np.ones((h, w), bool)
+            open_cells.flat[self._flat] = False
+            # the exact Euclidean transform's nearest wall cell of every cell, as its
+            # (row, col) (int32); a (row, col) to its index into self.walls through a
+            # map-sized table of wall numbers (row-major: the order of self.walls)
+            rows, cols = ndimage.distance_transform_edt(
+                open_cells, return_distances=False, return_indices=True
             )
-            if not np.shares_memory(label, table):  # an OpenCV that returned a new array
-                inner[...] = label
-            np.subtract(inner, 1, out=inner)
+            number = np.zeros(h * w, np.int32)
+            number[self._flat] = np.arange(len(self._flat), dtype=np.int32)
+            np.multiply(rows, w, out=rows)
+            rows += cols
+            # one more row and column (copies of the last) so that every point has four
+            # cells around it in the table
+            table = np.empty((h + 1, w + 1), np.int32)
+            np.take(number, rows, out=table[:h, :w])
             table[:h, w] = table[:h, w - 1]
             table[h] = table[h - 1]
             self._table = table
@@ -111,9 +110,10 @@ class WallMap:
         With ``lookup``, the wall is the nearest of those the table names for
         the four cells around the point (a point off the map: the cells on
         it nearest to it), at its exact distance.  Over the map it is the
-        nearest wall for ~99.5 % of points and otherwise a fraction of a cell
-        farther; off the map it can be farther by more.  As
-        ``cKDTree.query``: ``inf`` and ``len(walls)`` beyond ``reach``.
+        nearest wall for 99.8-99.99 % of points (the development maps) and
+        otherwise at most 1.42 cells farther (on those maps under 0.4); off
+        the map it can be farther by more.  As ``cKDTree.query``: ``inf`` and
+        ``len(walls)`` beyond ``reach``.
         """
         if not self.lookup:
             return self.tree.query(points, distance_upper_bound=reach)
