@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -57,3 +58,35 @@ def halves(shared: Path) -> tuple[Grid, Grid, np.ndarray]:
     a = resample(read_map(d / "intel_partA.yaml"), 0.1)
     b = resample(read_map(d / "intel_partB.yaml"), 0.1)
     return a, b, relative_matrix(a, b)
+
+
+#: Marks of the tests that start agent processes or build network namespaces.
+PROCESS_MARKS = ("mark.fleet", "mark.netns")
+
+
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist, absent without it
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """Under ``pytest -n N`` (the README's test command), hand out whole modules.
+
+    Each module goes to one worker, so its module-scoped fixtures (a fleet, a merge) are
+    built once. The modules that start agent processes or network namespaces form one unit
+    instead: they run one after another, as each one's timeouts were set for, while the
+    other workers take the rest. The controller does not collect, so a module counts as
+    such when its source names one of :data:`PROCESS_MARKS`. An explicit ``--dist`` other
+    than the default ``load`` is left to xdist.
+    """
+    if config.getoption("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModuleScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return "processes" if _starts_processes(config.rootpath / module) else module
+
+    return ModuleScheduling(config, log)
+
+
+@functools.cache
+def _starts_processes(module: Path) -> bool:
+    return any(mark in module.read_text() for mark in PROCESS_MARKS)

@@ -127,8 +127,19 @@ def _grow(fleet: LocalFleet, publisher, tf: _Collector, merged: _Collector, fram
         return comp if comp.get("versions", {}).get("r2", held) > held else {}
 
     wait_for(rebuilt, 60)
-    time.sleep(1.0)  # the next tick at 4 Hz sends the placements of a new global map
-    return {"map": grown, "component": rebuilt(), "tf": tf.last(), "merged_map": merged.last()}
+    comp = rebuilt()
+
+    def published() -> bool:
+        """A 4 Hz tick has sent a map of the rebuilt component's shape and its TF."""
+        m, t = merged.last(), tf.last()
+        if not (comp and m and t and t[0].transforms):
+            return False
+        stamp = t[0].transforms[0].header.stamp
+        same_tick = (stamp.sec, stamp.nanosec) == (m[0].header.stamp.sec, m[0].header.stamp.nanosec)
+        return same_tick and (m[0].info.height, m[0].info.width) == tuple(comp["shape"])
+
+    wait_for(published, 10)
+    return {"map": grown, "component": comp, "tf": tf.last(), "merged_map": merged.last()}
 
 
 @pytest.fixture(scope="module")
