@@ -52,6 +52,7 @@ import threading
 import time
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -64,9 +65,9 @@ from agent.globalmap import Component, Soundness, build_components, usable_links
 from agent.links import (
     LinkKey,
     LinkRecord,
+    Waves,
     due_keys,
     epoch_of,
-    open_keys,
     stale_candidate,
     version_text,
 )
@@ -427,6 +428,14 @@ class Chains:
         group = self._group_of.get(a)
         return group is not None and group == self._group_of.get(b)
 
+    def regrouped(self, before: Chains | None) -> set[str] | None:
+        """The robots whose group is not the one they had in ``before``: :meth:`linked`
+        answers as in ``before`` for any pair of other robots.  None: no ``before``."""
+        if before is None:
+            return None
+        mine, theirs = set(self.groups), set(before.groups)
+        return {r for g in mine ^ theirs for r in g}
+
     def solved(self) -> tuple[Solution, list[LinkRecord]]:
         """:func:`placements`, and the links it kept (:func:`_rejection_stands` reads on
         which of them a rejection may rest)."""
@@ -513,6 +522,10 @@ class FusionWorker:
         )
         #: What :meth:`_open` made last, with what it was made of.
         self._opened: tuple[tuple[object, ...], set[LinkKey], list[LinkKey]] | None = None
+        #: The keys open, kept from one change of the book to the next (:meth:`_open`), and
+        #: the :class:`Chains` they were last placed by.
+        self._waves = Waves()
+        self._waves_chains: Chains | None = None
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
         #: :meth:`_provisional_chains` by signature, the oldest first.
@@ -665,7 +678,8 @@ class FusionWorker:
     ) -> tuple[set[LinkKey], list[LinkKey]]:
         """The keys needed that a check may decide, and the keys open
         (:func:`agent.links.open_keys`); made anew only when the book, the robots, the
-        chains or the pairs holding the waves changed.
+        chains or the pairs holding the waves changed, and then only for the keys that
+        changed or whose robots' groups did (:class:`agent.links.Waves`).
 
         A worker steps at every wake and every poll, and at 128 robots some thousands of
         keys are needed: going over them all at each idle poll cost as much as the work.
@@ -675,11 +689,15 @@ class FusionWorker:
         key = (snap.generation, tuple(robots), chains, tuple(holding))
         held = self._opened
         if snap.generation is None or held is None or held[0] != key:
-            # a candidate's re-check is a check at its own pose: open at once like a chain's
-            checkable = set(snap.rechecks) | {
-                k for k in snap.needed if self._checkable(chains, k[0], k[2])
-            }
-            opened = open_keys(snap.needed, checkable, robots, holding)
+            checkable, opened = self._waves.update(
+                snap.needed,
+                snap.rechecks,
+                robots,
+                holding,
+                partial(self._checkable, chains),
+                chains.regrouped(self._waves_chains),
+            )
+            self._waves_chains = chains
             held = self._opened = (key, checkable, opened)
         return held[1], held[2]
 
