@@ -503,6 +503,8 @@ class Waves:
 
     def _place(self, key: LinkKey, checkable: bool) -> None:
         """File the needed ``key`` as checkable or in its wave."""
+        if key in (self._checkable if checkable else self._wave_of):
+            return  # filed so already: the common case of a regrouped robot's keys
         self._unplace(key)
         a, _, b, _ = key
         self._by_robot.setdefault(a, set()).add(key)

@@ -764,7 +764,7 @@ class FusionWorker:
         the book moved: a worker asks at every step, and the components of every accepted
         link held were a tenth of its own work at 32 robots."""
         if snap.generation is None or snap.generation != self._own[0]:
-            pairs = [ln.pair for ln in snap.links if ln.accepted]
+            pairs = [ln.pair for ln in snap.accepted()]
             group = next((g for g in components(snap.maps, pairs) if self.me in g), ())
             self._own = (snap.generation, group)
         return self._own[1]
@@ -1199,13 +1199,15 @@ class FusionWorker:
         )
         held = self._chains
         if held[0] != signature or held[1] is None:
-            held = self._chains = (signature, Chains(snap.maps, snap.links, self._soundness(snap)))
+            chains = Chains(snap.maps, list(snap.accepted()), self._soundness(snap))
+            held = self._chains = (signature, chains)
         return held[1]
 
     def _soundness(self, snap: Snapshot) -> Soundness:
         """The soundness memo of the link records of ``snap``, those of records no longer
         held dropped: it does not grow with every link ever seen."""
-        held_now = {id(ln) for ln in snap.links}
+        # only accepted links are judged (:func:`agent.globalmap.usable_links`)
+        held_now = {id(ln) for ln in snap.accepted()}
         self._sound = {k: v for k, v in self._sound.items() if k in held_now}
         return self._sound
 

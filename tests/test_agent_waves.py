@@ -1,6 +1,7 @@
-"""The keys open kept from one book change to the next (:class:`agent.links.Waves`) are those
-computed from scratch (:func:`agent.links.open_keys` over every key needed), at every step:
-on random sequences of book events, and in a simulated fleet replaying the Intel log."""
+"""The keys open kept from one book change to the next (:class:`agent.links.Waves`), and the
+chains built of the book's accepted links, are those computed from scratch
+(:func:`agent.links.open_keys` over every key needed, :class:`Chains` of every link), at every
+step: on random sequences of book events, and in a simulated fleet replaying the Intel log."""
 
 from __future__ import annotations
 
@@ -36,12 +37,22 @@ def _fresh(
     return checkable, open_keys(snap.needed, checkable, robots, worker._holding(snap, now))
 
 
+def _assert_same_chains(worker: FusionWorker, snap: Snapshot) -> None:
+    """The book's accepted links and the worker's :class:`Chains` are those picked and built
+    from all the links of ``snap``."""
+    assert list(snap.accepted()) == [ln for ln in snap.links if ln.accepted]
+    kept, fresh = worker._chains_of(snap), Chains(snap.maps, snap.links)
+    assert kept.groups == fresh.groups
+    assert [ln.identity for ln in kept.usable] == [ln.identity for ln in fresh.usable]
+
+
 def _assert_same(worker: FusionWorker, snap: Snapshot, now: float) -> None:
     robots = sorted(set(snap.maps) | (snap.alive or frozenset()))
     checkable, opened = worker._open(snap, robots, now)
     want_checkable, want_opened = _fresh(worker, snap, robots, now)
     assert checkable == want_checkable
     assert opened == want_opened
+    _assert_same_chains(worker, snap)
 
 
 def _worker(book: FleetBook, poses: dict[str, tuple[float, float, float]]) -> FusionWorker:
@@ -125,6 +136,7 @@ def test_kept_keys_open_are_those_computed_afresh_in_a_simulated_fleet(
     ) -> tuple[set[LinkKey], list[LinkKey]]:
         got = kept(self, snap, robots, now)
         assert got == _fresh(self, snap, robots, now)
+        _assert_same_chains(self, snap)
         compared.append(len(snap.needed))
         return got
 
