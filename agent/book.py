@@ -95,6 +95,8 @@ class _Pairs:
         self.needed: dict[tuple[str, str], LinkKey] = {}
         #: Pairs without a link of their current epochs.
         self.unsettled: set[tuple[str, str]] = set()
+        #: The keys needed whose link is held (a candidate to check again), by pair.
+        self.rechecks: dict[tuple[str, str], LinkKey] = {}
         #: The index of every pair of the robots held, sorted; None when the robots changed.
         self._slot: dict[tuple[str, str], int] | None = {}
         #: By index: the link used, its identity, that identity and the link if the link is
@@ -119,6 +121,10 @@ class _Pairs:
             self.needed.pop(pair, None)
         else:
             self.needed[pair] = key
+        if key is not None and rec is not None and rec.key == key:
+            self.rechecks[pair] = key
+        else:
+            self.rechecks.pop(pair, None)
         if self._slot is not None:
             self._fill(self._slot[pair], pair)
 
@@ -145,7 +151,7 @@ class _Pairs:
 
     def drop(self, robot: str) -> None:
         """Forget every pair of ``robot``."""
-        for table in (self.used, self.needed):
+        for table in (self.used, self.needed, self.rechecks):
             for pair in [p for p in table if robot in p]:
                 del table[pair]
         self.unsettled = {p for p in self.unsettled if robot not in p}
@@ -161,9 +167,7 @@ class _Pairs:
             for slot, pair in enumerate(order):
                 self._fill(slot, pair)
         used, ids, accepted, accepted_links, needed = (list(filter(None, c)) for c in self._columns)
-        rechecks = frozenset(
-            k for p, k in self.needed.items() if p in self.used and self.used[p].key == k
-        )
+        rechecks = frozenset(self.rechecks.values())
         return _Listing(
             generation,
             used,  # type: ignore[arg-type]

@@ -38,9 +38,11 @@ def _fresh(
 
 
 def _assert_same_chains(worker: FusionWorker, snap: Snapshot) -> None:
-    """The book's accepted links and the worker's :class:`Chains` are those picked and built
-    from all the links of ``snap``."""
+    """The book's accepted links and re-checks, and the worker's :class:`Chains`, are those
+    picked and built from all the links of ``snap``."""
     assert list(snap.accepted()) == [ln for ln in snap.links if ln.accepted]
+    held = {ln.key for ln in snap.links}
+    assert snap.rechecks == frozenset(k for k in snap.needed if k in held)
     kept, fresh = worker._chains_of(snap), Chains(snap.maps, snap.links)
     assert kept.groups == fresh.groups
     assert [ln.identity for ln in kept.usable] == [ln.identity for ln in fresh.usable]
@@ -68,13 +70,15 @@ def _worker(book: FleetBook, poses: dict[str, tuple[float, float, float]]) -> Fu
 #: A book event: (kind, robot a, robot b, a choice among the kind's variants).
 _events = st.lists(
     st.tuples(
-        st.sampled_from(["epoch", "minor", "link", "alive", "forget", "time"]),
+        st.sampled_from(
+            ["epoch", "minor", "minor", "link", "link", "late", "alive", "forget", "time"]
+        ),
         st.sampled_from(ROBOTS),
         st.sampled_from(ROBOTS),
         st.integers(0, 3),
     ),
-    min_size=1,
-    max_size=80,
+    min_size=40,
+    max_size=160,
 )
 
 
@@ -84,8 +88,9 @@ def test_kept_keys_open_are_those_computed_afresh_over_any_book_events(
     events: list[tuple[str, str, str, int]], posed: set[str]
 ) -> None:
     """New epochs and minor versions, links of every kind (accepted, rejected, gated,
-    candidates re-checked at new versions), liveliness, robots forgotten, time passing past
-    the gate's hold: after each event, the same keys checkable and open as from scratch."""
+    candidates re-checked at new versions), some decided on an earlier version, liveliness,
+    robots forgotten, time passing past the gate's hold: after each event, the same keys
+    checkable and open, accepted links, re-checks and chains as from scratch."""
     book = FleetBook()
     worker = _worker(book, {r: (1.0, 2.0, 0.0) for r in posed})
     epochs = dict.fromkeys(ROBOTS, 1)
@@ -94,12 +99,13 @@ def test_kept_keys_open_are_those_computed_afresh_over_any_book_events(
         if kind in ("epoch", "minor"):
             epochs[a] += kind == "epoch"
             book.put_map(a, epochs[a] << EPOCH_SHIFT | step, _grid(step))
-        elif kind == "link" and a != b and None not in (book.version(a), book.version(b)):
+        elif kind in ("link", "late") and a != b and None not in (book.version(a), book.version(b)):
             a, b = sorted((a, b))
             accepted = variant == 0
             state = ["accepted", "rejected", "rejected", "candidate"][variant]
             reason = f"{GATED}map A has no GVD edge" if variant == 2 else ""
-            va, vb = book.version(a), book.version(b)
+            # a late link was decided on an earlier minor version of a's epoch
+            va, vb = book.version(a) - (kind == "late"), book.version(b)
             rec = LinkRecord(a, va, b, vb, accepted, np.eye(3), np.eye(3) * 0.1, 0.9, "r9",
                              state=state, reason=reason)  # fmt: skip
             book.add_link(rec)
