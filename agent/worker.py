@@ -50,6 +50,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from bisect import insort
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, replace
 from functools import partial
@@ -415,13 +416,70 @@ class Chains:
         links: list[LinkRecord],
         sound: Soundness | None = None,
     ) -> None:
+        usable = usable_links(maps, links, sound)
+        groups = components(maps, [ln.pair for ln in usable])
+        self._set(maps, usable, groups, links)
+
+    def _set(
+        self,
+        maps: dict[str, tuple[int, Grid]],
+        usable: list[LinkRecord],
+        groups: list[tuple[str, ...]],
+        links: Collection[LinkRecord],
+    ) -> None:
+        """Hold ``usable`` (of ``links``) and their ``groups`` over the robots of ``maps``."""
         self.maps = maps
-        self.usable = usable_links(maps, links, sound)
-        self.groups = components(maps, [ln.pair for ln in self.usable])
+        self.usable = usable
+        self.groups = groups
         #: The index in ``groups`` of each robot's group: a worker asks :meth:`linked` of
         #: every pair still needed at each step.
         self._group_of = {r: i for i, g in enumerate(self.groups) for r in g}
+        #: The links these chains were made of, by ``id`` (held, so no id is reused).
+        self._made_of = dict(zip(map(id, links), links, strict=True))
         self._solved: tuple[Solution, list[LinkRecord]] | None = None
+
+    def grown(
+        self,
+        maps: dict[str, tuple[int, Grid]],
+        links: Collection[LinkRecord],
+        sound: Soundness | None = None,
+    ) -> Chains:
+        """``Chains(maps, links, sound)``, the same usable links and groups, made from these
+        chains' when ``links`` only adds links to those they were made of over the same
+        robots: the groups the new links join are merged (a union-find over the groups),
+        not found anew over every link.
+
+        A worker makes chains anew at each accepted link of the fleet (some thousands at 64
+        robots), nearly always one link more than the last.
+        """
+        now = dict(zip(map(id, links), links, strict=True))
+        if sorted(maps) != sorted(self.maps) or not self._made_of.keys() <= now.keys():
+            return Chains(maps, list(links), sound)
+        added = usable_links(maps, [now[i] for i in now.keys() - self._made_of.keys()], sound)
+        usable = list(self.usable)
+        for ln in added:
+            insort(usable, ln, key=_pair)
+        grown = Chains.__new__(Chains)
+        grown._set(maps, usable, self._joined([ln.pair for ln in added]), links)
+        return grown
+
+    def _joined(self, pairs: list[tuple[str, str]]) -> list[tuple[str, ...]]:
+        """``groups`` with those ``pairs`` join merged, as :func:`pgvd.posegraph.components`
+        gives them: each sorted (the lowest id anchors), in the order of their anchors."""
+        parent = list(range(len(self.groups)))
+
+        def root(i: int) -> int:
+            while parent[i] != i:
+                i = parent[i]
+            return i
+
+        for a, b in pairs:
+            i, j = root(self._group_of[a]), root(self._group_of[b])
+            parent[max(i, j)] = min(i, j)
+        members: dict[int, list[str]] = {}
+        for i, group in enumerate(self.groups):
+            members.setdefault(root(i), []).extend(group)
+        return sorted(tuple(sorted(m)) for m in members.values())
 
     def linked(self, a: str, b: str) -> bool:
         """Whether accepted links join ``a`` and ``b`` (a prediction is likely)."""
@@ -446,6 +504,10 @@ class Chains:
             self._solved = (sol, kept)
             log.debug("solved %d links: %.2f s, %.2f s CPU", len(self.usable), *clock.elapsed())
         return self._solved
+
+
+def _pair(ln: LinkRecord) -> tuple[str, str]:
+    return ln.pair
 
 
 def predict(sol: Solution, a: str, b: str) -> np.ndarray | None:
@@ -526,8 +588,6 @@ class FusionWorker:
         #: the :class:`Chains` they were last placed by.
         self._waves = Waves()
         self._waves_chains: Chains | None = None
-        #: This agent's group (:meth:`_own_group`) and the book's generation it is of.
-        self._own: tuple[int | None, tuple[str, ...]] = (None, ())
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
         #: :meth:`_provisional_chains` by signature, the oldest first.
@@ -760,14 +820,19 @@ class FusionWorker:
         return settled_verdict(ln.margin, None if self._final(snap, ln) else self.quiet_s, off)
 
     def _own_group(self, snap: Snapshot) -> tuple[str, ...]:
-        """The robots the accepted links place with this agent's own, found anew only when
-        the book moved: a worker asks at every step, and the components of every accepted
-        link held were a tenth of its own work at 32 robots."""
-        if snap.generation is None or snap.generation != self._own[0]:
-            pairs = [ln.pair for ln in snap.accepted()]
-            group = next((g for g in components(snap.maps, pairs) if self.me in g), ())
-            self._own = (snap.generation, group)
-        return self._own[1]
+        """The robots the accepted links place with this agent's own.
+
+        A worker asks at every step, nearly every step sees a new book, and the components
+        of every accepted link were a tenth of its own work at 32 robots: when every
+        accepted link of the book's is usable, they are the groups of :meth:`_chains_of`.
+        """
+        accepted = snap.accepted()
+        chains = None if snap.generation is None else self._chains_of(snap)
+        if chains is not None and len(chains.usable) == len(accepted):
+            groups = chains.groups
+        else:
+            groups = components(snap.maps, [ln.pair for ln in accepted])
+        return next((g for g in groups if self.me in g), ())
 
     def preview_gap(self, checks_only: bool = False, maps_moved: bool = True) -> float:
         """Seconds between two previews: ``preview_interval``, or more if rebuilds are slow.
@@ -1199,7 +1264,12 @@ class FusionWorker:
         )
         held = self._chains
         if held[0] != signature or held[1] is None:
-            chains = Chains(snap.maps, list(snap.accepted()), self._soundness(snap))
+            accepted, sound = snap.accepted(), self._soundness(snap)
+            # a snapshot not the book's may hold two links of a pair: built as given
+            if held[1] is None or snap.generation is None:
+                chains = Chains(snap.maps, list(accepted), sound)
+            else:
+                chains = held[1].grown(snap.maps, accepted, sound)
             held = self._chains = (signature, chains)
         return held[1]
 

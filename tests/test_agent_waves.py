@@ -15,6 +15,7 @@ from agent.links import EPOCH_SHIFT, LinkKey, LinkRecord, open_keys
 from agent.scenario import LOG
 from agent.worker import GATED, Chains, FusionWorker, Registration
 from pgvd.grid import Grid
+from pgvd.posegraph import components
 
 ROBOTS = [f"r{i}" for i in range(1, 9)]
 
@@ -38,14 +39,17 @@ def _fresh(
 
 
 def _assert_same_chains(worker: FusionWorker, snap: Snapshot) -> None:
-    """The book's accepted links and re-checks, and the worker's :class:`Chains`, are those
-    picked and built from all the links of ``snap``."""
+    """The book's accepted links and re-checks, and the worker's :class:`Chains` and own
+    group, are those picked and built from all the links of ``snap``."""
     assert list(snap.accepted()) == [ln for ln in snap.links if ln.accepted]
     held = {ln.key for ln in snap.links}
     assert snap.rechecks == frozenset(k for k in snap.needed if k in held)
     kept, fresh = worker._chains_of(snap), Chains(snap.maps, snap.links)
     assert kept.groups == fresh.groups
     assert [ln.identity for ln in kept.usable] == [ln.identity for ln in fresh.usable]
+    pairs = [ln.pair for ln in snap.links if ln.accepted]
+    own = next((g for g in components(snap.maps, pairs) if worker.me in g), ())
+    assert worker._own_group(snap) == own
 
 
 def _assert_same(worker: FusionWorker, snap: Snapshot, now: float) -> None:
