@@ -55,6 +55,16 @@ class Snapshot:
     #: and keys needed (a worker reuses what it made of them).  None: not the book's.
     generation: int | None = None
     finals: frozenset[str] = frozenset()
+    #: The accepted ones of the book's ``links`` (:meth:`accepted`).
+    accepted_links: tuple[LinkRecord, ...] = ()
+
+    def accepted(self) -> tuple[LinkRecord, ...]:
+        """The accepted links of ``links``: listed once per change of the book for its own
+        snapshots (a worker's chains read them at each accepted link, some thousands of
+        links held at 64 robots), picked out of ``links`` for any other."""
+        if self.generation is None:
+            return tuple(ln for ln in self.links if ln.accepted)
+        return self.accepted_links
 
 
 @dataclass(frozen=True)
@@ -68,6 +78,7 @@ class _Listing:
     rechecks: frozenset[LinkKey]
     link_ids: tuple[tuple[object, ...], ...]
     accepted_ids: tuple[tuple[object, ...], ...]
+    accepted: tuple[LinkRecord, ...]
 
 
 class _Pairs:
@@ -84,11 +95,14 @@ class _Pairs:
         self.needed: dict[tuple[str, str], LinkKey] = {}
         #: Pairs without a link of their current epochs.
         self.unsettled: set[tuple[str, str]] = set()
+        #: The keys needed whose link is held (a candidate to check again), by pair.
+        self.rechecks: dict[tuple[str, str], LinkKey] = {}
         #: The index of every pair of the robots held, sorted; None when the robots changed.
         self._slot: dict[tuple[str, str], int] | None = {}
-        #: By index: the link used, its identity, that identity if the link is accepted, and
-        #: the key needed, None where there is none; :meth:`listing` drops the Nones.
-        self._columns: tuple[list[object], ...] = ([], [], [], [])
+        #: By index: the link used, its identity, that identity and the link if the link is
+        #: accepted, and the key needed, None where there is none; :meth:`listing` drops the
+        #: Nones.
+        self._columns: tuple[list[object], ...] = ([], [], [], [], [])
 
     def refresh(self, a: str, b: str, versions: Mapping[str, int], cache: LinkCache) -> None:
         """Look ``(a, b)`` up again in ``cache`` (``a < b``, both in ``versions``)."""
@@ -107,16 +121,22 @@ class _Pairs:
             self.needed.pop(pair, None)
         else:
             self.needed[pair] = key
+        if key is not None and rec is not None and rec.key == key:
+            self.rechecks[pair] = key
+        else:
+            self.rechecks.pop(pair, None)
         if self._slot is not None:
             self._fill(self._slot[pair], pair)
 
     def _fill(self, slot: int, pair: tuple[str, str]) -> None:
         """Write the columns of ``pair`` at ``slot``."""
         rec = self.used.get(pair)
-        used, ids, accepted, needed = self._columns
+        used, ids, accepted, accepted_links, needed = self._columns
         used[slot] = rec
         ids[slot] = None if rec is None else rec.identity
-        accepted[slot] = rec.identity if rec is not None and rec.accepted else None
+        in_map = rec is not None and rec.accepted
+        accepted[slot] = rec.identity if in_map else None
+        accepted_links[slot] = rec if in_map else None
         needed[slot] = self.needed.get(pair)
 
     def refresh_robot(self, robot: str, versions: Mapping[str, int], cache: LinkCache) -> None:
@@ -131,7 +151,7 @@ class _Pairs:
 
     def drop(self, robot: str) -> None:
         """Forget every pair of ``robot``."""
-        for table in (self.used, self.needed):
+        for table in (self.used, self.needed, self.rechecks):
             for pair in [p for p in table if robot in p]:
                 del table[pair]
         self.unsettled = {p for p in self.unsettled if robot not in p}
@@ -143,13 +163,11 @@ class _Pairs:
         if self._slot is None:
             order = [(a, b) for i, a in enumerate(robots) for b in robots[i + 1 :]]
             self._slot = {p: i for i, p in enumerate(order)}
-            self._columns = tuple([None] * len(order) for _ in range(4))
+            self._columns = tuple([None] * len(order) for _ in range(5))
             for slot, pair in enumerate(order):
                 self._fill(slot, pair)
-        used, ids, accepted, needed = (list(filter(None, c)) for c in self._columns)
-        rechecks = frozenset(
-            k for p, k in self.needed.items() if p in self.used and self.used[p].key == k
-        )
+        used, ids, accepted, accepted_links, needed = (list(filter(None, c)) for c in self._columns)
+        rechecks = frozenset(self.rechecks.values())
         return _Listing(
             generation,
             used,  # type: ignore[arg-type]
@@ -159,6 +177,7 @@ class _Pairs:
             rechecks,
             tuple(ids),  # type: ignore[arg-type]
             tuple(accepted),  # type: ignore[arg-type]
+            tuple(accepted_links),  # type: ignore[arg-type]
         )
 
 
@@ -291,4 +310,5 @@ class FleetBook:
                 held.accepted_ids,
                 held.generation,
                 frozenset(self._finals),
+                held.accepted,
             )

@@ -25,7 +25,7 @@ twice that, in case the first went silent.
 from __future__ import annotations
 
 import json
-from collections.abc import Collection, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -436,6 +436,103 @@ def open_keys(
     held = [ring.distance(a, b) for a, b in holding]
     first = min([*waves.values(), *held], default=None)
     return [k for k in keys if k in predicted or waves[k] == first]
+
+
+class Waves:
+    """:func:`open_keys` of one agent, kept from one call to the next: only the keys whose
+    robots' epochs, groups or re-check changed are looked at again.
+
+    A worker asks for the keys open at every change of its book (each map version, each
+    link record, O(N) of them per epoch), and at 64 robots some thousands of keys are
+    needed: going over them all each time grew like N^3 per agent and epoch.  The answer is
+    :func:`open_keys` of the same arguments, in the same order (the needed keys' order, by
+    pair), whatever the calls before.
+    """
+
+    def __init__(self) -> None:
+        self._reset(None)
+
+    def _reset(self, robots: Sequence[str] | None) -> None:
+        """Nothing placed, on the circle of ``robots`` (None: none yet)."""
+        #: The robots of the circle the waves are placed on.
+        self._robots = None if robots is None else tuple(robots)
+        self._ring = Ring(robots or ())
+        self._needed: set[LinkKey] = set()
+        self._rechecks: frozenset[LinkKey] = frozenset()
+        #: The needed keys of each robot (both of a pair's).
+        self._by_robot: dict[str, set[LinkKey]] = {}
+        #: The needed keys a check may decide, and the others by wave.
+        self._checkable: set[LinkKey] = set()
+        self._by_wave: dict[int, set[LinkKey]] = {}
+        #: The wave of each needed key not in ``_checkable``.
+        self._wave_of: dict[LinkKey, int] = {}
+
+    def update(
+        self,
+        needed: Collection[LinkKey],
+        rechecks: frozenset[LinkKey],
+        robots: Sequence[str],
+        holding: Iterable[tuple[str, str]],
+        joined: Callable[[str, str], bool],
+        regrouped: Collection[str] | None,
+    ) -> tuple[set[LinkKey], list[LinkKey]]:
+        """The keys of ``needed`` a check may decide (those of ``rechecks``, and those whose
+        robots ``joined`` says a check may decide), and :func:`open_keys` of ``needed``.
+
+        ``regrouped``: the robots for which ``joined`` may answer otherwise than at the last
+        call (their group changed); None: any.
+        """
+        now = set(needed)
+        if regrouped is None or tuple(robots) != self._robots:
+            self._reset(robots)
+            dirty = now
+        else:
+            for key in self._needed - now:
+                self._drop(key)
+            dirty = now - self._needed
+            for robot in regrouped:
+                dirty |= self._by_robot.get(robot, set())
+            dirty |= (rechecks ^ self._rechecks) & now
+        for key in dirty:
+            self._place(key, key in rechecks or joined(key[0], key[2]))
+        self._needed, self._rechecks = now, rechecks
+        held = [self._ring.distance(a, b) for a, b in holding]
+        first = min([*self._by_wave, *held], default=None)
+        opened = self._checkable | self._by_wave.get(first, set())  # type: ignore[arg-type]
+        return set(self._checkable), sorted(opened)
+
+    def _place(self, key: LinkKey, checkable: bool) -> None:
+        """File the needed ``key`` as checkable or in its wave."""
+        if key in (self._checkable if checkable else self._wave_of):
+            return  # filed so already: the common case of a regrouped robot's keys
+        self._unplace(key)
+        a, _, b, _ = key
+        self._by_robot.setdefault(a, set()).add(key)
+        self._by_robot.setdefault(b, set()).add(key)
+        if checkable:
+            self._checkable.add(key)
+        else:
+            wave = self._wave_of[key] = self._ring.distance(a, b)
+            self._by_wave.setdefault(wave, set()).add(key)
+
+    def _unplace(self, key: LinkKey) -> None:
+        """Take ``key`` out of the checkable keys or its wave."""
+        self._checkable.discard(key)
+        wave = self._wave_of.pop(key, None)
+        if wave is not None:
+            keys = self._by_wave[wave]
+            keys.discard(key)
+            if not keys:
+                del self._by_wave[wave]
+
+    def _drop(self, key: LinkKey) -> None:
+        """Forget ``key``, needed no more."""
+        self._unplace(key)
+        for robot in (key[0], key[2]):
+            keys = self._by_robot[robot]
+            keys.discard(key)
+            if not keys:
+                del self._by_robot[robot]
 
 
 def wait_before_computing(
