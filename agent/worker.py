@@ -609,6 +609,9 @@ class FusionWorker:
         #: Due keys whose check rejected the pair where a rejection needs a search; they wait
         #: for the other checks of the round (:meth:`_register`).
         self._deferred: set[LinkKey] = set()
+        #: This agent's newest decision of each pair that the book refused, its epochs
+        #: superseded while it was decided: still the newer epoch's word (:meth:`_previous`).
+        self._unheld: dict[tuple[str, str], LinkRecord] = {}
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
@@ -664,6 +667,8 @@ class FusionWorker:
         self._now = now
         snap = self.book.snapshot()
         self._footprints.forget_except(set(snap.maps))
+        if self._unheld:
+            self._unheld = {p: r for p, r in self._unheld.items() if set(p) <= snap.maps.keys()}
         # The circle of robots whose turns and waves the fleet shares: every robot whose agent
         # is up, not only those whose maps arrived here, so that agents that heard different
         # maps so far still agree whose turn a pair is and do not both search it.
@@ -934,7 +939,7 @@ class FusionWorker:
         """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`;
         ``searched``: by a full search, whose accept below the high bar is provisional),
         confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
-        previous = next((ln for ln in snap.links if ln.pair == (a, b)), None)
+        previous = self._previous(snap, (a, b))
         grid_b = snap.maps[b][1]
         verdict = first_verdict(
             res.accepted,
@@ -956,6 +961,21 @@ class FusionWorker:
             m = f"{res.margin:.2f}"
             return Verdict(CONFIRMED, f"on a cycle of accepted links: margin {m}")
         return verdict
+
+    def _previous(self, snap: Snapshot, pair: tuple[str, str]) -> LinkRecord | None:
+        """The pair's newest decision known here, which a first decision of newer epochs
+        follows (:func:`agent.trust.first_verdict`): the link standing in for it in ``snap``
+        (:func:`agent.links.select_links`), or this agent's decision of newer epochs that the
+        book refused, superseded while it was decided (:meth:`_record`).
+
+        A grey-zone decision or a rejection of a newer epoch ends a provisional accept's
+        standing even when the maps moved on before it was recorded: else the next epoch's
+        accept at the older pose confirmed it, the grey decision unseen (in the fleet
+        bench, a look-alike searched at 0.64, 0.42 and 0.58 was confirmed so).
+        """
+        held = next((ln for ln in snap.links if ln.pair == pair), None)
+        lost = self._unheld.get(pair)
+        return lost if lost is not None and (held is None or lost.key > held.key) else held
 
     def _on_cycle(
         self, snap: Snapshot, a: str, b: str, matrix: np.ndarray, provisional: bool = False
@@ -1064,7 +1084,8 @@ class FusionWorker:
     def _record(
         self, base: LinkRecord, res: Registration, verdict: Verdict, how: str, clock: _Clock
     ) -> None:
-        """Log the decision, cache it and publish it if it is the link of its epochs.
+        """Log the decision, cache it and publish it if it is the link of its epochs; one
+        the book refuses is kept as the pair's newest word if newer (:meth:`_previous`).
 
         ``base`` names the pair, its versions and its lifecycle so far; ``res`` and
         ``verdict`` give its new pose and state.  A pose without a sound covariance cannot
@@ -1089,6 +1110,8 @@ class FusionWorker:
         log.info("%s how=%s seconds=%.2f", rec.logfmt(), how, clock.elapsed()[0])
         if self.book.add_link(rec):
             self.on_link(rec)
+        elif rec.pair not in self._unheld or rec.key >= self._unheld[rec.pair].key:
+            self._unheld[rec.pair] = rec
 
     def _carry_forward(self, a: str, va: int, b: str, vb: int, found: Registration) -> None:
         """Check a search's accepted transform on the maps that superseded its inputs

@@ -969,3 +969,32 @@ def test_only_an_accept_above_the_high_bar_is_carried_onto_a_newer_epoch(
     newer = [ln for ln in h.links if ln.key == ("r1", 2, "r2", 2)]
     assert len(h.checked) == int(carried)
     assert [ln.state for ln in newer] == (["accepted"] if carried else [])
+
+
+def test_a_grey_decision_superseded_while_searched_still_ends_a_provisional_accept(
+    intel_pair,
+) -> None:
+    """Real maps.  A search's provisional accept (0.64) on epochs 1/1; the first search of
+    epochs 2/1 lands in the grey zone (0.42), but r2 starts epoch 2 while it runs, so the
+    book never holds that record; a search of 2/2 accepts the first pose again (0.58).  The
+    grey decision was the newer epoch's first word on the pair: the 0.58 accept is only a
+    provisional one, not a confirmation of the 0.64 accept (a look-alike in the fleet
+    bench was confirmed so, and shown wrong for 3 s)."""
+    a, b, pose = intel_pair
+    h = Checking("r1", None)
+    margins = iter([0.64, 0.42, 0.58])
+
+    def searched(grid_a: Grid, grid_b: Grid) -> Registration:
+        margin = next(margins)
+        if margin == 0.42:
+            h.book.put_map("r2", V(2), b)  # r2 moves on while the grey search runs
+        return Registration(margin >= 0.57, pose, np.eye(3) * 0.1, 0.9, margin=margin)
+
+    h.worker.register = searched
+    h.book.put_map("r1", V(1), a)
+    h.book.put_map("r2", V(1), b)
+    for t, r1_epoch in ((0.0, 1), (1.0, 2), (2.0, 2)):
+        h.book.put_map("r1", V(r1_epoch), a)
+        assert h.worker.step(now=t)
+    decided = [(ln.key, ln.state, ln.margin) for ln in h.links]
+    assert decided == [(("r1", 1, "r2", 1), CANDIDATE, 0.64), (("r1", 2, "r2", 2), CANDIDATE, 0.58)]
