@@ -54,11 +54,14 @@ nothing is random; the same edges in any order give the same result bit for bit.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Protocol
+from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 from scipy import sparse
@@ -595,11 +598,104 @@ def _content_key(ln: Link) -> tuple[str, str, bytes, bytes]:
     )
 
 
+T = TypeVar("T")
+
+
+class _Memo(Generic[T]):
+    """The last :data:`MEMO_SIZE` results of one step of :func:`solve`, by a digest of its
+    inputs (:func:`_component_digest`).
+
+    A fleet solves the same components again and again: each rebuild of the global map
+    and each check of a predicted link solves every component of the links held, and
+    between two of them most components' links stay as they were.  A result held is the
+    one a fresh solve gives (the solve is a pure function of the digested inputs); it is
+    handed out as copies, so no caller can change what the next one gets.  Thread-safe:
+    an agent solves on more than one thread.
+    """
+
+    def __init__(self) -> None:
+        self._held: OrderedDict[bytes, T] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: bytes) -> T | None:
+        with self._lock:
+            if key not in self._held:
+                return None
+            self._held.move_to_end(key)
+            return self._held[key]
+
+    def clear(self) -> None:
+        with self._lock:
+            self._held.clear()
+
+    def put(self, key: bytes, value: T) -> None:
+        with self._lock:
+            self._held[key] = value
+            while len(self._held) > MEMO_SIZE:
+                self._held.popitem(last=False)
+
+
+#: Results each step of :func:`solve` holds (:class:`_Memo`): a few hundred kB at 16 maps.
+MEMO_SIZE = 64
+_INLIERS: _Memo[np.ndarray] = _Memo()
+_PLACED: _Memo[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]] = _Memo()
+
+
+def forget_solutions() -> None:
+    """Drop every result :func:`solve` holds (:class:`_Memo`): the next solve computes
+    afresh, as a benchmark timing the solve needs."""
+    _INLIERS.clear()
+    _PLACED.clear()
+
+
+def _component_digest(
+    comp: Sequence[str], keys: Iterable[tuple[str, str, bytes, bytes]], params: PoseGraphParams
+) -> bytes:
+    """SHA-256 of all a component's solution depends on: its nodes in order (the anchor
+    first), its links' content (:func:`_content_key`) in the order solved, the parameters."""
+    h = hashlib.sha256(repr((tuple(comp), params)).encode())
+    for a, b, m, c in keys:
+        h.update(repr((a, b)).encode())
+        h.update(m)
+        h.update(c)
+    return h.digest()
+
+
+def _robust_inliers(
+    comp: Sequence[str],
+    links: Sequence[Link],
+    keys: list[tuple[str, str, bytes, bytes]],
+    params: PoseGraphParams,
+) -> np.ndarray:
+    """GNC-TLS's inliers among ``links`` of ``comp``, with every rejected link that fits
+    offered back (:func:`_gnc_inliers`, :func:`_maximal`); held in :data:`_INLIERS`."""
+    digest = _component_digest(comp, keys, params)
+    held = _INLIERS.get(digest)
+    if held is None:
+        e = _prepare(comp, links, params)
+        held = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
+        _INLIERS.put(digest, held)
+    return np.array(held, dtype=bool)
+
+
 def _place(
     comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Transforms to ``comp[0]`` (the anchor) and covariances of one component from its
-    kept links."""
+    kept links; held in :data:`_PLACED`."""
+    digest = _component_digest(comp, map(_content_key, links), params)
+    held = _PLACED.get(digest)
+    if held is None:
+        held = _placements(comp, links, params)
+        _PLACED.put(digest, held)
+    mats, covs = held
+    return {n: m.copy() for n, m in mats.items()}, {n: c.copy() for n, c in covs.items()}
+
+
+def _placements(
+    comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """:func:`_place` computed."""
     if len(links) == len(comp) - 1:  # a tree: composition is the least-squares optimum
         return compose_transforms(comp[0], links)
     e = _prepare(comp, links, params)
@@ -647,7 +743,8 @@ def solve(
         problem = link_problem(ln, set(node_list))
         if problem:
             raise ValueError(problem)
-    order = sorted(range(len(links)), key=lambda i: _content_key(links[i]))
+    content = [_content_key(ln) for ln in links]
+    order = sorted(range(len(links)), key=content.__getitem__)
     ordered = [links[i] for i in order]
     keep = np.zeros(len(ordered), dtype=bool)
     for comp in components(node_list, [(ln.a, ln.b) for ln in ordered], rank):
@@ -656,9 +753,10 @@ def solve(
         if len(idx) == len(comp) - 1:
             keep[idx] = True  # no cycle: nothing can be checked, nothing rejected
             continue
-        e = _prepare(comp, [ordered[k] for k in idx], params)
-        inliers = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
+        inside = [ordered[k] for k in idx]
+        inliers = _robust_inliers(comp, inside, [content[order[k]] for k in idx], params)
         if strength is not None and not inliers.all():
+            e = _prepare(comp, inside, params)
             grade = np.array([strength(ordered[k]) for k in idx], dtype=np.float64)
             inliers = _stronger_kept(len(comp), e, inliers, grade, params)
         keep[idx] = inliers
