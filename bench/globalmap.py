@@ -35,7 +35,9 @@ process on one thread, median of ``--repeat``:
   reused where their covariance there stayed on the same lattice point.  Also reported:
   the layers warped and the maps blurred again, on average.
 
-The ratios to ``cold`` in the same run are what to compare across machines.  Also
+The ratios to ``cold`` in the same run are what to compare across machines.  The JSON
+also gives why the warm cache blurred each map it blurred, over all these rebuilds
+(:attr:`agent.fusecache.LayerCache.blur_causes`).  Also
 reported: the bytes of layers and blurred maps the cache holds, the peak memory Python and
 numpy allocate during one rebuild in turn and one cold (tracemalloc: scipy's FFT work
 buffers are not counted), and the fused map's cells.  Writes
@@ -219,6 +221,7 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
         "re_solved_warps": float(np.mean(re_warps)),
         "moved_warps": float(np.mean(moved_warps)),
         "moved_blurs": float(np.mean(moved_blurs)),
+        "blur_causes": dict(sorted(cache.blur_causes.items())),
         "peak_mb": peaks,
         "cpu_s": med,
         "ratio_to_cold": {k: v / med["cold"] for k, v in med.items()},
