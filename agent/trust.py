@@ -326,7 +326,7 @@ def first_verdict(
     if found and (was_in or spread <= HOLD_M):
         return Verdict(CONFIRMED, f"{again}: margin {m}")
     if accepted and searched:
-        loose = f"{again}, its corners within {spread:.2f} m (hold {HOLD_M} m); " if found else ""
+        loose = f"{again}, its corners loose by {spread:.2f} m (hold {HOLD_M} m); " if found else ""
         return searched_accept(margin, min_margin, loose)
     if accepted:
         return Verdict(ACCEPTED, f"margin {m} clears {min_margin}")
