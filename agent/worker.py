@@ -84,6 +84,7 @@ from agent.trust import (
     carried_verdict,
     carries,
     clean_reason,
+    corner_spread,
     first_verdict,
     holds,
     in_grey_zone,
@@ -937,8 +938,10 @@ class FusionWorker:
         self, snap: Snapshot, a: str, b: str, res: Registration, searched: bool = False
     ) -> Verdict:
         """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`;
-        ``searched``: by a full search, whose accept below the high bar is provisional),
-        confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
+        ``searched``: by a full search, whose accept below the high bar is provisional, and
+        confirms a standing accept it finds again only if its covariance pins map B,
+        :func:`agent.trust.corner_spread`), confirmed at once when it closes a cycle with
+        the accepted links (:meth:`_on_cycle`)."""
         previous = self._previous(snap, (a, b))
         grid_b = snap.maps[b][1]
         verdict = first_verdict(
@@ -954,6 +957,7 @@ class FusionWorker:
             and standing_accept(
                 previous.state, previous.margin, previous.first_margin, self.min_margin
             ),
+            corner_spread(res.matrix, res.covariance, grid_b) if res.accepted else 0.0,
         )
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
