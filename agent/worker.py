@@ -1111,8 +1111,14 @@ class FusionWorker:
             reason=clean_reason(verdict.reason),
             holds=verdict.holds,
         )
-        log.info("%s how=%s seconds=%.2f", rec.logfmt(), how, clock.elapsed()[0])
-        if self.book.add_link(rec):
+        taken = self.book.add_link(rec)
+        # "superseded": the book refused it (its epochs were replaced while it was decided);
+        # an operator, or a bench reading the log, must not count it as the pair's state
+        log.info(
+            "%s how=%s seconds=%.2f book=%s",
+            rec.logfmt(), how, clock.elapsed()[0], "taken" if taken else "superseded",
+        )  # fmt: skip
+        if taken:
             self.on_link(rec)
         elif rec.pair not in self._unheld or rec.key >= self._unheld[rec.pair].key:
             self._unheld[rec.pair] = rec
