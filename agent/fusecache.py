@@ -91,7 +91,13 @@ class LayerCache:
         self.blur_causes: Counter[str] = Counter()
 
     def layer(
-        self, robot: str, version: int, grid: Grid, matrix: np.ndarray, covariance: np.ndarray
+        self,
+        robot: str,
+        version: int,
+        grid: Grid,
+        matrix: np.ndarray,
+        covariance: np.ndarray,
+        blur: bool = True,
     ) -> tuple[Layer, bool]:
         """``robot``'s map ``grid`` (at ``version``) warped into the anchor's pixels by
         ``matrix`` with ``covariance``, eq. (8); also whether its blur had to be left out.
@@ -99,18 +105,23 @@ class LayerCache:
         ``(robot, version)`` must name one map, as it does in a fleet (invariant 2).  The
         placement's key is the exact bytes of ``matrix`` and ``covariance`` as float64: one
         that moved by a rounding error is a new placement, since another agent holding it
-        computes the layer from those bytes.
+        computes the layer from those bytes.  ``blur`` False: the map warped without the
+        blur (a preview), whatever ``covariance``; the blurred map held is kept.
         """
         key = (
             int(version),
             np.asarray(matrix, dtype=np.float64).tobytes(),
-            np.asarray(covariance, dtype=np.float64).tobytes(),
+            np.asarray(covariance, dtype=np.float64).tobytes() if blur else b"",
         )
         held = self._held.get(robot)
         if held is not None and held.key == key:
             self.reuses += 1
             return held.layer, held.unblurred
-        blurred = self._blur(robot, int(version), grid, matrix, covariance)
+        if blur:
+            blurred = self._blur(robot, int(version), grid, matrix, covariance)
+        else:  # cheap (a subtraction), so not held
+            plain = blur_in_own_frame(grid, np.zeros((3, 3)))
+            blurred = _Blurred((int(version), b""), plain, False)
         layer = place_blurred(blurred.blurred, grid.resolution, matrix)
         layer.logodds.setflags(write=False)  # shared by every rebuild until replaced
         self._held[robot] = _Held(key, layer, blurred.unblurred)

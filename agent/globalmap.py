@@ -157,6 +157,7 @@ def build_components(
     layers: LayerCache | None = None,
     firsts: Mapping[str, int] | None = None,
     fuse: bool = True,
+    blur: bool = True,
 ) -> list[Component]:
     """Every component's global map from the latest local maps and one link per pair.
 
@@ -176,6 +177,8 @@ def build_components(
     fuse : False: the placements alone, each component's ``grid`` its anchor's map (for a
         simulation that charges the fusion's cost rather than spending it); ``layers`` is
         then not used.
+    blur : False: each map placed without eq. (8)'s blur (a preview of a round still in
+        progress, :meth:`agent.worker.FusionWorker._rebuild`); the entropy filter as ever.
 
     Returns
     -------
@@ -202,7 +205,7 @@ def build_components(
         anchor, order = placed[0], placed[1:]
         inside = [(ln.pair, u) for ln, u in zip(usable, sol.used, strict=True) if ln.a in members]
         if fuse:
-            grid, unblurred = _fuse_component(maps, anchor, order, mats, covs, layers)
+            grid, unblurred = _fuse_component(maps, anchor, order, mats, covs, layers, blur)
         else:
             grid, unblurred = maps[anchor][1], ()
         out.append(
@@ -236,6 +239,7 @@ def _fuse_component(
     mats: Mapping[str, np.ndarray],
     covs: Mapping[str, np.ndarray],
     layers: LayerCache,
+    blur: bool = True,
 ) -> tuple[Grid, tuple[str, ...]]:
     """Local maps fused into ``anchor``'s in ``order``, eqs. (33)-(37); also the robots
     fused without their blur.
@@ -245,7 +249,7 @@ def _fuse_component(
     the layers are fused into the anchor's map in ``order`` on one canvas that holds them
     all (:func:`pgvd.fusion.fuse_layers`).
     """
-    got = [(r, *layers.layer(r, maps[r][0], maps[r][1], mats[r], covs[r])) for r in order]
+    got = [(r, *layers.layer(r, maps[r][0], maps[r][1], mats[r], covs[r], blur)) for r in order]
     grid = fuse_layers(maps[anchor][1], [layer for _, layer, _ in got])
     return grid, tuple(r for r, _, unblurred in got if unblurred)
 

@@ -998,3 +998,40 @@ def test_a_grey_decision_superseded_while_searched_still_ends_a_provisional_acce
         assert h.worker.step(now=t)
     decided = [(ln.key, ln.state, ln.margin) for ln in h.links]
     assert decided == [(("r1", 1, "r2", 1), CANDIDATE, 0.64), (("r1", 2, "r2", 2), CANDIDATE, 0.58)]
+
+
+def test_a_preview_is_fused_without_the_blur_and_the_settled_map_with_it() -> None:
+    """Eq. (8)'s blur is spent on the settled map only; a preview of the same maps and
+    links is the maps placed without it, and the settled map follows even when nothing
+    but the round's end changed."""
+    from agent.globalmap import build_components
+
+    root = Path(__file__).resolve().parents[1] / "examples"
+    a, b = read_map(root / "intel_a.yaml"), read_map(root / "intel_b.yaml")
+    res = merge(a, b)
+    assert res.accepted
+    h = Harness("r3")  # r1-r4 and r2-r4 are r1's and r2's turns: r3 waits, unsettled
+    for robot, grid in (("r1", a), ("r2", b), ("r4", Grid(tiny(1).logodds, a.resolution))):
+        h.book.put_map(robot, V(1), grid)
+    loose = np.diag([4.0, 4.0, np.radians(0.5) ** 2])  # wide enough to blur visibly
+    joined = LinkRecord("r1", V(1), "r2", V(1), True, res.matrix, loose, 0.95, "r1")
+    h.book.add_link(joined)
+    for now in (0.0, 0.1, 0.2):
+        h.worker.step(now=now)
+    (preview,) = h.globals
+    assert not preview.settled and not h.calls
+    snap = h.book.snapshot()
+    plain, blurred = (
+        build_components(snap.maps, snap.links, firsts=snap.firsts, blur=blur)
+        for blur in (False, True)
+    )
+    assert [c.digest for c in preview.components] == [c.digest for c in plain]
+    assert plain[0].digest != blurred[0].digest  # the blur does change the map
+    for other in ("r1", "r2"):  # the round ends: no new map, one more link each
+        h.book.add_link(
+            LinkRecord(other, V(1), "r4", V(1), False, np.eye(3), np.eye(3), 0.0, other)
+        )
+    h.worker.step(now=0.3)
+    settled = h.globals[-1]
+    assert settled.settled and len(h.globals) == 2
+    assert settled.components[0].digest == blurred[0].digest
