@@ -140,5 +140,6 @@ def test_a_candidate_below_the_cycle_floor_closes_no_cycle(three_parts) -> None:
     poses = {p: (truth[p], GREY) for p in PAIRS}
     poses[("r2", "r3")] = (truth[("r2", "r3")], CYCLE_FLOOR - 0.05)
     r1 = decide(three_parts, poses)
+    assert r1.record(("r2", "r3")).state == trust.CANDIDATE  # in the grey zone, held
     assert not any(r1.record(p).state in trust.IN_MAP for p in PAIRS)
     assert all(len(c.members) == 1 for c in r1.globals[-1].components)
