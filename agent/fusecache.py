@@ -30,6 +30,7 @@ map bit for bit.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Collection
 from dataclasses import dataclass
 
@@ -76,6 +77,9 @@ class LayerCache:
     warps : layers computed.
     reuses : layers served as held.
     blurs : maps blurred; ``warps - blurs`` layers were warps of a blurred map held.
+    blur_causes : why each map was blurred: ``"first"`` (no blurred map of the robot held),
+        ``"version"`` (a new map version) or ``"covariance"`` (the same version, its
+        covariance in its own frame on another lattice point).
     """
 
     def __init__(self) -> None:
@@ -84,6 +88,7 @@ class LayerCache:
         self.warps = 0
         self.reuses = 0
         self.blurs = 0
+        self.blur_causes: Counter[str] = Counter()
 
     def layer(
         self, robot: str, version: int, grid: Grid, matrix: np.ndarray, covariance: np.ndarray
@@ -123,6 +128,7 @@ class LayerCache:
             held = self._blurred.get(robot)
             if held is not None and held.key == key:
                 return held
+            self.blur_causes[_cause(held, version)] += 1
             blurred = _Blurred(key, blur_in_own_frame(grid, own), False)
         except (ValueError, ArithmeticError):
             # The same inputs fail the same way on every agent, so warping without the
@@ -149,3 +155,10 @@ class LayerCache:
         return sum(h.layer.logodds.nbytes for h in self._held.values()) + sum(
             b.blurred.nbytes for b in self._blurred.values()
         )
+
+
+def _cause(held: _Blurred | None, version: int) -> str:
+    """Why a map is blurred again, given what was held for its robot (:class:`LayerCache`)."""
+    if held is None:
+        return "first"
+    return "version" if held.key[0] != version else "covariance"

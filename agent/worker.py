@@ -85,6 +85,7 @@ from agent.trust import (
     carried_verdict,
     carries,
     clean_reason,
+    corner_spread,
     first_verdict,
     holds,
     in_grey_zone,
@@ -994,8 +995,10 @@ class FusionWorker:
         self, snap: Snapshot, a: str, b: str, res: Registration, searched: bool = False
     ) -> Verdict:
         """The state of a pair's first decision in its epochs (:func:`agent.trust.first_verdict`;
-        ``searched``: by a full search, whose accept below the high bar is provisional),
-        confirmed at once when it closes a cycle with the accepted links (:meth:`_on_cycle`)."""
+        ``searched``: by a full search, whose accept below the high bar is provisional, and
+        confirms a standing accept it finds again only if its covariance pins map B,
+        :func:`agent.trust.corner_spread`), confirmed at once when it closes a cycle with
+        the accepted links (:meth:`_on_cycle`)."""
         previous = self._previous(snap, (a, b))
         grid_b = snap.maps[b][1]
         verdict = first_verdict(
@@ -1011,6 +1014,7 @@ class FusionWorker:
             and standing_accept(
                 previous.state, previous.margin, previous.first_margin, self.min_margin
             ),
+            corner_spread(res.matrix, res.covariance, grid_b) if res.accepted else 0.0,
         )
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
@@ -1164,8 +1168,14 @@ class FusionWorker:
             reason=clean_reason(verdict.reason),
             holds=verdict.holds,
         )
-        log.info("%s how=%s seconds=%.2f", rec.logfmt(), how, clock.elapsed()[0])
-        if self.book.add_link(rec):
+        taken = self.book.add_link(rec)
+        # "superseded": the book refused it (its epochs were replaced while it was decided);
+        # an operator, or a bench reading the log, must not count it as the pair's state
+        log.info(
+            "%s how=%s seconds=%.2f book=%s",
+            rec.logfmt(), how, clock.elapsed()[0], "taken" if taken else "superseded",
+        )  # fmt: skip
+        if taken:
             self.on_link(rec)
         elif rec.pair not in self._unheld or rec.key >= self._unheld[rec.pair].key:
             self._unheld[rec.pair] = rec

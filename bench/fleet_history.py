@@ -34,11 +34,11 @@ from pgvd.posegraph import components
 
 UNPLACED, RIGHT, WRONG = "unplaced", "right", "wrong"
 #: A link decision as an agent logs it (:meth:`agent.links.LinkRecord.logfmt` and the worker's
-#: ``how=`` and ``seconds=``), after the log's local time and robot.
+#: ``how=``, ``seconds=`` and ``book=``), after the log's local time and robot.
 LINK_LINE = re.compile(
     r"^(?P<when>\d{4}-\d\d-\d\d \d\d:\d\d:\d\d),(?P<ms>\d{3}) (?P<agent>\S+) INFO "
     r"link pair=(?P<a>[^/\s]+)/(?P<b>\S+) versions=\S+ outcome=(?P<state>\w+) "
-    r"margin=(?P<margin>\S+) .* how=(?P<how>[\w ]+?) seconds="
+    r"margin=(?P<margin>\S+) .* how=(?P<how>[\w ]+?) seconds=\S+(?: book=(?P<book>\w+))?"
 )
 
 
@@ -243,12 +243,13 @@ def placed_right_at_end(
 
 
 def link_events(lines: Iterable[str], t0: float) -> list[dict]:
-    """The link decisions of an agent's log lines (:data:`LINK_LINE`; other lines are
-    skipped), their times in seconds since ``t0`` (a POSIX time; the log is in local time)."""
+    """The link decisions of an agent's log lines (:data:`LINK_LINE`; other lines, and
+    decisions the agent's book refused as superseded, are skipped: no agent held them), their
+    times in seconds since ``t0`` (a POSIX time; the log is in local time)."""
     out = []
     for line in lines:
         m = LINK_LINE.match(line)
-        if m is None:
+        if m is None or m["book"] == "superseded":
             continue
         when = time.mktime(time.strptime(m["when"], "%Y-%m-%d %H:%M:%S")) + int(m["ms"]) / 1e3
         out.append(

@@ -17,11 +17,13 @@ process on one thread, median of ``--repeat``:
   with :func:`pgvd.fusion.fuse_maps` (warped, then blurred on that canvas), the rebuild
   before the cache, as a baseline (:func:`fuse_in_turn`);
 * ``cold``: every map blurred in its own frame, warped into the anchor's pixels and the
-  layers fused, empty cache;
+  layers fused, empty cache, the pose graph solved afresh (:func:`cold_build`);
 * ``new version``: the cache warm and one robot (a different one each repeat) at its next
   map version, the rest of its scans added, its links unchanged (a new minor version within
   its registration epoch): that robot's map alone is warped again;
 * ``unchanged``: the cache warm, the same inputs (a preview rebuilt beside no new map);
+  this and ``new version`` find the pose graph's solution held, as an agent does when
+  no link changed (:func:`pgvd.posegraph.solve`);
 * ``re-solved``: the cache warm and one link (a different one each repeat) replaced by an
   estimate a hair away (:data:`HAIR`), as a re-check that confirms it gives: the pose
   graph re-solves every cycle it lies on and moves every placement of the component by a
@@ -33,7 +35,9 @@ process on one thread, median of ``--repeat``:
   reused where their covariance there stayed on the same lattice point.  Also reported:
   the layers warped and the maps blurred again, on average.
 
-The ratios to ``cold`` in the same run are what to compare across machines.  Also
+The ratios to ``cold`` in the same run are what to compare across machines.  The JSON
+also gives why the warm cache blurred each map it blurred, over all these rebuilds
+(:attr:`agent.fusecache.LayerCache.blur_causes`).  Also
 reported: the bytes of layers and blurred maps the cache holds, the peak memory Python and
 numpy allocate during one rebuild in turn and one cold (tracemalloc: scipy's FFT work
 buffers are not counted), and the fused map's cells.  Writes
@@ -67,6 +71,7 @@ from agent.sources import CarmenSource, SourceSpec  # noqa: E402
 from pgvd.fusion import fuse_maps  # noqa: E402
 from pgvd.grid import Grid, relative_matrix, rigid_matrix  # noqa: E402
 from pgvd.integrate import integrate_scan  # noqa: E402
+from pgvd.posegraph import forget_solutions  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -150,6 +155,13 @@ def fuse_in_turn(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> 
     return fused
 
 
+def cold_build(maps: dict[str, tuple[int, Grid]], links: list[LinkRecord]) -> None:
+    """A rebuild with nothing held: no layer, and no pose-graph solution either
+    (:func:`pgvd.posegraph.forget_solutions`), as a fresh agent builds."""
+    forget_solutions()
+    build_components(maps, links)
+
+
 def bench_fleet(log: Path, n: int, repeat: int) -> dict:
     """The six rebuilds of the module's docstring on ``n`` robots of ``log``."""
     fleet = Fleet(log, n)
@@ -157,7 +169,7 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
     robots = sorted(maps)
     cache = LayerCache()
     in_turn = [cpu_seconds(lambda: fuse_in_turn(maps, links)) for _ in range(repeat)]
-    cold = [cpu_seconds(lambda: build_components(maps, links)) for _ in range(repeat)]
+    cold = [cpu_seconds(lambda: cold_build(maps, links)) for _ in range(repeat)]
     build_components(maps, links, layers=cache)
     new_version = []
     for k in range(repeat):
@@ -186,7 +198,7 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
     (comp,) = build_components(maps, links, layers=cache)
     peaks = {
         "in_turn": peak_mb(lambda: fuse_in_turn(maps, links)),
-        "cold": peak_mb(lambda: build_components(maps, links)),
+        "cold": peak_mb(lambda: cold_build(maps, links)),
     }
     med = {
         name: float(np.median(v))
@@ -209,6 +221,7 @@ def bench_fleet(log: Path, n: int, repeat: int) -> dict:
         "re_solved_warps": float(np.mean(re_warps)),
         "moved_warps": float(np.mean(moved_warps)),
         "moved_blurs": float(np.mean(moved_blurs)),
+        "blur_causes": dict(sorted(cache.blur_causes.items())),
         "peak_mb": peaks,
         "cpu_s": med,
         "ratio_to_cold": {k: v / med["cold"] for k, v in med.items()},

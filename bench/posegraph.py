@@ -7,8 +7,9 @@ one of them an outlier the robust solution drops, links with the errors of real 
 once with every normal equation solved by a dense LU and once by a sparse one
 (:data:`pgvd.posegraph.SPARSE_FROM` set to never and to always).  Each case is timed
 ``--repeats`` times, the two solvers alternating, and the median kept: on a shared machine
-only the ratio sparse / dense of the same run means anything.  The largest difference
-between the two solutions' placements is reported beside it.  Writes
+only the ratio sparse / dense of the same run means anything.  The solutions
+:func:`pgvd.posegraph.solve` holds from one call to the next are dropped before each run.
+The largest difference between the two solutions' placements is reported beside it.  Writes
 ``bench/results/posegraph.md`` and ``posegraph.json``.
 """
 
@@ -70,6 +71,7 @@ def timed_solve(
     """Seconds of one :func:`pgvd.posegraph.solve` with ``SPARSE_FROM`` set, and its result."""
     held = posegraph.SPARSE_FROM
     posegraph.SPARSE_FROM = sparse_from
+    posegraph.forget_solutions()  # the other solver's run must not serve this one
     try:
         start = time.perf_counter()
         sol = posegraph.solve(nodes, edges)

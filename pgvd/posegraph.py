@@ -54,11 +54,14 @@ nothing is random; the same edges in any order give the same result bit for bit.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Protocol
+from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 from scipy import sparse
@@ -90,6 +93,9 @@ class Link(Protocol):
 #: LU costs (3n)^3 whatever the links; below this size that dense LU is the faster
 #: (``python3 -m bench posegraph`` measures both).
 SPARSE_FROM = 96
+
+#: A normal matrix: dense below :data:`SPARSE_FROM` unknowns, sparse from there on.
+Matrix = np.ndarray | sparse.csr_array
 
 
 @dataclass(frozen=True)
@@ -294,37 +300,41 @@ def _jacobians(x: np.ndarray, e: _Edges) -> tuple[np.ndarray, np.ndarray]:
     return ja, jb
 
 
-def _block_matrix(
-    n: int, e: _Edges, ja: np.ndarray, jb: np.ndarray, omega: np.ndarray
-) -> sparse.csr_array:
-    """``sum_k J_k^T Omega_k J_k`` over the edges, (3n x 3n) sparse: one 3x3 block per node
-    and one per pair of linked nodes, whatever the number of nodes.  ``ja``, ``jb`` are
-    the edges' Jacobians (:func:`_jacobians`).
+def _block_matrix(n: int, e: _Edges, ja: np.ndarray, jb: np.ndarray, omega: np.ndarray) -> Matrix:
+    """``sum_k J_k^T Omega_k J_k`` over the edges, (3n x 3n): one 3x3 block per node and
+    one per pair of linked nodes, whatever the number of nodes.  ``ja``, ``jb`` are the
+    edges' Jacobians (:func:`_jacobians`).  Dense below :data:`SPARSE_FROM` unknowns, where
+    building a sparse matrix costs more than the whole dense solve, sparse from there on.
 
     The blocks are summed in edge order (:func:`solve` sorts the edges by content), so the
     same edges give the same matrix bit for bit.
     """
+    pairs = [
+        (i, k, ji.transpose(0, 2, 1) @ omega @ jk)
+        for i, ji in ((e.ia, ja), (e.ib, jb))
+        for k, jk in ((e.ia, ja), (e.ib, jb))
+    ]
+    if 3 * n < SPARSE_FROM:
+        blocks = np.zeros((n, n, 3, 3))
+        for i, k, block in pairs:
+            np.add.at(blocks, (i, k), block)
+        return blocks.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
     three = np.arange(3)
-    rows, cols, vals = [], [], []
-    for i, ji in ((e.ia, ja), (e.ib, jb)):
-        jit_omega = ji.transpose(0, 2, 1) @ omega
-        for k, jk in ((e.ia, ja), (e.ib, jb)):
-            block = jit_omega @ jk
-            rows.append(np.broadcast_to((3 * i)[:, None, None] + three[None, :, None], block.shape))
-            cols.append(np.broadcast_to((3 * k)[:, None, None] + three[None, None, :], block.shape))
-            vals.append(block)
-    coo = sparse.coo_array(
-        (np.concatenate(vals, None), (np.concatenate(rows, None), np.concatenate(cols, None))),
-        shape=(3 * n, 3 * n),
-    )
-    return coo.tocsr()
+    rows = [np.broadcast_to((3 * i)[:, None, None] + three[:, None], b.shape) for i, _, b in pairs]
+    cols = [np.broadcast_to((3 * k)[:, None, None] + three, b.shape) for _, k, b in pairs]
+    vals = np.concatenate([b for _, _, b in pairs], None)
+    at = (np.concatenate(rows, None), np.concatenate(cols, None))
+    return sparse.coo_array((vals, at), shape=(3 * n, 3 * n)).tocsr()
 
 
-def _normal_equations(
-    x: np.ndarray, e: _Edges, w: np.ndarray
-) -> tuple[sparse.csr_array, np.ndarray]:
-    """``H = sum w J^T Omega J`` (3n x 3n, sparse) and ``g = sum w J^T Omega r`` over all
-    nodes."""
+def _principal(h: Matrix, idx: np.ndarray) -> Matrix:
+    """The rows and columns ``idx`` of ``h``."""
+    return h[np.ix_(idx, idx)] if isinstance(h, np.ndarray) else h[idx][:, idx]
+
+
+def _normal_equations(x: np.ndarray, e: _Edges, w: np.ndarray) -> tuple[Matrix, np.ndarray]:
+    """``H = sum w J^T Omega J`` (3n x 3n, :func:`_block_matrix`) and
+    ``g = sum w J^T Omega r`` over all nodes."""
     r = _residuals(x, e)
     ja, jb = _jacobians(x, e)
     wo = w[:, None, None] * e.info
@@ -335,19 +345,23 @@ def _normal_equations(
     return _block_matrix(len(x), e, ja, jb, wo), g.ravel()
 
 
-def _solve(h: sparse.csr_array, rhs: np.ndarray) -> np.ndarray:
+def _solve(h: Matrix, rhs: np.ndarray) -> np.ndarray:
     """``h^-1 rhs``: dense LU below :data:`SPARSE_FROM` unknowns, sparse LU (SuperLU,
     single-threaded and deterministic) from there on."""
+    if isinstance(h, np.ndarray):
+        return np.linalg.solve(h, rhs)
     if h.shape[0] < SPARSE_FROM:
         return np.linalg.solve(h.toarray(), rhs)
     return splu(sparse.csc_array(h)).solve(np.asarray(rhs, dtype=np.float64))
 
 
-def _damped_solve(h: sparse.csr_array, rhs: np.ndarray) -> np.ndarray:
+def _damped_solve(h: Matrix, rhs: np.ndarray) -> np.ndarray:
     """``h^-1 rhs`` with a tiny damping: unknowns no weighted link constrains stay at 0
     (their rows are empty) instead of making ``h`` singular."""
     size = h.shape[0]
     damping = 1e-12 * (1.0 + np.abs(h.diagonal()).max(initial=0.0))
+    if isinstance(h, np.ndarray):
+        return _solve(h + damping * np.eye(size), rhs)
     diagonal = np.arange(size)
     damped = h + sparse.csr_array((np.full(size, damping), (diagonal, diagonal)), h.shape)
     return _solve(damped, rhs)
@@ -364,7 +378,7 @@ def _gauss_newton(x: np.ndarray, e: _Edges, w: np.ndarray, steps: int, free: sli
     idx = (np.arange(3 * len(x)).reshape(-1, 3)[1:, free]).ravel()
     for _ in range(steps):
         h, g = _normal_equations(x, e, w)
-        dx = _damped_solve(h[idx][:, idx], -g[idx])
+        dx = _damped_solve(_principal(h, idx), -g[idx])
         x.reshape(-1)[idx] += dx
         if np.abs(dx).max(initial=0.0) < 1e-9:
             break
@@ -384,13 +398,19 @@ def _chordal_headings(n: int, e: _Edges, w: np.ndarray) -> np.ndarray:
     u = np.exp(1j * e.z[:, 2]) * weight
     rows = np.concatenate([np.arange(m), np.arange(m)])
     cols = np.concatenate([e.ib, e.ia])
-    a = sparse.csr_array((np.concatenate([weight + 0j, -u]), (rows, cols)), shape=(m, n))
-    rhs = -a[:, [0]].toarray()[:, 0]  # the anchor's z is 1
-    free = a[:, 1:]
-    real = sparse.vstack(
-        [sparse.hstack([free.real, -free.imag]), sparse.hstack([free.imag, free.real])],
-        format="csr",
-    )
+    vals = np.concatenate([weight + 0j, -u])
+    if 2 * n < SPARSE_FROM:  # as the normal equations (:func:`_block_matrix`)
+        a = np.zeros((m, n), complex)
+        a[rows, cols] = vals  # a link joins two distinct nodes: no entry twice
+        rhs, free = -a[:, 0], a[:, 1:]  # the anchor's z is 1
+        real: Matrix = np.block([[free.real, -free.imag], [free.imag, free.real]])
+    else:
+        a = sparse.csr_array((vals, (rows, cols)), shape=(m, n))
+        rhs, free = -a[:, [0]].toarray()[:, 0], a[:, 1:]
+        real = sparse.vstack(
+            [sparse.hstack([free.real, -free.imag]), sparse.hstack([free.imag, free.real])],
+            format="csr",
+        )
     sol = _damped_solve(real.T @ real, real.T @ np.concatenate([rhs.real, rhs.imag]))
     z = np.concatenate([[1.0 + 0j], sol[: n - 1] + 1j * sol[n - 1 :]])
     return np.where(np.abs(z) > 1e-12, np.angle(z), 0.0)
@@ -492,8 +512,10 @@ def _sandwich_covariances(x: np.ndarray, e: _Edges) -> np.ndarray:
     spread = _block_matrix(n, e, *_jacobians(x, e), e.info @ e.cov @ e.info)
     # every block of H^-1 is needed: a dense inverse, which a sparse LU's solve of 3n
     # right-hand sides is slower than at any size this fleet reaches
-    hinv = np.linalg.inv(h[3:][:, 3:].toarray())
-    out = hinv @ (spread[3:][:, 3:] @ hinv)
+    free = np.arange(3, 3 * n)
+    h_free, spread_free = _principal(h, free), _principal(spread, free)
+    hinv = np.linalg.inv(h_free if isinstance(h_free, np.ndarray) else h_free.toarray())
+    out = hinv @ (spread_free @ hinv)
     covs = np.zeros((n, 3, 3))
     for i in range(1, n):
         block = out[3 * i - 3 : 3 * i, 3 * i - 3 : 3 * i]
@@ -576,11 +598,104 @@ def _content_key(ln: Link) -> tuple[str, str, bytes, bytes]:
     )
 
 
+T = TypeVar("T")
+
+
+class _Memo(Generic[T]):
+    """The last :data:`MEMO_SIZE` results of one step of :func:`solve`, by a digest of its
+    inputs (:func:`_component_digest`).
+
+    A fleet solves the same components again and again: each rebuild of the global map
+    and each check of a predicted link solves every component of the links held, and
+    between two of them most components' links stay as they were.  A result held is the
+    one a fresh solve gives (the solve is a pure function of the digested inputs); it is
+    handed out as copies, so no caller can change what the next one gets.  Thread-safe:
+    an agent solves on more than one thread.
+    """
+
+    def __init__(self) -> None:
+        self._held: OrderedDict[bytes, T] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: bytes) -> T | None:
+        with self._lock:
+            if key not in self._held:
+                return None
+            self._held.move_to_end(key)
+            return self._held[key]
+
+    def clear(self) -> None:
+        with self._lock:
+            self._held.clear()
+
+    def put(self, key: bytes, value: T) -> None:
+        with self._lock:
+            self._held[key] = value
+            while len(self._held) > MEMO_SIZE:
+                self._held.popitem(last=False)
+
+
+#: Results each step of :func:`solve` holds (:class:`_Memo`): a few hundred kB at 16 maps.
+MEMO_SIZE = 64
+_INLIERS: _Memo[np.ndarray] = _Memo()
+_PLACED: _Memo[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]] = _Memo()
+
+
+def forget_solutions() -> None:
+    """Drop every result :func:`solve` holds (:class:`_Memo`): the next solve computes
+    afresh, as a benchmark timing the solve needs."""
+    _INLIERS.clear()
+    _PLACED.clear()
+
+
+def _component_digest(
+    comp: Sequence[str], keys: Iterable[tuple[str, str, bytes, bytes]], params: PoseGraphParams
+) -> bytes:
+    """SHA-256 of all a component's solution depends on: its nodes in order (the anchor
+    first), its links' content (:func:`_content_key`) in the order solved, the parameters."""
+    h = hashlib.sha256(repr((tuple(comp), params)).encode())
+    for a, b, m, c in keys:
+        h.update(repr((a, b)).encode())
+        h.update(m)
+        h.update(c)
+    return h.digest()
+
+
+def _robust_inliers(
+    comp: Sequence[str],
+    links: Sequence[Link],
+    keys: list[tuple[str, str, bytes, bytes]],
+    params: PoseGraphParams,
+) -> np.ndarray:
+    """GNC-TLS's inliers among ``links`` of ``comp``, with every rejected link that fits
+    offered back (:func:`_gnc_inliers`, :func:`_maximal`); held in :data:`_INLIERS`."""
+    digest = _component_digest(comp, keys, params)
+    held = _INLIERS.get(digest)
+    if held is None:
+        e = _prepare(comp, links, params)
+        held = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
+        _INLIERS.put(digest, held)
+    return np.array(held, dtype=bool)
+
+
 def _place(
     comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Transforms to ``comp[0]`` (the anchor) and covariances of one component from its
-    kept links."""
+    kept links; held in :data:`_PLACED`."""
+    digest = _component_digest(comp, map(_content_key, links), params)
+    held = _PLACED.get(digest)
+    if held is None:
+        held = _placements(comp, links, params)
+        _PLACED.put(digest, held)
+    mats, covs = held
+    return {n: m.copy() for n, m in mats.items()}, {n: c.copy() for n, c in covs.items()}
+
+
+def _placements(
+    comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """:func:`_place` computed."""
     if len(links) == len(comp) - 1:  # a tree: composition is the least-squares optimum
         return compose_transforms(comp[0], links)
     e = _prepare(comp, links, params)
@@ -628,7 +743,8 @@ def solve(
         problem = link_problem(ln, set(node_list))
         if problem:
             raise ValueError(problem)
-    order = sorted(range(len(links)), key=lambda i: _content_key(links[i]))
+    content = [_content_key(ln) for ln in links]
+    order = sorted(range(len(links)), key=content.__getitem__)
     ordered = [links[i] for i in order]
     keep = np.zeros(len(ordered), dtype=bool)
     for comp in components(node_list, [(ln.a, ln.b) for ln in ordered], rank):
@@ -637,9 +753,10 @@ def solve(
         if len(idx) == len(comp) - 1:
             keep[idx] = True  # no cycle: nothing can be checked, nothing rejected
             continue
-        e = _prepare(comp, [ordered[k] for k in idx], params)
-        inliers = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
+        inside = [ordered[k] for k in idx]
+        inliers = _robust_inliers(comp, inside, [content[order[k]] for k in idx], params)
         if strength is not None and not inliers.all():
+            e = _prepare(comp, inside, params)
             grade = np.array([strength(ordered[k]) for k in idx], dtype=np.float64)
             inliers = _stronger_kept(len(comp), e, inliers, grade, params)
         keep[idx] = inliers

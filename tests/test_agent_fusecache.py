@@ -169,3 +169,15 @@ def test_a_re_solve_that_moves_placements_by_less_than_a_step_re_warps_nobody(
     links[2] = link("r2", "r3", rigid_matrix(0.0, 1.5, 0.0) @ c_to_b)
     warps, comp = rebuild()
     assert warps == 2 and not np.array_equal(comp.transforms["r2"], raw[0].transforms["r2"])
+
+
+def test_each_blur_is_counted_with_its_cause(halves: tuple) -> None:
+    """A robot's first map, its covariance on another lattice point, its next version."""
+    _, b, truth = halves
+    cache = LayerCache()
+    cache.layer("r2", 1, b, truth, COV)
+    cache.layer("r2", 1, b, truth, COV)  # held: no blur
+    cache.layer("r2", 1, b, truth, COV * 2.0)
+    cache.layer("r2", 2, b, truth, COV * 2.0)
+    assert cache.blur_causes == {"first": 1, "covariance": 1, "version": 1}
+    assert cache.blurs == 3

@@ -128,7 +128,11 @@ def test_link_decisions_are_read_from_the_agents_logs_and_join_pairs_over_chains
         "2026-12-04 23:40:20,000 r1 INFO link pair=r1/r2 versions=1.1/1.0 outcome=confirmed "
         'margin=0.80 holds=1 by=r1 reason="holds" how=rechecked seconds=0.3',
         "2026-12-04 23:40:21,250 r1 INFO link pair=r1/r3 versions=2.0/1.0 outcome=rejected "
-        'margin=none holds=0 by=r1 reason="no pose" how=carried forward seconds=0.1',
+        'margin=none holds=0 by=r1 reason="no pose" how=carried forward seconds=0.1 book=taken',
+        # refused by the book: its epochs were replaced while it was searched
+        "2026-12-04 23:40:21,900 r1 INFO link pair=r1/r4 versions=1.0/1.0 outcome=accepted "
+        'margin=0.95 holds=0 by=r1 reason="margin 0.95 clears 0.89" how=searched seconds=0.4 '
+        "book=superseded",
     ]
     events = fh.link_events(lines, t0)
     assert [(e["t"], e["pair"], e["state"], e["how"]) for e in events] == [

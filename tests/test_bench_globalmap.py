@@ -32,6 +32,8 @@ def test_the_command_writes_its_tables(shared: Path, tmp_path: Path) -> None:
     # a real move re-warps the robots it moved, reusing their maps blurred in their frames
     assert row["moved_warps"] > 0 and row["moved_blurs"] < row["moved_warps"]
     assert row["held_mb"] > 0
+    # every robot but the anchor blurred once cold, then again for its new version
+    assert row["blur_causes"]["first"] == 2 and row["blur_causes"]["version"] == 1
     table = (tmp_path / "globalmap.md").read_text()
     assert "`python3 -m bench globalmap --robots 3 --logs intel --repeat 1`" in table
     assert "| intel | 3 |" in table

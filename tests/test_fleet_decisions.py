@@ -34,7 +34,7 @@ def test_agent_logs_hold_every_decision_and_the_status_its_state(tmp_path: Path)
     pattern = re.compile(
         r" INFO link pair=r1/r2 versions=\d+\.\d+/\d+\.\d+ "
         r"outcome=(accepted|candidate|confirmed|rejected|withdrawn) margin=(-?\d\.\d\d|none) "
-        r'holds=\d+ by=r[12] reason="[^"]*" how=[a-z ]+ seconds=\d+\.\d\d$'
+        r'holds=\d+ by=r[12] reason="[^"]*" how=[a-z ]+ seconds=\d+\.\d\d book=(taken|superseded)$'
     )
     assert all(pattern.search(line) for line in decisions), decisions
     # the anchor is the robot whose first version is older (ties: r1), the same on both

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from bench.posegraph import random_graph
 from pgvd import posegraph
 from pgvd.grid import matrix_to_pose, rigid_matrix
 from pgvd.posegraph import (
@@ -296,3 +297,19 @@ def test_memoised_link_checks_give_what_a_fresh_check_gives(seed: int) -> None:
     for n in truth:
         assert cold.transforms[n].tobytes() == warm.transforms[n].tobytes()
         assert cold.covariances[n].tobytes() == warm.covariances[n].tobytes()
+
+
+def test_a_solve_served_from_the_memo_is_a_fresh_one_and_not_shared() -> None:
+    """A repeated solve returns what a fresh solve gives, bit for bit, and arrays a caller
+    may change without changing the next caller's."""
+    nodes, edges = random_graph(12, seed=5, links_per_node=2.0, wrong=True)
+    posegraph.forget_solutions()
+    fresh = posegraph.solve(nodes, edges)
+    served = posegraph.solve(nodes, edges)
+    assert served.used == fresh.used and not all(fresh.used)
+    for v in nodes:
+        assert served.transforms[v].tobytes() == fresh.transforms[v].tobytes()
+        assert served.covariances[v].tobytes() == fresh.covariances[v].tobytes()
+    served.transforms[nodes[1]][0, 2] += 100.0
+    again = posegraph.solve(nodes, edges)
+    assert again.transforms[nodes[1]].tobytes() == fresh.transforms[nodes[1]].tobytes()
