@@ -63,6 +63,7 @@ from agent.counters import Counters
 from agent.footprints import MARGIN_M, FootprintCache
 from agent.fusecache import LayerCache
 from agent.globalmap import Component, Soundness, build_components, usable_links
+from agent.greycycle import cycle_verdict, on_cycle_candidate
 from agent.links import (
     LinkKey,
     LinkRecord,
@@ -627,6 +628,9 @@ class FusionWorker:
         self._quiet_since: dict[tuple[object, ...], float] = {}
         #: Whether one of them may yet enter the map (:meth:`_quiet`): not settled.
         self._quiet_waiting = False
+        #: The link ids of the book, and this agent's candidates already tried against a
+        #: cycle under them (:meth:`_cycled`).
+        self._cycle_tried: tuple[tuple[object, ...], set[tuple[object, ...]]] = ((), set())
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
         self._thread = threading.Thread(
@@ -708,7 +712,7 @@ class FusionWorker:
             others = any(k in checkable and k not in self._deferred for k in due[1:])
             self._register(snap, due[0], may_defer=others)
             return True
-        if not due and self._quiet(snap, now):
+        if not due and (self._quiet(snap, now) or self._cycled(snap)):
             return True
         # an own provisional accept still waiting on final or quiet maps may yet enter the map
         settled = snap.settled and not self._quiet_waiting
@@ -811,6 +815,59 @@ class FusionWorker:
         how = "final" if self._final(snap, held) else "quiet"
         self._record(base, res, verdict, how, _Clock.start())
         return True
+
+    def _cycled(self, snap: Snapshot) -> bool:
+        """Confirm one of this agent's candidates that the other pairs' candidates and the
+        links in the map place where its pose does (:mod:`agent.greycycle`); True if one was.
+
+        Each candidate is tried once per set of links held: on final maps no newer decision
+        comes, and the cycle may close only after the candidate was decided.
+        """
+        if self.check is None:
+            return False
+        versions = {r: v for r, (v, _) in snap.maps.items()}
+        if self._cycle_tried[0] != snap.link_ids:
+            self._cycle_tried = (snap.link_ids, set())
+        tried = self._cycle_tried[1]
+        todo = sorted(
+            (
+                ln
+                for ln in snap.links
+                if ln.decided_by == self.me
+                and ln.identity not in tried
+                and on_cycle_candidate(ln, versions)
+            ),
+            key=lambda ln: ln.pair,
+        )
+        for ln in todo:
+            tried.add(ln.identity)
+            predicted = self._cycle_pose(snap, ln, versions)
+            if predicted is not None and holds(predicted, ln.matrix, snap.maps[ln.b][1]):
+                res = Registration(True, ln.matrix, ln.covariance, ln.score, "", ln.margin)
+                base = replace(ln, revision=ln.revision + 1)
+                self._record(base, res, cycle_verdict(ln.margin), "cycle", _Clock.start())
+                return True
+        return False
+
+    @staticmethod
+    def _cycle_pose(
+        snap: Snapshot, held: LinkRecord, versions: dict[str, int]
+    ) -> np.ndarray | None:
+        """The pose of ``held``'s pair that the links in the map and the other pairs'
+        cycle candidates (:func:`agent.greycycle.on_cycle_candidate`) predict, all of current
+        epochs; None when they do not join its robots so."""
+        links = [
+            replace(ln, accepted=True, state=CONFIRMED)
+            if ln.pair != held.pair and on_cycle_candidate(ln, versions)
+            else ln
+            for ln in snap.links
+        ]
+        chains = Chains(snap.maps, links)
+        a, b = held.pair
+        group = next((g for g in chains.groups if a in g and b in g), None)
+        if group is None or not _current_chain(replace(snap, links=links), group):
+            return None
+        return predict(chains.solved()[0], a, b)
 
     @staticmethod
     def _final(snap: Snapshot, ln: LinkRecord) -> bool:
