@@ -55,12 +55,14 @@ from bench import fleet_accuracy as fa
 from bench import fleet_history as fh
 from pgvd.grid import Grid
 from pgvd.params import MergeParams
+from pgvd.posegraph import components
 
 #: The agent's main loop offers its source's newest map to the change gate about every
 #: 0.1 s (:meth:`agent.daemon.Daemon._loop` waits that long for events between steps).
 TICK_S = 0.1
-#: The floors, in the order they are reached at the earliest.
-FLOORS = ("merge", "trust", "high")
+#: The floors, in the order they are reached at the earliest (but "chain", which may come
+#: before "trust" through other robots).
+FLOORS = ("merge", "trust", "chain", "high")
 
 
 @dataclass(frozen=True)
@@ -147,11 +149,10 @@ def epoch_pairs(first: Sequence[Epoch], second: Sequence[Epoch]) -> list[tuple[E
     return out
 
 
-def epochs_begun(epochs: Sequence[Epoch], start: float, end: float) -> int:
-    """Epochs of ``epochs`` begun in ``(start, end]``, negative when ``end < start``: the
-    count :func:`bench.fleet_history.pair_delays` takes from the agents' counters."""
-    count = sum(1 for e in epochs if e.t <= end) - sum(1 for e in epochs if e.t <= start)
-    return int(count)
+def epochs_begun(starts: Sequence[float], start: float, end: float) -> int:
+    """Epochs begun (at times ``starts``) in ``(start, end]``, negative when ``end < start``:
+    the count :func:`bench.fleet_history.pair_delays` takes from the agents' counters."""
+    return sum(1 for t in starts if t <= end) - sum(1 for t in starts if t <= start)
 
 
 @dataclass(frozen=True)
@@ -235,7 +236,7 @@ def pair_floor(
         res = register(ea.grid, eb.grid)
         right = tol.allows(link_error(res.matrix, truth, eb.grid.shape))
         state = rules.decide(res, eb.grid, ea.final and eb.final)
-        begun = epochs_begun(first, overlap_at, t) + epochs_begun(second, overlap_at, t)
+        begun = sum(epochs_begun([e.t for e in es], overlap_at, t) for es in (first, second))
         return Search(t, begun, res.accepted, res.margin, right, state)
 
     for ea, eb in pairs:
@@ -313,10 +314,49 @@ def fleet_delays(path: Path) -> dict[tuple[str, int, int], dict[str, dict]]:
 # ------------------------------------------------------------------------------ report
 
 
+def chain_floors(case: Mapping) -> dict[str, dict | None]:
+    """Per pair of a case, the first time the right links the trust rules let in join its two
+    robots, directly or through others: ``{"epochs", "seconds"}`` from its overlap reaching
+    the threshold (as :func:`pair_floor`'s floors), None if never.
+
+    Each searched pair's link stands as its latest search left it, and after its last one
+    (a search stopped at the high floor) as that.  Links of pairs whose overlap never
+    reached the threshold were not searched, and join nothing here.
+    """
+    events = sorted(
+        (s["t"], pair, s["right"] and s["state"] in trust.IN_MAP)
+        for pair, p in case["pairs"].items()
+        for s in p["searches"]
+    )
+    robots = list(case["epochs"])
+    inside: dict[tuple[str, str], bool] = {}
+    joined: dict[str, float] = {}
+    for t, group in itertools.groupby(events, key=lambda e: e[0]):
+        for _, pair, ok in group:
+            inside[tuple(pair.split("-"))] = ok
+        groups = components(robots, [p for p, ok in inside.items() if ok])
+        for pair in case["pairs"]:
+            a, b = pair.split("-")
+            if pair not in joined and any(a in g and b in g for g in groups):
+                joined[pair] = t
+    out: dict[str, dict | None] = {}
+    for pair, p in case["pairs"].items():
+        if pair not in joined:
+            out[pair] = None
+            continue
+        starts = [[t for t, _ in case["epochs"][r]] for r in pair.split("-")]
+        begun = sum(epochs_begun(ts, p["overlap_at"], joined[pair]) for ts in starts)
+        out[pair] = {"epochs": begun, "seconds": round(joined[pair] - p["overlap_at"], 2)}
+    return out
+
+
 def _values(case: Mapping, floor: str, key: str) -> list[float]:
-    return [
-        p["floors"][floor][key] for p in case["pairs"].values() if p["floors"][floor] is not None
-    ]
+    found = (
+        chain_floors(case).values()
+        if floor == "chain"
+        else (p["floors"][floor] for p in case["pairs"].values())
+    )
+    return [f[key] for f in found if f is not None]
 
 
 def _fleet_values(fleet: Mapping[str, Mapping], key: str) -> list[float]:
@@ -338,9 +378,10 @@ def _unplaced(case: Mapping) -> int:
 def table(cases: Sequence[Mapping], fleet: Mapping) -> str:
     """One markdown row per building, N and seed: the floors beside the fleet's delays."""
     head = (
-        "| building | N | seed | pairs reaching overlap | merge / trust / high floor reached "
-        "| floor epochs merge / trust / high (median) | fleet epochs (median / max) "
-        "| floor s merge / trust (median) | fleet s (median) | wrong accepts (let in) "
+        "| building | N | seed | pairs reaching overlap "
+        "| merge / trust / chain / high floor reached "
+        "| floor epochs merge / trust / chain / high (median) | fleet epochs (median / max) "
+        "| floor s merge / trust / chain (median) | fleet s (median) | wrong accepts (let in) "
         "| pairs not placed on final maps |"
     )
     lines = [head, "|" + "---|" * 11]
@@ -348,7 +389,7 @@ def table(cases: Sequence[Mapping], fleet: Mapping) -> str:
         measured = fleet.get((c["building"], c["robots"], c["seed"]), {})
         reached = " / ".join(str(len(_values(c, f, "epochs"))) for f in FLOORS)
         eps = " / ".join(_median(_values(c, f, "epochs"), ".0f") for f in FLOORS)
-        secs = " / ".join(_median(_values(c, f, "seconds"), ".1f") for f in FLOORS[:2])
+        secs = " / ".join(_median(_values(c, f, "seconds"), ".1f") for f in FLOORS[:3])
         fleet_eps = _fleet_values(measured, "epochs")
         wrong, let_in = _wrong(c)
         lines.append(
@@ -396,19 +437,24 @@ def pooled(cases: Sequence[Mapping], fleet: Mapping) -> dict[str, str]:
     return out
 
 
-def markdown(cases: Sequence[Mapping], fleet: Mapping, argv: Sequence[str], wall: float) -> str:
+def markdown(
+    cases: Sequence[Mapping], fleet: Mapping, argv: Sequence[str], wall: float | None
+) -> str:
+    """The result file; ``wall``: seconds the searches took, None when not recorded."""
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    took = "" if wall is None else f"; wall time {wall / 60:.1f} min"
     bullets = "\n".join(f"- {k}: {v}" for k, v in pooled(cases, fleet).items())
     return (
         "# Delay floor\n\n"
         f"`{' '.join(['python3 -m bench delay_floor', *argv])}` on {os.cpu_count()} cores "
-        f"(shared with other jobs), {stamp}; wall time {wall / 60:.1f} min.\n"
+        f"(shared with other jobs), {stamp}{took}.\n"
         "The fleet accuracy bench's segments and frames replayed offline, each robot's map "
         "cut where its agent starts a registration epoch, and the agent's registration run on "
         "every pair of epochs in time order, for every pair whose true overlap reaches the "
         "threshold.  Floor epochs: registration epochs both robots began from the overlap "
         "reaching the threshold to the first epoch pair at which the merge accepts the right "
-        "pose (merge), the trust rules of a lone pair let it in (trust), or its margin clears "
+        "pose (merge), the trust rules of a lone pair let it in (trust), the right links let "
+        "in join the pair, directly or through other robots (chain), or its margin clears "
         f"{trust.HIGH_BAR} (high); the fleet's delay is from its accuracy run of the same "
         "cases.  Searches stop at the high floor.  Wrong accepts: searches that accepted a "
         "pose beyond the tolerance, and of those the ones the trust rules let in.\n\n"
@@ -436,6 +482,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     ap.add_argument("--fleet", type=Path, default=fa.RESULTS / "fleet-accuracy.json",
                     help="the fleet accuracy results to compare with")  # fmt: skip
     ap.add_argument("--out", type=Path, default=fa.RESULTS, help="directory of the results")
+    ap.add_argument("--report-only", action="store_true",
+                    help="rewrite delay-floor.md from --out's delay-floor.json")  # fmt: skip
     args = ap.parse_args(argv)
     if any(not 2 <= n <= 12 for n in args.robots):
         ap.error(f"--robots must be between 2 and 12, got {args.robots}")
@@ -451,6 +499,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parse_args(argv)
+    if args.report_only:
+        return report_only(args.out, args.fleet)
     sizes = [n for n in args.robots if n <= 3] if args.quick else args.robots
     try:
         buildings = fa.buildings_of(argparse.Namespace(
@@ -470,10 +520,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         (args.out / "delay-floor.md").write_text(
             markdown(cases, fleet, argv, time.time() - t_start)
         )
-        (args.out / "delay-floor.json").write_text(
-            json.dumps({"argv": argv, "cases": cases}, indent=1)
-        )
+        record = {"argv": argv, "wall_s": round(time.time() - t_start, 1), "cases": cases}
+        (args.out / "delay-floor.json").write_text(json.dumps(record, indent=1))
     print((args.out / "delay-floor.md").read_text())
+    return 0
+
+
+def report_only(out: Path, fleet_json: Path) -> int:
+    """Rewrite ``out/delay-floor.md`` from the recorded ``out/delay-floor.json``; 2 (one line
+    on stderr) if that cannot be read."""
+    path = out / "delay-floor.json"
+    try:
+        record = json.loads(path.read_text())
+        md = markdown(
+            record["cases"], fleet_delays(fleet_json), record["argv"], record.get("wall_s")
+        )
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"delay_floor: cannot report {path}: {exc}", file=sys.stderr)
+        return 2
+    (out / "delay-floor.md").write_text(md)
+    print(md)
     return 0
 
 
