@@ -430,6 +430,16 @@ def pooled(cases: Sequence[Mapping], fleet: Mapping) -> dict[str, str]:
     pairs = sum(len(c["pairs"]) for c in cases)
     out["pairs not placed on final maps"] = f"{sum(map(_unplaced, cases))} of {pairs}"
     wrong = [_wrong(c) for c in cases]
+    gaps = [
+        d["epochs"] - floor["epochs"]
+        for c, m in zip(cases, measured, strict=True)
+        for pair, floor in chain_floors(c).items()
+        if floor is not None and (d := m.get(pair)) is not None and d["epochs"] is not None
+    ]
+    out["fleet minus chain floor, same pairs"] = (
+        f"{_median(gaps, '.1f')} epochs (median of {len(gaps)} pairs); "
+        f"{sum(g <= 0 for g in gaps)} pairs placed by the fleet no later than the floor"
+    )
     out["wrong accepts"] = (
         f"{sum(w for w, _ in wrong)} searches, {sum(i for _, i in wrong)} let in by the "
         "trust rules of a lone pair"
