@@ -247,14 +247,9 @@ def run_case(building: Building, n: int, seed: int, settings: Settings, workdir:
         (times in seconds since launch) and its summary (:func:`summarise`).
     """
     robots = [f"r{i + 1}" for i in range(n)]
-    frames = random_frames(n, seed)
-    specs = {
-        r: (building.source(seg), ",".join(f"{v:.4f}" for v in frame))
-        for r, seg, frame in zip(robots, segments(n), frames, strict=True)
-    }
+    specs = fleet_specs(building, n, seed)
     growing = GrowingMaps(specs)
-    duration = _run_duration(growing)
-    speed = max(duration / settings.log_seconds, 1.0)
+    speed = replay_speed(growing, settings.log_seconds)
     t0 = time.time()
     rec = Recorder(t0)
     agreed_at = None
@@ -305,6 +300,22 @@ def run_case(building: Building, n: int, seed: int, settings: Settings, workdir:
     }
     case["summary"] = summarise(case, truth, settings)
     return case
+
+
+def fleet_specs(building: Building, n: int, seed: int) -> dict[str, tuple[str, str]]:
+    """``{robot: (--source, --frame)}`` of ``n`` agents on ``building``, in the frames drawn
+    from ``seed``: robots ``r1`` ... ``rN`` on the segments of :func:`agent.scenario.segments`."""
+    robots = [f"r{i + 1}" for i in range(n)]
+    return {
+        r: (building.source(seg), ",".join(f"{v:.4f}" for v in frame))
+        for r, seg, frame in zip(robots, segments(n), random_frames(n, seed), strict=True)
+    }
+
+
+def replay_speed(growing: GrowingMaps, log_seconds: float) -> float:
+    """The agents' ``--speed``: the whole run replayed in ``log_seconds``, and never slower
+    than real time."""
+    return max(_run_duration(growing) / log_seconds, 1.0)
 
 
 def _log_lines(path: Path) -> list[str]:
