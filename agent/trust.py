@@ -60,7 +60,10 @@ simply accepted or rejected on its first decision:
      a way in: 2 of those re-finds were 3.5 and 8.7 cells off, loose by 0.43 and 1.6 m; or
   2. it lies on a consistent cycle: the accepted links of the current epochs already place
      its robots where its pose does, within the hold (at any version: a cycle's evidence is
-     other pairs' decisions, not more of the same two maps); or
+     other pairs' decisions, not more of the same two maps); so does a candidate of margin
+     0.2 or more that the other pairs' *candidates* and the links in the map place there, a
+     cycle of grey-zone decisions (:mod:`agent.greycycle`, for buildings whose right poses
+     all score at the bar); or
   3. it is a search's provisional accept on maps that will not change
      (:func:`settled_verdict`): both robots' *final* maps, their sources' last versions,
      which their manifests mark (:class:`protocol.messages.Manifest`), at once; or maps
