@@ -47,6 +47,7 @@ from bench.fleetsim_core import Rebuilds, SimClock, simulated_core
 from bench.fleetsim_gate import GateCache
 from bench.fleetsim_merges import DrawnMerges, PairOutcome, RobotTruth
 from bench.fleetsim_net import EventLoop, NetParams, Network
+from bench.fleetsim_shared import SharedMaps
 
 #: The wall clock of simulated time 0 (versions' epochs are wall seconds).
 WALL0 = 1.8e9
@@ -136,6 +137,7 @@ class SimFleet:
         self.robots: dict[str, SimRobot] = {}
         self.merges = DrawnMerges(outcomes, {}, self.meter.charge)
         self.gates = gates or GateCache()
+        self.shared = SharedMaps()
         self.agreed_at: float | None = None
         self.last_update: float | None = None
         segs, frames = (
@@ -156,6 +158,7 @@ class SimFleet:
         self.merges.truths[name] = truth
         self.merges.add_robot(name, source.grid())
         node = FleetNode(NodeOptions(name), self._instant())
+        self.shared.share(node.inbound)
         robot: SimRobot
         worker = FusionWorker(
             name,
