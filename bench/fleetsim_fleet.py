@@ -13,9 +13,11 @@ status, global map) are not written.  The worker runs the agent's search gate (`
 real one: one job per :meth:`FusionWorker.step`, the next right after it while there is more,
 else a poll ``poll`` s later or a wake; its decisions and rebuilds reach the node when the
 step's charged CPU (:mod:`bench.fleetsim_core`) has passed.  The host's own work (decoding,
-reassembly, encoding, the source's ray casting) is charged at its real CPU time and keeps its
-main thread busy that long: messages wait in the robot's inbox meanwhile, in order, as in the
-daemon's.  Queries are answered at once (Zenoh's threads answer them in the daemon).
+reassembly, encoding, the source's ray casting) is charged at its real CPU time, a payload's
+decode at that of its first decode in the fleet (:mod:`bench.fleetsim_shared`, which also
+keeps one copy of each peer's map for all agents), and keeps its main thread busy that
+long: messages wait in the robot's inbox meanwhile, in order, as in the daemon's.  Queries
+are answered at once (Zenoh's threads answer them in the daemon).
 
 Start-up: a core is made at 0 s and its daemon's loop first turns ``startup`` s later, when
 the robot also comes online.  The real daemon opens its Zenoh session in between, which
@@ -239,9 +241,11 @@ class SimFleet:
 
     def _call(self, robot: SimRobot, method, *args) -> None:
         """Call the core, charge its CPU to the host, carry out what it returns."""
-        t0 = time.thread_time()
-        actions = method(*args)
-        cpu = time.thread_time() - t0
+        with self.shared.charging() as decodes:
+            t0 = time.thread_time()
+            actions = method(*args)
+            cpu = time.thread_time() - t0
+        cpu = max(cpu + decodes[0], 0.0)
         robot.host_cpu += cpu
         start = max(self.loop.now, robot.host_busy_until)
         robot.host_busy_until = start + cpu * self._stretch(robot)
