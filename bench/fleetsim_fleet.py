@@ -45,7 +45,7 @@ from agent.scenario import random_frames, segments
 from agent.sources import CarmenSource, SourceSpec
 from agent.status import versions_of
 from agent.worker import FusionWorker, GlobalState
-from bench.fleetsim_core import Rebuilds, SimClock, simulated_core
+from bench.fleetsim_core import Rebuilds, SimClock, simulated_core, simulated_wire
 from bench.fleetsim_gate import GateCache
 from bench.fleetsim_merges import DrawnMerges, PairOutcome, RobotTruth
 from bench.fleetsim_net import EventLoop, NetParams, Network
@@ -146,8 +146,12 @@ class SimFleet:
             segments(scenario.robots),
             random_frames(scenario.robots, scenario.frames_seed),
         )
-        for name, seg, frame in zip(scenario.names(), segs, frames, strict=True):
-            self.robots[name] = self._robot(name, seg, frame)
+        with simulated_wire(self._now):
+            for name, seg, frame in zip(scenario.names(), segs, frames, strict=True):
+                self.robots[name] = self._robot(name, seg, frame)
+
+    def _now(self) -> float:
+        return self.loop.now
 
     def _instant(self) -> Instant:
         return Instant(self.loop.now, WALL0 + self.loop.now)
@@ -182,7 +186,7 @@ class SimFleet:
 
     def run(self) -> None:
         """Simulate until every agent agrees on the final maps, or ``limit`` s."""
-        with simulated_core(self.rebuilds):
+        with simulated_core(self.rebuilds), simulated_wire(self._now):
             leaves = {c.robot: c for c in self.sc.churn}
             for name in self.robots:
                 c = leaves.get(name)
@@ -328,10 +332,11 @@ class SimFleet:
             return
         self.clock.now = start = self.loop.now
         self.meter.stretch = self._stretch(robot)
-        charged, excluded = self.meter.charged, self.meter.excluded
+        charged, excluded, owed = self.meter.charged, self.meter.excluded, self.meter.owed
         t0 = time.thread_time()
         more = robot.worker.step(start)
         overhead = max(time.thread_time() - t0 - (self.meter.excluded - excluded), 0.0)
+        overhead += self.meter.owed - owed
         robot.busy_until = self.clock.now + overhead * self.meter.stretch
         robot.worker_cpu += self.meter.charged - charged + overhead
         robot.core_cpu += overhead
