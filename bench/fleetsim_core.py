@@ -22,19 +22,13 @@ fuses, the fusion CPU per map of the sample nearest in maps fused.  (Counting ev
 instead, lone ones included, would price a whole fleet's fusion at the first sample's, two
 maps fused of sixteen held.)  Any two agents holding the same maps and links get the same
 global maps (fleet invariant 2), so a rebuild of inputs seen before returns the same
-components at the same charged cost without running again.
-
-The worker's own pose-graph solve (:func:`pgvd.posegraph.solve` as :mod:`agent.worker` calls
-it, to predict checks) is the core's own work, but agents holding the same links solve the
-same graph: :class:`Solves` runs it once per distinct input (the nodes, and every field of
-every link in order) and charges each agent that asks the CPU the real solve took, as the
-core's own (:meth:`Meter.owe`).
+components at the same charged cost without running again.  :func:`simulated_wire` puts
+:mod:`agent.wire`'s fetch-tile budget on simulated time likewise.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import hashlib
 import math
 import time
@@ -48,12 +42,9 @@ import agent.wire
 import agent.worker
 from agent.globalmap import build_components
 from agent.sources import SourceSpec
-from pgvd.posegraph import Solution
 
 #: Distinct rebuild inputs remembered (their components hold fused maps).
 MEMO_SIZE = 64
-#: Distinct pose-graph solves remembered (a solution is a few 3x3 matrices per robot).
-SOLVES_SIZE = 1024
 #: A rebuild is run with the real fusion when it fuses this many times the maps of the
 #: largest sample so far (module docstring).
 SAMPLE_GROWTH = 2
@@ -85,13 +76,6 @@ class Meter:
     stretch: float = 1.0
     #: ``charged`` by what the stand-in stood for (search, check, gate, rebuild).
     by_kind: dict[str, float] = field(default_factory=dict)
-
-    #: CPU seconds of the core's own work charged rather than run (:class:`Solves`).
-    owed: float = 0.0
-
-    def owe(self, seconds: float) -> None:
-        """``seconds`` of the core's own CPU, measured once and charged again."""
-        self.owed += seconds
 
     def charge(self, seconds: float, kind: str) -> None:
         """A stand-in's cost: ``seconds`` of CPU of ``kind``, the worker busy ``stretch``
@@ -182,53 +166,6 @@ class Rebuilds:
         return comps, cpu
 
 
-def _field(value: object) -> object:
-    return value.tobytes() if hasattr(value, "tobytes") else value
-
-
-@dataclass
-class Solves:
-    """:func:`pgvd.posegraph.solve`, run once per distinct input, its CPU owed by every
-    agent that asks (module docstring)."""
-
-    meter: Meter
-    solve: Callable[..., Solution]
-    #: Real solves made (misses), and solves asked for.
-    made: int = 0
-    asked: int = 0
-
-    def __post_init__(self) -> None:
-        self._memo: OrderedDict[bytes, tuple[object, float]] = OrderedDict()
-
-    def __call__(self, nodes, links, params=None, **options):
-        with self.meter.excluding():
-            nodes = list(nodes)
-            signature = hashlib.sha256(
-                repr(
-                    (
-                        nodes,
-                        [tuple(_field(getattr(ln, f.name)) for f in dataclasses.fields(ln))
-                         for ln in links],
-                        params,
-                        sorted((k, getattr(v, "__qualname__", v)) for k, v in options.items()),
-                    )
-                ).encode()
-            ).digest()  # fmt: skip
-            held = self._memo.get(signature)
-            if held is None:
-                t0 = time.thread_time()
-                solution = self.solve(nodes, links, params, **options)
-                held = (solution, time.thread_time() - t0)
-                self.made += 1
-            self._memo[signature] = held
-            self._memo.move_to_end(signature)
-            while len(self._memo) > SOLVES_SIZE:
-                self._memo.popitem(last=False)
-        self.asked += 1
-        self.meter.owe(held[1])
-        return held[0]
-
-
 def _shared_scans(load):
     """``load`` (:func:`agent.sources.load_scans`), read once per run whatever the segment."""
 
@@ -241,28 +178,16 @@ def _shared_scans(load):
 
 @contextlib.contextmanager
 def simulated_core(rebuilds: Rebuilds) -> Iterator[None]:
-    """Run :mod:`agent.worker` on ``rebuilds.meter``'s clock with ``rebuilds`` and
-    :class:`Solves`, and read each log once for all robots (:func:`agent.sources.load_scans`,
-    memoised)."""
-    saved = (
-        agent.worker.time,
-        agent.worker.build_components,
-        agent.sources.load_scans,
-        agent.worker.solve,
-    )
+    """Run :mod:`agent.worker` on ``rebuilds.meter``'s clock with ``rebuilds``, and read each
+    log once for all robots (:func:`agent.sources.load_scans`, memoised)."""
+    saved = (agent.worker.time, agent.worker.build_components, agent.sources.load_scans)
     agent.worker.time = rebuilds.meter.clock
     agent.worker.build_components = rebuilds
     agent.sources.load_scans = _shared_scans(saved[2])
-    agent.worker.solve = Solves(rebuilds.meter, saved[3])
     try:
         yield
     finally:
-        (
-            agent.worker.time,
-            agent.worker.build_components,
-            agent.sources.load_scans,
-            agent.worker.solve,
-        ) = saved
+        agent.worker.time, agent.worker.build_components, agent.sources.load_scans = saved
 
 
 @dataclass

@@ -332,11 +332,10 @@ class SimFleet:
             return
         self.clock.now = start = self.loop.now
         self.meter.stretch = self._stretch(robot)
-        charged, excluded, owed = self.meter.charged, self.meter.excluded, self.meter.owed
+        charged, excluded = self.meter.charged, self.meter.excluded
         t0 = time.thread_time()
         more = robot.worker.step(start)
         overhead = max(time.thread_time() - t0 - (self.meter.excluded - excluded), 0.0)
-        overhead += self.meter.owed - owed
         robot.busy_until = self.clock.now + overhead * self.meter.stretch
         robot.worker_cpu += self.meter.charged - charged + overhead
         robot.core_cpu += overhead
