@@ -35,7 +35,7 @@ import numpy as np
 
 from agent.wire import Inbound, Message, Received
 from pgvd.grid import Grid
-from protocol.messages import MapTiles
+from protocol.messages import Manifest, MapTiles
 
 #: Decoded payloads kept: all N receivers of a payload decode it within a few simulated
 #: seconds, long before this many newer payloads went out.
@@ -71,9 +71,6 @@ class SharedMaps:
         self._tiles: weakref.WeakValueDictionary[tuple[str, int, int], np.ndarray] = (
             weakref.WeakValueDictionary()
         )
-
-    def __len__(self) -> int:
-        return len(self._grids)
 
     def grid(self, robot: str, received: Received) -> Grid:
         """The fleet's copy of ``robot``'s map ``received`` (``received.grid`` if first)."""
@@ -139,7 +136,7 @@ class SharedMaps:
         copies of the versions it completes."""
         feed, decode = inbound.feed, inbound.decode
 
-        def shared_feed(msg):
+        def shared_feed(msg: MapTiles | Manifest) -> Received | None:
             done = feed(msg)
             if done is None:
                 return None
