@@ -8,8 +8,11 @@ are real merge and check outcomes drawn from a cache by true overlap, charged at
 measured CPU cost (:mod:`bench.fleetsim_merges`); the agent's search gate runs as in ``pgvd
 agent``, its verdicts real ones on the replayed map versions, cached and charged at their
 measured CPU (:mod:`bench.fleetsim_gate`); global-map rebuilds really run, at a sample
-(:mod:`bench.fleetsim_core`).  Above 16 robots the replay slows by 17 / (N + 1), so that each
-robot's segment lasts as many simulated seconds as at 16 robots (``--no-slowdown``: not).
+(:mod:`bench.fleetsim_core`).  What every agent would compute alike is computed once and
+charged to each at its measured CPU (a payload's decode), and each peer's map is held once
+for all agents (:mod:`bench.fleetsim_shared`).  Above 16 robots the replay slows by
+17 / (N + 1), so that each robot's segment lasts as many simulated seconds as at 16 robots
+(``--no-slowdown``: not).
 Each agent has a computer of its own unless ``--cores`` makes them share that many cores, as
 :mod:`bench.fleet`'s agents share one machine (``--cores 2 --tag validation`` at 8 and 16);
 a smaller number, a fraction too, stands for a machine other jobs load (``--cores 0.5``: the

@@ -22,7 +22,8 @@ fuses, the fusion CPU per map of the sample nearest in maps fused.  (Counting ev
 instead, lone ones included, would price a whole fleet's fusion at the first sample's, two
 maps fused of sixteen held.)  Any two agents holding the same maps and links get the same
 global maps (fleet invariant 2), so a rebuild of inputs seen before returns the same
-components at the same charged cost without running again.
+components at the same charged cost without running again.  :func:`simulated_wire` puts
+:mod:`agent.wire`'s fetch-tile budget on simulated time likewise.
 """
 
 from __future__ import annotations
@@ -32,11 +33,12 @@ import hashlib
 import math
 import time
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import agent.sources
+import agent.wire
 import agent.worker
 from agent.globalmap import build_components
 from agent.sources import SourceSpec
@@ -186,3 +188,27 @@ def simulated_core(rebuilds: Rebuilds) -> Iterator[None]:
         yield
     finally:
         agent.worker.time, agent.worker.build_components, agent.sources.load_scans = saved
+
+
+@dataclass
+class LoopClock:
+    """Stands in for the ``time`` module in :mod:`agent.wire`: ``monotonic`` reads ``now()``."""
+
+    now: Callable[[], float]
+
+    def monotonic(self) -> float:
+        return self.now()
+
+
+@contextlib.contextmanager
+def simulated_wire(now: Callable[[], float]) -> Iterator[None]:
+    """Run :mod:`agent.wire` on simulated time ``now()``: the ``latest`` queryable's tile
+    budget (:class:`agent.wire.TileBudget`, tiles per second) read the real clock, so a
+    simulation's fetch replies, and its counts, depended on how fast the simulating machine
+    ran."""
+    saved = agent.wire.time
+    agent.wire.time = LoopClock(now)
+    try:
+        yield
+    finally:
+        agent.wire.time = saved

@@ -13,9 +13,11 @@ status, global map) are not written.  The worker runs the agent's search gate (`
 real one: one job per :meth:`FusionWorker.step`, the next right after it while there is more,
 else a poll ``poll`` s later or a wake; its decisions and rebuilds reach the node when the
 step's charged CPU (:mod:`bench.fleetsim_core`) has passed.  The host's own work (decoding,
-reassembly, encoding, the source's ray casting) is charged at its real CPU time and keeps its
-main thread busy that long: messages wait in the robot's inbox meanwhile, in order, as in the
-daemon's.  Queries are answered at once (Zenoh's threads answer them in the daemon).
+reassembly, encoding, the source's ray casting) is charged at its real CPU time, a payload's
+decode at that of its first decode in the fleet (:mod:`bench.fleetsim_shared`, which also
+keeps one copy of each peer's map for all agents), and keeps its main thread busy that
+long: messages wait in the robot's inbox meanwhile, in order, as in the daemon's.  Queries
+are answered at once (Zenoh's threads answer them in the daemon).
 
 Start-up: a core is made at 0 s and its daemon's loop first turns ``startup`` s later, when
 the robot also comes online.  The real daemon opens its Zenoh session in between, which
@@ -43,10 +45,11 @@ from agent.scenario import random_frames, segments
 from agent.sources import CarmenSource, SourceSpec
 from agent.status import versions_of
 from agent.worker import FusionWorker, GlobalState
-from bench.fleetsim_core import Rebuilds, SimClock, simulated_core
+from bench.fleetsim_core import Rebuilds, SimClock, simulated_core, simulated_wire
 from bench.fleetsim_gate import GateCache
 from bench.fleetsim_merges import DrawnMerges, PairOutcome, RobotTruth
 from bench.fleetsim_net import EventLoop, NetParams, Network
+from bench.fleetsim_shared import SharedMaps
 
 #: The wall clock of simulated time 0 (versions' epochs are wall seconds).
 WALL0 = 1.8e9
@@ -136,14 +139,19 @@ class SimFleet:
         self.robots: dict[str, SimRobot] = {}
         self.merges = DrawnMerges(outcomes, {}, self.meter.charge)
         self.gates = gates or GateCache()
+        self.shared = SharedMaps()
         self.agreed_at: float | None = None
         self.last_update: float | None = None
         segs, frames = (
             segments(scenario.robots),
             random_frames(scenario.robots, scenario.frames_seed),
         )
-        for name, seg, frame in zip(scenario.names(), segs, frames, strict=True):
-            self.robots[name] = self._robot(name, seg, frame)
+        with simulated_wire(self._now):
+            for name, seg, frame in zip(scenario.names(), segs, frames, strict=True):
+                self.robots[name] = self._robot(name, seg, frame)
+
+    def _now(self) -> float:
+        return self.loop.now
 
     def _instant(self) -> Instant:
         return Instant(self.loop.now, WALL0 + self.loop.now)
@@ -156,6 +164,7 @@ class SimFleet:
         self.merges.truths[name] = truth
         self.merges.add_robot(name, source.grid())
         node = FleetNode(NodeOptions(name), self._instant())
+        self.shared.share(node.inbound)
         robot: SimRobot
         worker = FusionWorker(
             name,
@@ -177,7 +186,7 @@ class SimFleet:
 
     def run(self) -> None:
         """Simulate until every agent agrees on the final maps, or ``limit`` s."""
-        with simulated_core(self.rebuilds):
+        with simulated_core(self.rebuilds), simulated_wire(self._now):
             leaves = {c.robot: c for c in self.sc.churn}
             for name in self.robots:
                 c = leaves.get(name)
@@ -236,9 +245,11 @@ class SimFleet:
 
     def _call(self, robot: SimRobot, method, *args) -> None:
         """Call the core, charge its CPU to the host, carry out what it returns."""
-        t0 = time.thread_time()
-        actions = method(*args)
-        cpu = time.thread_time() - t0
+        with self.shared.charging() as decodes:
+            t0 = time.thread_time()
+            actions = method(*args)
+            cpu = time.thread_time() - t0
+        cpu = max(cpu + decodes[0], 0.0)
         robot.host_cpu += cpu
         start = max(self.loop.now, robot.host_busy_until)
         robot.host_busy_until = start + cpu * self._stretch(robot)

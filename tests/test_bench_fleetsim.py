@@ -150,6 +150,21 @@ def test_tiny_fleet_counts_add_up(tiny_fleet):
     assert row["agreement_s"] is not None and row["agreement_s"] >= 0
 
 
+def test_tiny_fleet_holds_one_read_only_copy_of_each_peer_map(tiny_fleet):
+    robots = list(tiny_fleet.robots.values())
+    for peer in robots:
+        held = [r.node.book.snapshot().maps[peer.name][1] for r in robots if r is not peer]
+        assert all(g is held[0] for g in held)  # one object for every receiver
+        assert not held[0].logodds.flags.writeable
+        with pytest.raises(ValueError):
+            held[0].logodds[0, 0] = 1.0
+    shared = tiny_fleet.shared
+    # each payload decoded once though two robots received it; the two charged alike
+    received = sum(t.received_messages for t in tiny_fleet.net.traffic.values())
+    assert 0 < shared.decodes < received
+    assert shared.owed > 0
+
+
 def test_validation_sets_each_count_against_the_real_runs_mean_and_range(tmp_path):
     runs = []
     for i, (searches, checks) in enumerate([(30, 40), (50, 44)]):
