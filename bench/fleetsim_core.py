@@ -104,31 +104,38 @@ def _identity(ln) -> tuple[object, ...]:
 
 @dataclass
 class Rebuilds:
-    """:func:`agent.globalmap.build_components` with sampling and memo (module docstring)."""
+    """:func:`agent.globalmap.build_components` with sampling and memo (module docstring).
+
+    Previews (``blur=False``: the maps placed without eq. (8)'s blur) and settled maps are
+    sampled and priced apart: a preview's fusion costs a fraction of a settled one's.
+    """
 
     meter: Meter
-    #: (maps fused, fusion CPU s) of each rebuild run with the real fusion.
-    samples: list[tuple[int, float]] = field(default_factory=list)
+    #: (blurred, maps fused, fusion CPU s) of each rebuild run with the real fusion.
+    samples: list[tuple[bool, int, float]] = field(default_factory=list)
     #: charged CPU s of every rebuild asked for, by every agent.
     charged: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self._memo: OrderedDict[bytes, tuple[list, float]] = OrderedDict()
 
-    def per_map(self) -> float:
-        """Fusion CPU seconds per map fused, over every sample (0 before any)."""
-        maps = sum(n for n, _ in self.samples)
-        return sum(s for _, s in self.samples) / maps if maps else 0.0
+    def per_map(self, blur: bool = True) -> float:
+        """Fusion CPU seconds per map fused, over every sample of settled maps (``blur``)
+        or of previews (0 before any)."""
+        kind = [(n, s) for b, n, s in self.samples if b == blur]
+        maps = sum(n for n, _ in kind)
+        return sum(s for _, s in kind) / maps if maps else 0.0
 
-    def fusion_cost(self, fused: int) -> float:
+    def fusion_cost(self, fused: int, blur: bool = True) -> float:
         """The fusion CPU of a rebuild that fuses ``fused`` maps: per map fused as in the
-        sample nearest in maps fused (in ratio, the larger on a tie)."""
-        if not self.samples or not fused:
+        sample of its kind nearest in maps fused (in ratio, the larger on a tie)."""
+        kind = [(n, s) for b, n, s in self.samples if b == blur]
+        if not kind or not fused:
             return 0.0
-        n, cpu = min(self.samples, key=lambda s: (abs(math.log(s[0] / fused)), -s[0]))
+        n, cpu = min(kind, key=lambda s: (abs(math.log(s[0] / fused)), -s[0]))
         return cpu / n * fused
 
-    def __call__(self, maps, links, params=None, sound=None, layers=None, firsts=None):
+    def __call__(self, maps, links, params=None, sound=None, layers=None, firsts=None, blur=True):
         with self.meter.excluding():
             signature = hashlib.sha256(
                 repr(
@@ -136,12 +143,13 @@ class Rebuilds:
                         sorted((r, v) for r, (v, _) in maps.items()),
                         sorted(_identity(ln) for ln in links),
                         sorted((firsts or {}).items()),
+                        blur,
                     )
                 ).encode()
             ).digest()
             held = self._memo.get(signature)
             if held is None:
-                held = self._build(maps, links, params, sound, layers, firsts)
+                held = self._build(maps, links, params, sound, layers, firsts, blur)
         self._memo[signature] = held
         self._memo.move_to_end(signature)
         while len(self._memo) > MEMO_SIZE:
@@ -150,19 +158,22 @@ class Rebuilds:
         self.meter.charge(held[1], "rebuild")
         return held[0]
 
-    def _build(self, maps, links, params, sound, layers, firsts) -> tuple[list, float]:
+    def _build(self, maps, links, params, sound, layers, firsts, blur) -> tuple[list, float]:
         t0 = time.thread_time()
         comps = build_components(maps, links, params, sound, firsts=firsts, fuse=False)
         graph = time.thread_time() - t0
         fused = sum(len(c.members) for c in comps if len(c.members) > 1)
-        if not fused or fused < SAMPLE_GROWTH * max((n for n, _ in self.samples), default=0):
-            return comps, graph + self.fusion_cost(fused)
+        largest = max((n for b, n, _ in self.samples if b == blur), default=0)
+        if not fused or fused < SAMPLE_GROWTH * largest:
+            return comps, graph + self.fusion_cost(fused, blur)
         # A sampled rebuild runs with the asking agent's layer cache, so its CPU is a warm
         # rebuild's where the agent's own last build left layers to reuse.
         t0 = time.thread_time()
-        comps = build_components(maps, links, params, sound, layers=layers, firsts=firsts)
+        comps = build_components(
+            maps, links, params, sound, layers=layers, firsts=firsts, blur=blur
+        )
         cpu = time.thread_time() - t0
-        self.samples.append((fused, max(cpu - graph, 0.0)))
+        self.samples.append((blur, fused, max(cpu - graph, 0.0)))
         return comps, cpu
 
 
