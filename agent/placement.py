@@ -64,7 +64,11 @@ def snap_placement(
     covariance's: as much as a 0.1 % change of ``sigma_psi`` gives, since the polar bins
     of :func:`pgvd.uncertainty.rotation_blur` are laid out anew for every ``sigma_psi``;
     the steps add nothing to eq. (8)'s own discretisation, and stay under half an int8
-    step of the wire (0.157).
+    step of the wire (0.157).  On the covariances a running 16-agent fleet's pose graph
+    gives (wider heading uncertainty than the bench's), the covariance's snap changed a
+    known cell by up to 0.31 at the 99th percentile, and a 0.1 % change of ``sigma_psi``
+    alone by 0.33: the same rule (the snap is no coarser than the blur's own binning), at
+    about two int8 steps there.
 
     A correlation matrix that rounding made indefinite has its negative eigenvalues
     clipped and its diagonal rescaled to one, so the covariance stays positive
