@@ -68,7 +68,7 @@ def snap_placement(
     gives (wider heading uncertainty than the bench's), the covariance's snap changed a
     known cell by up to 0.31 at the 99th percentile, and a 0.1 % change of ``sigma_psi``
     alone by 0.33: the same rule (the snap is no coarser than the blur's own binning), at
-    about two int8 steps there.
+    about one int8 step there.
 
     A correlation matrix that rounding made indefinite has its negative eigenvalues
     clipped and its diagonal rescaled to one, so the covariance stays positive
