@@ -11,6 +11,7 @@ import contextlib
 import ctypes
 import json
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -33,8 +34,43 @@ def _die_with_parent() -> None:
         pass
 
 
+#: Where the kernel says its ephemeral ports are (``lo hi``), and the range assumed without it.
+EPHEMERAL_RANGE_FILE = Path("/proc/sys/net/ipv4/ip_local_port_range")
+DEFAULT_EPHEMERAL = (32768, 60999)
+#: How many ports below the ephemeral range :func:`free_port` draws from.
+LISTEN_SPAN = 8192
+
+
+def ephemeral_range(path: Path = EPHEMERAL_RANGE_FILE) -> tuple[int, int]:
+    """The ports the kernel hands to outgoing connections, ``(lo, hi)``; Linux's default
+    when ``path`` cannot be read or parsed."""
+    try:
+        lo, hi = (int(x) for x in path.read_text().split())
+    except (OSError, ValueError):
+        return DEFAULT_EPHEMERAL
+    return (lo, hi) if 0 < lo <= hi < 65536 else DEFAULT_EPHEMERAL
+
+
 def free_port() -> int:
-    """A TCP port nobody listens on right now (the agent binds it a moment later)."""
+    """A TCP port nobody listens on right now (the agent binds it a moment later), drawn
+    below the kernel's ephemeral range.
+
+    A port from ``bind(0)`` is an ephemeral one, and in the moment between this call and
+    the agent binding it, the connections the agents already running open to each other
+    take ephemeral ports too: at 16 agents one of them took the port handed to the next
+    agent, which died with "Address already in use".  Below that range only listeners
+    bind.  ``bind(0)`` is the fallback when no port there is free.
+    """
+    lo, _ = ephemeral_range()
+    first = max(1024, lo - LISTEN_SPAN)
+    rng = random.Random()
+    for port in rng.sample(range(first, lo), min(64, lo - first)):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
