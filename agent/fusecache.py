@@ -118,15 +118,15 @@ class LayerCache:
             self.reuses += 1
             return held.layer, held.unblurred
         if blur:
-            blurred = self._blur(robot, int(version), grid, matrix, covariance)
+            held_blur = self._blur(robot, int(version), grid, matrix, covariance)
+            own, unblurred = held_blur.blurred, held_blur.unblurred
         else:  # cheap (a subtraction), so not held
-            plain = blur_in_own_frame(grid, np.zeros((3, 3)))
-            blurred = _Blurred((int(version), b""), plain, False)
-        layer = place_blurred(blurred.blurred, grid.resolution, matrix)
+            own, unblurred = _unblurred(grid), False
+        layer = place_blurred(own, grid.resolution, matrix)
         layer.logodds.setflags(write=False)  # shared by every rebuild until replaced
-        self._held[robot] = _Held(key, layer, blurred.unblurred)
+        self._held[robot] = _Held(key, layer, unblurred)
         self.warps += 1
-        return layer, blurred.unblurred
+        return layer, unblurred
 
     def _blur(
         self, robot: str, version: int, grid: Grid, matrix: np.ndarray, covariance: np.ndarray
@@ -145,7 +145,7 @@ class LayerCache:
             # The same inputs fail the same way on every agent, so warping without the
             # uncertainty blur keeps them in agreement; a global map that never settles
             # would be worse.
-            blurred = _Blurred((version, b""), blur_in_own_frame(grid, np.zeros((3, 3))), True)
+            blurred = _Blurred((version, b""), _unblurred(grid), True)
         blurred.blurred.setflags(write=False)
         self._blurred[robot] = blurred
         self.blurs += 1
@@ -173,3 +173,9 @@ def _cause(held: _Blurred | None, version: int) -> str:
     if held is None:
         return "first"
     return "version" if held.key[0] != version else "covariance"
+
+
+def _unblurred(grid: Grid) -> np.ndarray:
+    """``grid`` in its own frame without eq. (8)'s blur, as :func:`blur_in_own_frame` gives
+    it for a zero covariance."""
+    return blur_in_own_frame(grid, np.zeros((3, 3)))
