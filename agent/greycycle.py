@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from agent.links import LinkRecord
-from agent.trust import CANDIDATE, CONFIRMED, Verdict
+from agent.trust import CANDIDATE
 
 #: The lowest margin at which a candidate counts as a link of a cycle (its own, or one that
 #: confirms another).  On the development fleet runs 43 of the 53 wrong grey-zone poses
@@ -60,8 +60,3 @@ def on_cycle_candidate(ln: LinkRecord, versions: dict[str, int]) -> bool:
         and margin >= CYCLE_FLOOR
         and ln.current(versions)
     )
-
-
-def cycle_verdict(margin: float) -> Verdict:
-    """The verdict of a candidate whose pose the other pairs' candidates and links predict."""
-    return Verdict(CONFIRMED, f"on a consistent cycle of candidates: margin {margin:.2f}")

@@ -63,7 +63,9 @@ simply accepted or rejected on its first decision:
      other pairs' decisions, not more of the same two maps); so does a candidate of margin
      0.2 or more that the other pairs' *candidates* and the links in the map place there, a
      cycle of grey-zone decisions (:mod:`agent.greycycle`, for buildings whose right poses
-     all score at the bar); or
+     all score at the bar).  Either way its own covariance must pin map B within the hold,
+     as a search's re-find must (:func:`cycle_verdict`): a near miss closes a cycle as a
+     right pose does; or
   3. it is a search's provisional accept on maps that will not change
      (:func:`settled_verdict`): both robots' *final* maps, their sources' last versions,
      which their manifests mark (:class:`protocol.messages.Manifest`), at once; or maps
@@ -348,6 +350,26 @@ def first_verdict(
     if was_in:
         return Verdict(WITHDRAWN, f"contradicted by a new epoch: {reason or f'margin {m}'}")
     return Verdict(REJECTED, reason or f"margin {m} below the grey zone")
+
+
+def cycle_verdict(margin: float | None, spread: float, cycle: str) -> Verdict:
+    """A pose that a consistent ``cycle`` (words for the log) predicts within the hold:
+    confirmed if its own covariance pins map B within the hold too (``spread``,
+    :func:`corner_spread`), else still a candidate.
+
+    A near miss (a pose 3-5 cells off at the maps' corners, inside the hold at the centre)
+    composes with right links as a right pose does, so no cycle tells it from the truth;
+    two near misses of one robot's early map compose with each other as well.  In the
+    development fleet runs two robots were shown 4 cells off for 5.8 s so: one robot's
+    early map gave two searches near misses alike (0.78 and a provisional accept), which
+    closed a cycle with a right link.  Its covariance is what a near miss on a map still
+    small cannot hide (0.28-0.29 m for the near misses of :func:`first_verdict`).
+    """
+    m = _margin_text(margin)
+    if spread <= HOLD_M:
+        return Verdict(CONFIRMED, f"on a {cycle}: margin {m}")
+    loose = f"its corners loose by {spread:.2f} m (hold {HOLD_M} m)"
+    return Verdict(CANDIDATE, f"on a {cycle}, {loose}: margin {m}")
 
 
 def link_strength(link: object) -> float:

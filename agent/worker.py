@@ -63,7 +63,7 @@ from agent.counters import Counters
 from agent.footprints import MARGIN_M, FootprintCache
 from agent.fusecache import LayerCache
 from agent.globalmap import Component, Soundness, build_components, usable_links
-from agent.greycycle import cycle_verdict, on_cycle_candidate
+from agent.greycycle import on_cycle_candidate
 from agent.links import (
     LinkKey,
     LinkRecord,
@@ -86,6 +86,7 @@ from agent.trust import (
     carries,
     clean_reason,
     corner_spread,
+    cycle_verdict,
     first_verdict,
     holds,
     in_grey_zone,
@@ -818,7 +819,8 @@ class FusionWorker:
 
     def _cycled(self, snap: Snapshot) -> bool:
         """Confirm one of this agent's candidates that the other pairs' candidates and the
-        links in the map place where its pose does (:mod:`agent.greycycle`); True if one was.
+        links in the map place where its pose does (:mod:`agent.greycycle`), if its own
+        covariance pins map B (:func:`agent.trust.cycle_verdict`); True if one was.
 
         Each candidate is tried once per set of links held: on final maps no newer decision
         comes, and the cycle may close only after the candidate was decided.
@@ -841,12 +843,19 @@ class FusionWorker:
         )
         for ln in todo:
             tried.add(ln.identity)
+            grid_b = snap.maps[ln.b][1]
             predicted = self._cycle_pose(snap, ln, versions)
-            if predicted is not None and holds(predicted, ln.matrix, snap.maps[ln.b][1]):
-                res = Registration(True, ln.matrix, ln.covariance, ln.score, "", ln.margin)
-                base = replace(ln, revision=ln.revision + 1)
-                self._record(base, res, cycle_verdict(ln.margin), "cycle", _Clock.start())
-                return True
+            if predicted is None or not holds(predicted, ln.matrix, grid_b):
+                continue
+            spread = corner_spread(ln.matrix, ln.covariance, grid_b)
+            verdict = cycle_verdict(ln.margin, spread, "consistent cycle of candidates")
+            if verdict.state != CONFIRMED:  # its record stays; the next epoch decides
+                log.debug("link %s - %s not confirmed: %s", *ln.pair, verdict.reason)
+                continue
+            res = Registration(True, ln.matrix, ln.covariance, ln.score, "", ln.margin)
+            base = replace(ln, revision=ln.revision + 1)
+            self._record(base, res, verdict, "cycle", _Clock.start())
+            return True
         return False
 
     @staticmethod
@@ -1001,9 +1010,11 @@ class FusionWorker:
         ``searched``: by a full search, whose accept below the high bar is provisional, and
         confirms a standing accept it finds again only if its covariance pins map B,
         :func:`agent.trust.corner_spread`), confirmed at once when it closes a cycle with
-        the accepted links (:meth:`_on_cycle`)."""
+        the accepted links (:meth:`_on_cycle`) and its covariance pins map B
+        (:func:`agent.trust.cycle_verdict`)."""
         previous = self._previous(snap, (a, b))
         grid_b = snap.maps[b][1]
+        spread = partial(corner_spread, res.matrix, res.covariance, grid_b)
         verdict = first_verdict(
             res.accepted,
             res.margin,
@@ -1017,13 +1028,12 @@ class FusionWorker:
             and standing_accept(
                 previous.state, previous.margin, previous.first_margin, self.min_margin
             ),
-            corner_spread(res.matrix, res.covariance, grid_b) if res.accepted else 0.0,
+            spread() if res.accepted else 0.0,
         )
         if verdict.state == CANDIDATE and self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
         ):
-            m = f"{res.margin:.2f}"
-            return Verdict(CONFIRMED, f"on a cycle of accepted links: margin {m}")
+            return cycle_verdict(res.margin, spread(), "cycle of accepted links")
         return verdict
 
     def _previous(self, snap: Snapshot, pair: tuple[str, str]) -> LinkRecord | None:

@@ -43,10 +43,20 @@ def three_parts(shared: Path) -> tuple[dict[str, Grid], dict[tuple[str, str], np
     return maps, truth
 
 
-def grey_search(maps: dict[str, Grid], poses: dict[tuple[str, str], tuple[np.ndarray, float]]):
-    """A search that finds each pair at the given (pose, margin)."""
+#: A pose covariance (x px, y px, psi rad) as tight as a real search's on these maps: it pins
+#: their corners within 0.02 m (:func:`agent.trust.corner_spread`).
+TIGHT = np.diag([0.04, 0.04, 1e-7])
+#: One as loose as a near miss's on a map still small: 0.3 m or more at the corners.
+LOOSE = np.diag([0.25, 0.25, 1e-4])
+
+
+def grey_search(
+    maps: dict[str, Grid],
+    poses: dict[tuple[str, str], tuple[np.ndarray, float]],
+    cov: np.ndarray = TIGHT,
+):
+    """A search that finds each pair at the given (pose, margin), with covariance ``cov``."""
     by_shape = {(maps[a].shape, maps[b].shape): found for (a, b), found in poses.items()}
-    cov = np.diag([0.25, 0.25, 1e-5])
 
     def register(a: Grid, b: Grid) -> Registration:
         matrix, margin = by_shape[(a.shape, b.shape)]
@@ -88,9 +98,9 @@ class Agent:
         return None
 
 
-def decide(three_parts, poses) -> Agent:
+def decide(three_parts, poses, cov: np.ndarray = TIGHT) -> Agent:
     maps, _ = three_parts
-    agent = Agent("r1", grey_search(maps, poses))
+    agent = Agent("r1", grey_search(maps, poses, cov))
     agent.hold(maps)
     agent.run()
     return agent
@@ -117,6 +127,17 @@ def test_a_right_cycle_of_grey_candidates_on_final_maps_enters_on_every_agent(
     assert r2.links == []  # it decided nothing
     digests = {tuple(c.digest for c in a.globals[-1].components) for a in (r1, r2)}
     assert len(digests) == 1, digests
+
+
+def test_a_right_cycle_of_loose_candidates_waits(three_parts) -> None:
+    """The same right cycle, each pose loose at its map's corners: a near miss would close
+    it as well, so no candidate enters."""
+    maps, truth = three_parts
+    assert all(trust.corner_spread(truth[p], LOOSE, maps[p[1]]) > trust.HOLD_M for p in PAIRS)
+    r1 = decide(three_parts, {p: (truth[p], GREY) for p in PAIRS}, LOOSE)
+    for p in PAIRS:
+        assert r1.record(p).state == trust.CANDIDATE, r1.record(p)
+    assert all(len(c.members) == 1 for c in r1.globals[-1].components)
 
 
 def test_a_look_alike_grey_candidate_breaks_the_cycle_and_nothing_enters(three_parts) -> None:

@@ -139,6 +139,14 @@ def test_a_search_finding_a_standing_accept_again_confirms_it_only_if_pinned() -
     assert kept.state == trust.CONFIRMED, kept
 
 
+def test_a_cycle_confirms_a_pose_only_if_its_covariance_pins_the_map() -> None:
+    pinned = trust.cycle_verdict(0.7, trust.HOLD_M, "cycle of accepted links")
+    assert pinned.state == trust.CONFIRMED and "cycle of accepted links" in pinned.reason
+    loose = trust.cycle_verdict(0.7, trust.HOLD_M + 0.01, "cycle of accepted links")
+    assert loose.state == trust.CANDIDATE and "loose by 0.16 m" in loose.reason, loose
+    assert trust.cycle_verdict(0.4, np.inf, "cycle").state == trust.CANDIDATE
+
+
 def test_a_poses_corner_spread_is_its_heading_deviation_at_the_farthest_corner() -> None:
     b = Grid(np.zeros((301, 401), np.float32), 0.1)
     turned = rigid_matrix(0.7, 12.0, -5.0)
