@@ -68,7 +68,7 @@ from scipy import sparse
 from scipy.sparse.linalg import splu
 from scipy.special import gammaincinv
 
-from pgvd.grid import matrix_to_pose, rigid_matrix
+from pgvd.grid import heading, matrix_to_pose, rigid_matrix
 from pgvd.uncertainty import check_covariance, compose_covariance, inverse_covariance
 
 #: A node's rank: the anchor of a component is its node of least ``(rank(node), node)``.
@@ -437,11 +437,13 @@ def _tls_weights(r2: np.ndarray, mu: float, c2: float) -> np.ndarray:
     return np.where(r2 >= hi, 0.0, np.where(r2 <= lo, 1.0, np.clip(mid, 0.0, 1.0)))
 
 
-def _gnc_inliers(n: int, e: _Edges, params: PoseGraphParams) -> np.ndarray:
-    """GNC-TLS: the surrogate starts convex (mu small) and tends to the TLS cost."""
+def _gnc_inliers(n: int, e: _Edges, x: np.ndarray, params: PoseGraphParams) -> np.ndarray:
+    """GNC-TLS: the surrogate starts convex (mu small) and tends to the TLS cost.
+
+    ``x``: the placements with every link weighted 1 (:func:`_unweighted`), where GNC starts.
+    """
     c2 = params.threshold
     w = np.ones(len(e.z))
-    x = _weighted_solution(n, e, w, params)
     r2 = _mahalanobis(x, e)
     if r2.max(initial=0.0) <= c2:
         return np.ones(len(w), dtype=bool)
@@ -467,6 +469,8 @@ def _maximal(n: int, e: _Edges, keep: np.ndarray, params: PoseGraphParams) -> np
     """Offer each rejected link back, smallest residual first; keep it where the whole
     set stays consistent.  Links to nodes the kept set does not reach always fit."""
     keep = keep.copy()
+    if keep.all():  # nothing to offer back: the common case of a consistent component
+        return keep
     x = _weighted_solution(n, e, keep.astype(float), params)
     r2 = _mahalanobis(x, e)
     for k in sorted(np.flatnonzero(~keep), key=lambda k: (r2[k], k)):
@@ -637,6 +641,7 @@ class _Memo(Generic[T]):
 
 #: Results each step of :func:`solve` holds (:class:`_Memo`): a few hundred kB at 16 maps.
 MEMO_SIZE = 64
+_UNWEIGHTED: _Memo[np.ndarray] = _Memo()
 _INLIERS: _Memo[np.ndarray] = _Memo()
 _PLACED: _Memo[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]] = _Memo()
 
@@ -644,8 +649,25 @@ _PLACED: _Memo[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]] = _Memo()
 def forget_solutions() -> None:
     """Drop every result :func:`solve` holds (:class:`_Memo`): the next solve computes
     afresh, as a benchmark timing the solve needs."""
+    _UNWEIGHTED.clear()
     _INLIERS.clear()
     _PLACED.clear()
+
+
+def _unweighted(digest: bytes, n: int, e: _Edges, params: PoseGraphParams) -> np.ndarray:
+    """:func:`_weighted_solution` with every link of ``e`` weighted 1, held in
+    :data:`_UNWEIGHTED` by the component's ``digest`` (:func:`_component_digest`).
+
+    GNC starts from it (:func:`_gnc_inliers`), and a component whose links GNC all keeps is
+    placed by the very same solution (:func:`_placements`): the same nodes, links and order
+    give the same digest, so the placements are those of a fresh solve bit for bit, at a
+    third of the cost.  Handed out as a copy.
+    """
+    held = _UNWEIGHTED.get(digest)
+    if held is None:
+        held = _weighted_solution(n, e, np.ones(len(e.z)), params)
+        _UNWEIGHTED.put(digest, held)
+    return held.copy()
 
 
 def _component_digest(
@@ -673,7 +695,8 @@ def _robust_inliers(
     held = _INLIERS.get(digest)
     if held is None:
         e = _prepare(comp, links, params)
-        held = _maximal(len(comp), e, _gnc_inliers(len(comp), e, params), params)
+        start = _unweighted(digest, len(comp), e, params)
+        held = _maximal(len(comp), e, _gnc_inliers(len(comp), e, start, params), params)
         _INLIERS.put(digest, held)
     return np.array(held, dtype=bool)
 
@@ -686,20 +709,20 @@ def _place(
     digest = _component_digest(comp, map(_content_key, links), params)
     held = _PLACED.get(digest)
     if held is None:
-        held = _placements(comp, links, params)
+        held = _placements(comp, links, digest, params)
         _PLACED.put(digest, held)
     mats, covs = held
     return {n: m.copy() for n, m in mats.items()}, {n: c.copy() for n, c in covs.items()}
 
 
 def _placements(
-    comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
+    comp: Sequence[str], links: Sequence[Link], digest: bytes, params: PoseGraphParams
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """:func:`_place` computed."""
+    """:func:`_place` computed; ``digest`` names ``comp`` and ``links``."""
     if len(links) == len(comp) - 1:  # a tree: composition is the least-squares optimum
         return compose_transforms(comp[0], links)
     e = _prepare(comp, links, params)
-    x = _weighted_solution(len(comp), e, np.ones(len(links)), params)
+    x = _unweighted(digest, len(comp), e, params)
     covs = _sandwich_covariances(x, e)
     mats = {n: rigid_matrix(x[i, 2], x[i, 0], x[i, 1]) for i, n in enumerate(comp)}
     mats[comp[0]] = np.eye(3)
@@ -769,11 +792,7 @@ def solve(
         mats, covs = _place(comp, [ln for ln in kept if ln.a in members], params)
         transforms.update(mats)
         covariances.update(covs)
-    anchor_of = {n: comp[0] for comp in final for n in comp}
-    r2 = np.full(len(ordered), np.nan)
-    for k, ln in enumerate(ordered):
-        if anchor_of[ln.a] == anchor_of[ln.b]:
-            r2[k] = _link_residual(ln, transforms, params)
+    r2 = _link_residuals(ordered, final, transforms, params)
     used = np.zeros(len(links), dtype=bool)
     residuals = np.full(len(links), np.nan)
     used[order] = keep
@@ -787,11 +806,27 @@ def solve(
     )
 
 
-def _link_residual(ln: Link, transforms: dict[str, np.ndarray], params: PoseGraphParams) -> float:
-    """Squared Mahalanobis residual of one link against the placements."""
-    pred = np.linalg.inv(transforms[ln.a]) @ transforms[ln.b]
-    p_psi, p_x, p_y = matrix_to_pose(pred)
-    z_psi, z_x, z_y = matrix_to_pose(ln.matrix)
-    r = np.array([p_x - z_x, p_y - z_y, float(_wrap(np.array(p_psi - z_psi)))])
-    info = np.linalg.inv(_covariance(ln) + params.floor)
-    return float(r @ info @ r)
+def _link_residuals(
+    links: Sequence[Link],
+    final: Sequence[tuple[str, ...]],
+    transforms: dict[str, np.ndarray],
+    params: PoseGraphParams,
+) -> np.ndarray:
+    """Squared Mahalanobis residual (floored covariance) of each link against the
+    placements, NaN where its ends lie in two components of ``final``; all links at once
+    (a solve reports one per link held, thousands at 128 robots)."""
+    anchor_of = {n: comp[0] for comp in final for n in comp}
+    r2 = np.full(len(links), np.nan)
+    inside = [k for k, ln in enumerate(links) if anchor_of[ln.a] == anchor_of[ln.b]]
+    if not inside:
+        return r2
+    held = [links[k] for k in inside]
+    pred = np.linalg.inv(np.stack([transforms[ln.a] for ln in held])) @ np.stack(
+        [transforms[ln.b] for ln in held]
+    )
+    z = np.stack([np.asarray(ln.matrix, dtype=np.float64) for ln in held])
+    turn = np.array([heading(p) for p in pred]) - np.array([heading(m) for m in z])
+    r = np.column_stack([pred[:, 0, 2] - z[:, 0, 2], pred[:, 1, 2] - z[:, 1, 2], _wrap(turn)])
+    info = np.linalg.inv(np.stack([_covariance(ln) for ln in held]) + params.floor)
+    r2[inside] = np.einsum("mi,mij,mj->m", r, info, r)
+    return r2
