@@ -354,6 +354,66 @@ def _current_chain(snap: Snapshot, group: Collection[str]) -> bool:
     )
 
 
+def cycle_pose(snap: Snapshot, held: LinkRecord, versions: dict[str, int]) -> np.ndarray | None:
+    """The pose of ``held``'s pair that the links in the map and the other pairs' cycle
+    candidates (:func:`agent.greycycle.on_cycle_candidate`) predict, all of current epochs
+    (``versions``, those of ``snap.maps``); None when they do not join its robots so."""
+    links = [
+        replace(ln, accepted=True, state=CONFIRMED)
+        if ln.pair != held.pair and on_cycle_candidate(ln, versions)
+        else ln
+        for ln in snap.links
+    ]
+    chains = Chains(snap.maps, links)
+    a, b = held.pair
+    group = next((g for g in chains.groups if a in g and b in g), None)
+    if group is None or not _current_chain(replace(snap, links=links), group):
+        return None
+    return predict(chains.solved()[0], a, b)
+
+
+@dataclass(frozen=True)
+class CycleLinks:
+    """All :func:`cycle_pose` reads of a snapshot but the pair it predicts: the robots and
+    their epochs (the links' ``current``), the accepted links and the cycle candidates
+    (:func:`agent.greycycle.on_cycle_candidate`), each named by its
+    :attr:`~agent.links.LinkRecord.identity`, which holds every field the pose graph and
+    :func:`_current_chain` read.  The links neither accepted nor candidates are not read.
+    """
+
+    generation: int | None
+    epochs: tuple[tuple[str, int], ...]
+    accepted: tuple[tuple[object, ...], ...]
+    candidates: tuple[tuple[tuple[str, str], tuple[object, ...]], ...]
+    #: The pairs of ``candidates``.
+    pairs: frozenset[tuple[str, str]]
+
+    @classmethod
+    def empty(cls) -> CycleLinks:
+        return cls(None, (), (), (), frozenset())
+
+    def of(self, snap: Snapshot, versions: dict[str, int]) -> CycleLinks:
+        """These links if ``snap`` is of the same book generation, else those of ``snap``
+        (``versions``: of its maps)."""
+        if snap.generation is not None and snap.generation == self.generation:
+            return self
+        candidates = tuple(
+            (ln.pair, ln.identity) for ln in snap.links if on_cycle_candidate(ln, versions)
+        )
+        return CycleLinks(
+            snap.generation,
+            tuple(sorted((r, epoch_of(v)) for r, v in versions.items())),
+            tuple(ln.identity for ln in snap.links if ln.accepted),
+            candidates,
+            frozenset(p for p, _ in candidates),
+        )
+
+    def signature(self, pair: tuple[str, str]) -> tuple[object, ...]:
+        """What :func:`cycle_pose` reads to predict ``pair``: the other pairs' candidates
+        count as links, not its own."""
+        return (pair, self.epochs, self.accepted, tuple(i for p, i in self.candidates if p != pair))
+
+
 #: Robots joined by links of current epochs: over triangles only, and at all
 #: (:meth:`FusionWorker._current_groups`).
 Joins = tuple[list[tuple[str, ...]], list[tuple[str, ...]]]
@@ -615,6 +675,10 @@ class FusionWorker:
         #: This agent's newest decision of each pair that the book refused, its epochs
         #: superseded while it was decided: still the newer epoch's word (:meth:`_previous`).
         self._unheld: dict[tuple[str, str], LinkRecord] = {}
+        #: What :func:`cycle_pose` counts as links, and its last answer per candidate pair
+        #: with the signature of what it read (:meth:`_cycle_pose`).
+        self._cycle_links = CycleLinks.empty()
+        self._cycle_poses: dict[tuple[str, str], tuple[tuple[object, ...], np.ndarray | None]] = {}
         self.merges = 0
         self.merge_seconds = 0.0
         self._stop = threading.Event()
@@ -858,25 +922,24 @@ class FusionWorker:
             return True
         return False
 
-    @staticmethod
     def _cycle_pose(
-        snap: Snapshot, held: LinkRecord, versions: dict[str, int]
+        self, snap: Snapshot, held: LinkRecord, versions: dict[str, int]
     ) -> np.ndarray | None:
-        """The pose of ``held``'s pair that the links in the map and the other pairs'
-        cycle candidates (:func:`agent.greycycle.on_cycle_candidate`) predict, all of current
-        epochs; None when they do not join its robots so."""
-        links = [
-            replace(ln, accepted=True, state=CONFIRMED)
-            if ln.pair != held.pair and on_cycle_candidate(ln, versions)
-            else ln
-            for ln in snap.links
-        ]
-        chains = Chains(snap.maps, links)
-        a, b = held.pair
-        group = next((g for g in chains.groups if a in g and b in g), None)
-        if group is None or not _current_chain(replace(snap, links=links), group):
-            return None
-        return predict(chains.solved()[0], a, b)
+        """:func:`cycle_pose` of ``held``, kept per pair while all it reads stands
+        (:class:`CycleLinks`): the robots, their epochs, and the links it counts as accepted.
+
+        A worker tries each of its candidates again at every change of the links held, and
+        most changes are rejections, which close no cycle: at 32 robots a third of the
+        tries read what the pair's last try read, a fifth of those that solve the pose
+        graph of the candidate's whole component, the largest share of a worker's own CPU.
+        """
+        counted = self._cycle_links = self._cycle_links.of(snap, versions)
+        self._cycle_poses = {p: k for p, k in self._cycle_poses.items() if p in counted.pairs}
+        signature = counted.signature(held.pair)
+        kept = self._cycle_poses.get(held.pair)
+        if kept is None or kept[0] != signature:
+            kept = self._cycle_poses[held.pair] = (signature, cycle_pose(snap, held, versions))
+        return None if kept[1] is None else kept[1].copy()
 
     @staticmethod
     def _final(snap: Snapshot, ln: LinkRecord) -> bool:
