@@ -68,7 +68,7 @@ from scipy import sparse
 from scipy.sparse.linalg import splu
 from scipy.special import gammaincinv
 
-from pgvd.grid import heading, matrix_to_pose, rigid_matrix
+from pgvd.grid import matrix_to_pose, rigid_matrix
 from pgvd.uncertainty import check_covariance, compose_covariance, inverse_covariance
 
 #: A node's rank: the anchor of a component is its node of least ``(rank(node), node)``.
@@ -542,9 +542,14 @@ def _prepare(nodes: Sequence[str], links: Sequence[Link], params: PoseGraphParam
 
 def link_problem(link: Link, nodes: Collection[str]) -> str | None:
     """Why :func:`solve` would refuse ``link``, or None if it is fine."""
+    return _problem(link, nodes, _validation_key(link))
+
+
+def _problem(link: Link, nodes: Collection[str], key: _ValidationKey) -> str | None:
+    """:func:`link_problem` of ``link``, whose :func:`_validation_key` is ``key``."""
     if link.a == link.b or link.a not in nodes or link.b not in nodes:
         return f"link ({link.a!r}, {link.b!r}) must join two distinct known nodes"
-    return _validated(_validation_key(link))[0]
+    return _validated(key)[0]
 
 
 #: A link's ends, and the shape and bytes of its matrix and covariance as float64: all that
@@ -606,8 +611,8 @@ T = TypeVar("T")
 
 
 class _Memo(Generic[T]):
-    """The last :data:`MEMO_SIZE` results of one step of :func:`solve`, by a digest of its
-    inputs (:func:`_component_digest`).
+    """The last ``size`` results of one step of :func:`solve`, by a digest of its inputs
+    (:func:`_component_digest`).
 
     A fleet solves the same components again and again: each rebuild of the global map
     and each check of a predicted link solves every component of the links held, and
@@ -617,8 +622,9 @@ class _Memo(Generic[T]):
     an agent solves on more than one thread.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, size: int) -> None:
         self._held: OrderedDict[bytes, T] = OrderedDict()
+        self._size = size
         self._lock = threading.Lock()
 
     def get(self, key: bytes) -> T | None:
@@ -635,15 +641,19 @@ class _Memo(Generic[T]):
     def put(self, key: bytes, value: T) -> None:
         with self._lock:
             self._held[key] = value
-            while len(self._held) > MEMO_SIZE:
+            while len(self._held) > self._size:
                 self._held.popitem(last=False)
 
 
 #: Results each step of :func:`solve` holds (:class:`_Memo`): a few hundred kB at 16 maps.
 MEMO_SIZE = 64
-_UNWEIGHTED: _Memo[np.ndarray] = _Memo()
-_INLIERS: _Memo[np.ndarray] = _Memo()
-_PLACED: _Memo[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]] = _Memo()
+#: Unweighted solutions held with their edges (:func:`_unweighted`): the edges of a
+#: component of thousands of links take some hundreds of kB, and a solution serves the
+#: placements of the same solve.
+UNWEIGHTED_SIZE = 4
+_UNWEIGHTED: _Memo[tuple[np.ndarray, _Edges]] = _Memo(UNWEIGHTED_SIZE)
+_INLIERS: _Memo[np.ndarray] = _Memo(MEMO_SIZE)
+_PLACED: _Memo[tuple[dict[str, np.ndarray], dict[str, np.ndarray]]] = _Memo(MEMO_SIZE)
 
 
 def forget_solutions() -> None:
@@ -654,20 +664,24 @@ def forget_solutions() -> None:
     _PLACED.clear()
 
 
-def _unweighted(digest: bytes, n: int, e: _Edges, params: PoseGraphParams) -> np.ndarray:
-    """:func:`_weighted_solution` with every link of ``e`` weighted 1, held in
-    :data:`_UNWEIGHTED` by the component's ``digest`` (:func:`_component_digest`).
+def _unweighted(
+    digest: bytes, comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
+) -> tuple[np.ndarray, _Edges]:
+    """:func:`_weighted_solution` of ``links`` of ``comp``, every link weighted 1, and their
+    edges (:func:`_prepare`); held in :data:`_UNWEIGHTED` by the component's ``digest``
+    (:func:`_component_digest`).
 
     GNC starts from it (:func:`_gnc_inliers`), and a component whose links GNC all keeps is
     placed by the very same solution (:func:`_placements`): the same nodes, links and order
     give the same digest, so the placements are those of a fresh solve bit for bit, at a
-    third of the cost.  Handed out as a copy.
+    third of the cost.  The solution is handed out as a copy; the edges are only read.
     """
     held = _UNWEIGHTED.get(digest)
     if held is None:
-        held = _weighted_solution(n, e, np.ones(len(e.z)), params)
+        e = _prepare(comp, links, params)
+        held = (_weighted_solution(len(comp), e, np.ones(len(e.z)), params), e)
         _UNWEIGHTED.put(digest, held)
-    return held.copy()
+    return held[0].copy(), held[1]
 
 
 def _component_digest(
@@ -694,8 +708,7 @@ def _robust_inliers(
     digest = _component_digest(comp, keys, params)
     held = _INLIERS.get(digest)
     if held is None:
-        e = _prepare(comp, links, params)
-        start = _unweighted(digest, len(comp), e, params)
+        start, e = _unweighted(digest, comp, links, params)
         held = _maximal(len(comp), e, _gnc_inliers(len(comp), e, start, params), params)
         _INLIERS.put(digest, held)
     return np.array(held, dtype=bool)
@@ -721,8 +734,7 @@ def _placements(
     """:func:`_place` computed; ``digest`` names ``comp`` and ``links``."""
     if len(links) == len(comp) - 1:  # a tree: composition is the least-squares optimum
         return compose_transforms(comp[0], links)
-    e = _prepare(comp, links, params)
-    x = _unweighted(digest, len(comp), e, params)
+    x, e = _unweighted(digest, comp, links, params)
     covs = _sandwich_covariances(x, e)
     mats = {n: rigid_matrix(x[i, 2], x[i, 0], x[i, 1]) for i, n in enumerate(comp)}
     mats[comp[0]] = np.eye(3)
@@ -762,11 +774,14 @@ def solve(
     """
     params = params or PoseGraphParams()
     node_list = sorted(set(nodes))
-    for ln in links:
-        problem = link_problem(ln, set(node_list))
+    known = set(node_list)
+    # a link's bytes are read once, both to judge it and as its content
+    keys = [_validation_key(ln) for ln in links]
+    for ln, key in zip(links, keys, strict=True):
+        problem = _problem(ln, known, key)
         if problem:
             raise ValueError(problem)
-    content = [_content_key(ln) for ln in links]
+    content = [(a, b, m, c) for a, b, _, m, _, c in keys]
     order = sorted(range(len(links)), key=content.__getitem__)
     ordered = [links[i] for i in order]
     keep = np.zeros(len(ordered), dtype=bool)
@@ -825,7 +840,8 @@ def _link_residuals(
         [transforms[ln.b] for ln in held]
     )
     z = np.stack([np.asarray(ln.matrix, dtype=np.float64) for ln in held])
-    turn = np.array([heading(p) for p in pred]) - np.array([heading(m) for m in z])
+    # the heading as pgvd.grid.heading reads one matrix, of every matrix at once
+    turn = np.arctan2(pred[:, 0, 1], pred[:, 0, 0]) - np.arctan2(z[:, 0, 1], z[:, 0, 0])
     r = np.column_stack([pred[:, 0, 2] - z[:, 0, 2], pred[:, 1, 2] - z[:, 1, 2], _wrap(turn)])
     info = np.linalg.inv(np.stack([_covariance(ln) for ln in held]) + params.floor)
     r2[inside] = np.einsum("mi,mij,mj->m", r, info, r)
