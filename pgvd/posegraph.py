@@ -598,13 +598,9 @@ def _covariance(link: Link) -> np.ndarray:
     return cov
 
 
-def _content_key(ln: Link) -> tuple[str, str, bytes, bytes]:
-    return (
-        ln.a,
-        ln.b,
-        np.asarray(ln.matrix, dtype=np.float64).tobytes(),
-        np.asarray(ln.covariance, dtype=np.float64).tobytes(),
-    )
+#: A link's ends and the bytes of its matrix and covariance as float64 (of its
+#: :func:`_validation_key`): what orders the links of a solve and names their content.
+_ContentKey = tuple[str, str, bytes, bytes]
 
 
 T = TypeVar("T")
@@ -685,10 +681,10 @@ def _unweighted(
 
 
 def _component_digest(
-    comp: Sequence[str], keys: Iterable[tuple[str, str, bytes, bytes]], params: PoseGraphParams
+    comp: Sequence[str], keys: Iterable[_ContentKey], params: PoseGraphParams
 ) -> bytes:
     """SHA-256 of all a component's solution depends on: its nodes in order (the anchor
-    first), its links' content (:func:`_content_key`) in the order solved, the parameters."""
+    first), its links' content (:data:`_ContentKey`) in the order solved, the parameters."""
     h = hashlib.sha256(repr((tuple(comp), params)).encode())
     for a, b, m, c in keys:
         h.update(repr((a, b)).encode())
@@ -700,7 +696,7 @@ def _component_digest(
 def _robust_inliers(
     comp: Sequence[str],
     links: Sequence[Link],
-    keys: list[tuple[str, str, bytes, bytes]],
+    keys: list[_ContentKey],
     params: PoseGraphParams,
 ) -> np.ndarray:
     """GNC-TLS's inliers among ``links`` of ``comp``, with every rejected link that fits
@@ -715,11 +711,14 @@ def _robust_inliers(
 
 
 def _place(
-    comp: Sequence[str], links: Sequence[Link], params: PoseGraphParams
+    comp: Sequence[str],
+    links: Sequence[Link],
+    keys: Iterable[_ContentKey],
+    params: PoseGraphParams,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Transforms to ``comp[0]`` (the anchor) and covariances of one component from its
-    kept links; held in :data:`_PLACED`."""
-    digest = _component_digest(comp, map(_content_key, links), params)
+    kept ``links``, whose :data:`_ContentKey` are ``keys``; held in :data:`_PLACED`."""
+    digest = _component_digest(comp, keys, params)
     held = _PLACED.get(digest)
     if held is None:
         held = _placements(comp, links, digest, params)
@@ -785,9 +784,8 @@ def solve(
     order = sorted(range(len(links)), key=content.__getitem__)
     ordered = [links[i] for i in order]
     keep = np.zeros(len(ordered), dtype=bool)
-    for comp in components(node_list, [(ln.a, ln.b) for ln in ordered], rank):
-        members = set(comp)
-        idx = [k for k, ln in enumerate(ordered) if ln.a in members]
+    grouped = components(node_list, [(ln.a, ln.b) for ln in ordered], rank)
+    for comp, idx in zip(grouped, _by_component(grouped, ordered), strict=True):
         if len(idx) == len(comp) - 1:
             keep[idx] = True  # no cycle: nothing can be checked, nothing rejected
             continue
@@ -798,16 +796,19 @@ def solve(
             grade = np.array([strength(ordered[k]) for k in idx], dtype=np.float64)
             inliers = _stronger_kept(len(comp), e, inliers, grade, params)
         keep[idx] = inliers
-    kept = [ln for ln, k in zip(ordered, keep, strict=True) if k]
-    final = components(node_list, [(ln.a, ln.b) for ln in kept], rank)
+    kept = [k for k in range(len(ordered)) if keep[k]]
+    final = components(node_list, [(ordered[k].a, ordered[k].b) for k in kept], rank)
     transforms: dict[str, np.ndarray] = {}
     covariances: dict[str, np.ndarray] = {}
-    for comp in final:
-        members = set(comp)
-        mats, covs = _place(comp, [ln for ln in kept if ln.a in members], params)
+    for comp, idx in zip(final, _by_component(final, [ordered[k] for k in kept]), strict=True):
+        inside = [kept[i] for i in idx]
+        mats, covs = _place(
+            comp, [ordered[k] for k in inside], [content[order[k]] for k in inside], params
+        )
         transforms.update(mats)
         covariances.update(covs)
-    r2 = _link_residuals(ordered, final, transforms, params)
+    checked = [_validated(keys[i])[1] for i in order]
+    r2 = _link_residuals(ordered, checked, final, transforms, params)
     used = np.zeros(len(links), dtype=bool)
     residuals = np.full(len(links), np.nan)
     used[order] = keep
@@ -821,15 +822,28 @@ def solve(
     )
 
 
+def _by_component(comps: Sequence[tuple[str, ...]], links: Sequence[Link]) -> list[list[int]]:
+    """The indices of ``links`` in each of ``comps``, in order: a link lies in the component
+    of its ``a``.  One pass over the links, not one per component (most components of a
+    fleet's first links are single robots)."""
+    where = {n: i for i, comp in enumerate(comps) for n in comp}
+    out: list[list[int]] = [[] for _ in comps]
+    for k, ln in enumerate(links):
+        out[where[ln.a]].append(k)
+    return out
+
+
 def _link_residuals(
     links: Sequence[Link],
+    covs: Sequence[np.ndarray | None],
     final: Sequence[tuple[str, ...]],
     transforms: dict[str, np.ndarray],
     params: PoseGraphParams,
 ) -> np.ndarray:
     """Squared Mahalanobis residual (floored covariance) of each link against the
     placements, NaN where its ends lie in two components of ``final``; all links at once
-    (a solve reports one per link held, thousands at 128 robots)."""
+    (a solve reports one per link held, thousands at 128 robots).  ``covs``: each link's
+    checked covariance (:func:`_validated`)."""
     anchor_of = {n: comp[0] for comp in final for n in comp}
     r2 = np.full(len(links), np.nan)
     inside = [k for k, ln in enumerate(links) if anchor_of[ln.a] == anchor_of[ln.b]]
@@ -843,6 +857,6 @@ def _link_residuals(
     # the heading as pgvd.grid.heading reads one matrix, of every matrix at once
     turn = np.arctan2(pred[:, 0, 1], pred[:, 0, 0]) - np.arctan2(z[:, 0, 1], z[:, 0, 0])
     r = np.column_stack([pred[:, 0, 2] - z[:, 0, 2], pred[:, 1, 2] - z[:, 1, 2], _wrap(turn)])
-    info = np.linalg.inv(np.stack([_covariance(ln) for ln in held]) + params.floor)
+    info = np.linalg.inv(np.stack([covs[k] for k in inside]) + params.floor)
     r2[inside] = np.einsum("mi,mij,mj->m", r, info, r)
     return r2
