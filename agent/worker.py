@@ -908,13 +908,14 @@ class FusionWorker:
         for ln in todo:
             tried.add(ln.identity)
             grid_b = snap.maps[ln.b][1]
-            predicted = self._cycle_pose(snap, ln, versions)
-            if predicted is None or not holds(predicted, ln.matrix, grid_b):
-                continue
+            # The verdict reads the candidate alone: one its covariance keeps from the map
+            # needs no pose graph (at 32 robots 93 % of the tries, 99 % of their CPU).
             spread = corner_spread(ln.matrix, ln.covariance, grid_b)
             verdict = cycle_verdict(ln.margin, spread, "consistent cycle of candidates")
             if verdict.state != CONFIRMED:  # its record stays; the next epoch decides
-                log.debug("link %s - %s not confirmed: %s", *ln.pair, verdict.reason)
+                continue
+            predicted = self._cycle_pose(snap, ln, versions)
+            if predicted is None or not holds(predicted, ln.matrix, grid_b):
                 continue
             res = Registration(True, ln.matrix, ln.covariance, ln.score, "", ln.margin)
             base = replace(ln, revision=ln.revision + 1)
