@@ -1074,11 +1074,9 @@ class FusionWorker:
         ``searched``: by a full search, whose accept below the high bar is provisional, and
         confirms a standing accept it finds again only if its covariance pins map B,
         :func:`agent.trust.corner_spread`), confirmed at once when it closes a cycle with
-        the accepted links (:meth:`_on_cycle`) and its covariance pins map B
-        (:func:`agent.trust.cycle_verdict`)."""
+        the accepted links and its covariance pins map B (:meth:`_confirmed_on_cycle`)."""
         previous = self._previous(snap, (a, b))
         grid_b = snap.maps[b][1]
-        spread = partial(corner_spread, res.matrix, res.covariance, grid_b)
         verdict = first_verdict(
             res.accepted,
             res.margin,
@@ -1092,13 +1090,9 @@ class FusionWorker:
             and standing_accept(
                 previous.state, previous.margin, previous.first_margin, self.min_margin
             ),
-            spread() if res.accepted else 0.0,
+            corner_spread(res.matrix, res.covariance, grid_b) if res.accepted else 0.0,
         )
-        if verdict.state == CANDIDATE and self._on_cycle(
-            snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
-        ):
-            return cycle_verdict(res.margin, spread(), "cycle of accepted links")
-        return verdict
+        return self._confirmed_on_cycle(snap, a, b, res, verdict)
 
     def _previous(self, snap: Snapshot, pair: tuple[str, str]) -> LinkRecord | None:
         """The pair's newest decision known here, which a first decision of newer epochs
@@ -1114,6 +1108,26 @@ class FusionWorker:
         held = next((ln for ln in snap.links if ln.pair == pair), None)
         lost = self._unheld.get(pair)
         return lost if lost is not None and (held is None or lost.key > held.key) else held
+
+    def _confirmed_on_cycle(
+        self, snap: Snapshot, a: str, b: str, res: Registration, verdict: Verdict
+    ) -> Verdict:
+        """``verdict`` on ``res``, confirmed if it is a candidate that closes a cycle with the
+        accepted links (:meth:`_on_cycle`) and whose own covariance pins map B within the
+        hold (:func:`agent.trust.cycle_verdict`).
+
+        The covariance first: it reads the candidate alone, and keeps most candidates out
+        without the pose graph a cycle needs.
+        """
+        if verdict.state != CANDIDATE:
+            return verdict
+        spread = corner_spread(res.matrix, res.covariance, snap.maps[b][1])
+        on_cycle = cycle_verdict(res.margin, spread, "cycle of accepted links")
+        if on_cycle.state != CONFIRMED or not self._on_cycle(
+            snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
+        ):
+            return verdict
+        return replace(on_cycle, holds=verdict.holds)
 
     def _on_cycle(
         self, snap: Snapshot, a: str, b: str, matrix: np.ndarray, provisional: bool = False
@@ -1186,7 +1200,8 @@ class FusionWorker:
     def _recheck(self, snap: Snapshot, held: LinkRecord) -> None:
         """Check a candidate again at its pose on the newer versions of its maps, of its
         epochs (:func:`agent.trust.recheck_verdict`: kept or dropped, confirmed only on a
-        consistent cycle), with :func:`pgvd.verify.verify` (~0.05 s)."""
+        consistent cycle, :meth:`_confirmed_on_cycle`), with :func:`pgvd.verify.verify`
+        (~0.05 s)."""
         a, b = held.pair
         (va, grid_a), (vb, grid_b) = snap.maps[a], snap.maps[b]
         clock = _Clock.start()
@@ -1210,11 +1225,7 @@ class FusionWorker:
             holds(held.matrix, res.matrix, grid_b),
             res.reason,
         )
-        if verdict.state == CANDIDATE and self._on_cycle(
-            snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
-        ):
-            why = f"on a cycle of accepted links: {verdict.reason}"
-            verdict = Verdict(CONFIRMED, why, verdict.holds)
+        verdict = self._confirmed_on_cycle(snap, a, b, res, verdict)
         revision = held.revision + 1
         base = replace(held, version_a=va, version_b=vb, decided_by=self.me, revision=revision)
         self._record(base, res, verdict, "rechecked", clock)

@@ -18,6 +18,7 @@ from agent.greycycle import CYCLE_FLOOR
 from agent.links import EPOCH_SHIFT, LinkRecord
 from agent.worker import FusionWorker, GlobalState, Registration, verify_check
 from pgvd.grid import Grid, rigid_matrix
+from pgvd.params import DecisionParams
 
 ROBOTS = ("r1", "r2", "r3")
 PAIRS = (("r1", "r2"), ("r1", "r3"), ("r2", "r3"))
@@ -60,7 +61,8 @@ def grey_search(
 
     def register(a: Grid, b: Grid) -> Registration:
         matrix, margin = by_shape[(a.shape, b.shape)]
-        return Registration(False, matrix, cov, 0.5, f"margin {margin:.2f}", margin)
+        accepted = margin >= DecisionParams.min_margin
+        return Registration(accepted, matrix, cov, 0.5, f"margin {margin:.2f}", margin)
 
     return register
 
@@ -138,6 +140,20 @@ def test_a_right_cycle_of_loose_candidates_waits(three_parts) -> None:
     for p in PAIRS:
         assert r1.record(p).state == trust.CANDIDATE, r1.record(p)
     assert all(len(c.members) == 1 for c in r1.globals[-1].components)
+
+
+@pytest.mark.parametrize(("cov", "state"), [(TIGHT, trust.CONFIRMED), (LOOSE, trust.CANDIDATE)])
+def test_a_grey_pose_on_a_cycle_of_accepted_links_enters_only_if_pinned(
+    three_parts, cov: np.ndarray, state: str
+) -> None:
+    """(r1, r2) and (r2, r3) found at the high bar, (r1, r3) at the truth in the grey zone:
+    it closes a right cycle, and enters only if its own covariance pins r3's corners."""
+    _, truth = three_parts
+    poses = {p: (truth[p], trust.HIGH_BAR + 0.05) for p in PAIRS}
+    poses[("r1", "r3")] = (truth[("r1", "r3")], GREY)
+    r1 = decide(three_parts, poses, cov)
+    assert r1.record(("r1", "r2")).state == trust.ACCEPTED
+    assert r1.record(("r1", "r3")).state == state, r1.record(("r1", "r3"))
 
 
 def test_a_look_alike_grey_candidate_breaks_the_cycle_and_nothing_enters(three_parts) -> None:
