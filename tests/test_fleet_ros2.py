@@ -72,8 +72,14 @@ class _Collector:
             return self.got[-1] if self.got else None
 
 
-def _bad_inputs(robot_session, topic: str, good: dict) -> dict[str, int]:
-    """Every kind of bad OccupancyGrid on ``topic``; returns the drops each should count."""
+def _bad_inputs(robot_session, topic: str, good: dict, counted) -> dict[str, int]:
+    """Every kind of bad OccupancyGrid on ``topic``; returns the drops each should count.
+
+    The publishers stay up until ``counted()`` (the agent's drops) says every message came,
+    as a SLAM node's would: an advanced subscriber still querying a new publisher's history
+    when it leaves may lose its live samples (seen on a loaded machine: only the first
+    publisher's message arrived).
+    """
     cells = np.zeros(16, dtype=np.int8)
     wrong_hash = ros2_peer.LatchedPublisher(robot_session, topic, type_hash="RIHS01_" + "0" * 64)
     pub = ros2_peer.LatchedPublisher(robot_session, topic)
@@ -88,10 +94,7 @@ def _bad_inputs(robot_session, topic: str, good: dict) -> dict[str, int]:
     pub.put(ros2_peer.grid_cdr(np.full(16, 101, np.int8), 4, 4, 0.1, (0.0, 0.0)))  # > 100
     pub.put(ros2_peer.grid_cdr(np.full(16, -2, np.int8), 4, 4, 0.1, (0.0, 0.0)))  # < -1
     pub.put(ros2_peer.grid_cdr(cells, 4, 4, 0.1, (0.0, 0.0)), with_attachment=False)
-    time.sleep(1.0)
-    wrong_hash.close()
-    pub.close()
-    return {
+    expected = {
         "ros2_type_hash": 1,
         "ros2_cdr": 2,
         "ros2_size": 1,
@@ -100,6 +103,11 @@ def _bad_inputs(robot_session, topic: str, good: dict) -> dict[str, int]:
         "ros2_cells": 2,
         "ros2_attachment": 1,
     }
+    # the status is written a few seconds behind the drops on a loaded machine
+    wait_for(lambda: counted() == expected, 30)
+    wrong_hash.close()
+    pub.close()
+    return expected
 
 
 def _r1_component(status: dict | None) -> dict:
@@ -185,11 +193,10 @@ def ros_fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
             wait_for(late.last, 10)
             out["late"] = late.last()
 
-            out["expected_drops"] = _bad_inputs(robot, "/r2/map", maps["r2"])
-            # every bad message counted, not only the first: on a loaded machine the status
-            # is written a few seconds behind the drops
-            expected = out["expected_drops"]
-            wait_for(lambda: (fleet.agents["r2"].status() or {}).get("drops") == expected, 30)
+            def drops() -> dict | None:
+                return (fleet.agents["r2"].status() or {}).get("drops")
+
+            out["expected_drops"] = _bad_inputs(robot, "/r2/map", maps["r2"], drops)
             out["status_cli"] = _status_cli(fleet.agents["r2"].endpoint, "ros")
             out["alive"] = [r for r, a in fleet.agents.items() if a.alive()]
             out["digest_after"] = fleet.agents["r1"].status()["global"]["digest"]
