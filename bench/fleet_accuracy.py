@@ -32,8 +32,9 @@ A building is ``log:PATH`` (a CARMEN log, replayed as the agents' ``carmen:`` so
 ``sim:`` source: the one seeded tour of the image, split into segments as a log is).  By
 default the buildings are every development log and the main image of every development map.
 
-Run: ``python3 -m bench fleet_accuracy [--quick] [--robots 2 3 4 6] [--out DIR]``; writes
-``fleet-accuracy.md``, ``.json`` and ``.png`` to ``--out`` (default ``bench/results``).
+Run: ``python3 -m bench fleet_accuracy [--quick] [--robots 2 3 4 6] [--out DIR] [--keep DIR]``;
+writes ``fleet-accuracy.md``, ``.json`` and ``.png`` to ``--out`` (default ``bench/results``);
+``--keep`` keeps every run's agents' verbose logs, which the results do not hold.
 ``--held-out`` runs every other log of the shared data instead, once, reported
 apart (``fleet-accuracy-held-out.*``); nothing is set from it.  The results are rewritten
 after every case, so an interrupted run leaves the cases it finished.
@@ -42,6 +43,7 @@ after every case, so an interrupted run leaves the cases it finished.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
 import math
@@ -236,9 +238,13 @@ class Settings:
     min_overlap: float = 0.3
 
 
-def run_case(building: Building, n: int, seed: int, settings: Settings, workdir: Path) -> dict:
+def run_case(
+    building: Building, n: int, seed: int, settings: Settings, workdir: Path, verbose: bool = False
+) -> dict:
     """Run ``n`` agents on ``building``, in frames drawn from ``seed``, until they agree on
-    final maps (or time out).
+    final maps (or time out).  ``verbose`` runs the agents with ``--verbose``, for a run kept
+    to be looked into (``--keep``): their logs then tell every map received and every
+    decision's timings.
 
     Returns
     -------
@@ -253,7 +259,8 @@ def run_case(building: Building, n: int, seed: int, settings: Settings, workdir:
     t0 = time.time()
     rec = Recorder(t0)
     agreed_at = None
-    with LocalFleet(f"acc{n}", workdir, ["--speed", f"{speed:.3f}"]) as fleet:
+    common = ["--speed", f"{speed:.3f}"] + (["--verbose"] if verbose else [])
+    with LocalFleet(f"acc{n}", workdir, common) as fleet:
         for r, (spec, frame) in specs.items():
             fleet.add(r, spec, ["--frame=" + frame])
         deadline = time.monotonic() + settings.timeout
@@ -586,7 +593,16 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     ap.add_argument("--max-cells", type=float, default=fh.Tolerance.cells)
     ap.add_argument("--min-overlap", type=float, default=Settings.min_overlap)
     ap.add_argument("--out", type=Path, default=RESULTS, help="directory of the results")
+    ap.add_argument(
+        "--keep",
+        type=Path,
+        help="keep each run's agent logs (verbose), state and status files in "
+        "DIR/BUILDING-N-seedS (default: a temporary directory, removed after the run)",
+    )
     args = ap.parse_args(argv)
+    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
+        # a fleet's agents would restore the state an earlier run left there
+        ap.error(f"--keep must be a new or empty directory: {args.keep}")
     if args.quick and args.held_out:
         ap.error("--quick and --held-out exclude each other")
     if args.held_out and args.buildings:
@@ -639,8 +655,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     for building, seed, n in itertools.product(buildings, settings.seeds, sizes):
         name = f"{building.name} N={n} seed {seed}"
         print(f"fleet_accuracy: {name} ...", file=sys.stderr, flush=True)
-        with tempfile.TemporaryDirectory(prefix=f"pgvd-accuracy{n}-") as tmp:
-            case = run_case(building, n, seed, settings, Path(tmp))
+        with contextlib.ExitStack() as stack:
+            if args.keep is None:
+                tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="pgvd-accuracy-"))
+                workdir = Path(tmp)
+            else:
+                workdir = args.keep / f"{building.name}-{n}-seed{seed}"
+            case = run_case(building, n, seed, settings, workdir, verbose=args.keep is not None)
         cases.append(case)
         write_results(cases, argv, settings, time.time() - t_start, args.out, args.held_out)
         s = case["summary"]

@@ -209,6 +209,7 @@ def bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
         (["--quick", "--held-out"], "exclude each other"),
         (["--min-overlap", "0"], "--min-overlap must be in (0, 1]"),
         (["--timeout", "x"], "invalid float value"),
+        (["--keep", "."], "--keep must be a new or empty directory"),
     ],
 )
 def test_bad_arguments_are_one_line_and_exit_2(tmp_path: Path, args: list[str], why: str) -> None:
@@ -230,8 +231,11 @@ def test_two_agents_report_what_their_status_files_say(tmp_path: Path, kind: str
 
     building = fa.Building(kind, LOG if kind == "log" else fa.DEV_MAPS[0])
     settings = fa.Settings(log_seconds=30.0, timeout=180.0)
-    case = fa.run_case(building, 2, 7, settings, tmp_path / "fleet")
+    case = fa.run_case(building, 2, 7, settings, tmp_path / "fleet", verbose=kind == "log")
     assert case["agreed_s"] is not None and case["dead_agents"] == []
+    # a kept run's agents log at debug level (--keep), others at info
+    debug = " DEBUG " in (tmp_path / "fleet" / "r1" / "agent.log").read_text()
+    assert debug == (kind == "log")
     status = {
         r: json.loads((tmp_path / "fleet" / r / "state" / "status.json").read_text())
         for r in ("r1", "r2")
