@@ -352,10 +352,10 @@ def first_verdict(
     return Verdict(REJECTED, reason or f"margin {m} below the grey zone")
 
 
-def cycle_verdict(margin: float | None, spread: float, cycle: str) -> Verdict:
-    """A pose that a consistent ``cycle`` (words for the log) predicts within the hold:
-    confirmed if its own covariance pins map B within the hold too (``spread``,
-    :func:`corner_spread`), else still a candidate.
+def cycle_verdict(margin: float | None, spread: float, cycle: str) -> Verdict | None:
+    """The confirmation of a pose that a consistent ``cycle`` (words for the log) predicts
+    within the hold, if its own covariance pins map B within the hold too (``spread``,
+    :func:`corner_spread`); None if it does not: no cycle confirms it.
 
     A near miss (a pose 3-5 cells off at the maps' corners, inside the hold at the centre)
     composes with right links as a right pose does, so no cycle tells it from the truth;
@@ -363,13 +363,12 @@ def cycle_verdict(margin: float | None, spread: float, cycle: str) -> Verdict:
     development fleet runs two robots were shown 4 cells off for 5.8 s so: one robot's
     early map gave two searches near misses alike (0.78 and a provisional accept), which
     closed a cycle with a right link.  Its covariance is what a near miss on a map still
-    small cannot hide (0.28-0.29 m for the near misses of :func:`first_verdict`).
+    small cannot hide (0.28-0.29 m for the near misses of :func:`first_verdict`).  It reads
+    the pose alone, so it is asked before the pose graph a cycle needs.
     """
-    m = _margin_text(margin)
-    if spread <= HOLD_M:
-        return Verdict(CONFIRMED, f"on a {cycle}: margin {m}")
-    loose = f"its corners loose by {spread:.2f} m (hold {HOLD_M} m)"
-    return Verdict(CANDIDATE, f"on a {cycle}, {loose}: margin {m}")
+    if spread > HOLD_M:
+        return None
+    return Verdict(CONFIRMED, f"on a {cycle}: margin {_margin_text(margin)}")
 
 
 def link_strength(link: object) -> float:

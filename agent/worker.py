@@ -912,7 +912,7 @@ class FusionWorker:
             # needs no pose graph (at 32 robots 93 % of the tries, 99 % of their CPU).
             spread = corner_spread(ln.matrix, ln.covariance, grid_b)
             verdict = cycle_verdict(ln.margin, spread, "consistent cycle of candidates")
-            if verdict.state != CONFIRMED:  # its record stays; the next epoch decides
+            if verdict is None:  # its record stays; the next epoch decides
                 continue
             predicted = self._cycle_pose(snap, ln, versions)
             if predicted is None or not holds(predicted, ln.matrix, grid_b):
@@ -1123,7 +1123,7 @@ class FusionWorker:
             return verdict
         spread = corner_spread(res.matrix, res.covariance, snap.maps[b][1])
         on_cycle = cycle_verdict(res.margin, spread, "cycle of accepted links")
-        if on_cycle.state != CONFIRMED or not self._on_cycle(
+        if on_cycle is None or not self._on_cycle(
             snap, a, b, res.matrix, provisional(verdict.state, res.margin, self.min_margin)
         ):
             return verdict
