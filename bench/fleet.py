@@ -29,11 +29,9 @@ map is refused in one line (exit 2) before any agent starts.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -43,6 +41,7 @@ import numpy as np
 from agent.launcher import LocalFleet, agreement, sources_done
 from agent.scenario import LOG, random_frames, segments
 from bench.fleet_accuracy import BenchError, Building, OneLineParser, check_building
+from bench.workdirs import add_keep_argument, check_keep, fleet_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -399,20 +398,13 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     )
     ap.add_argument("--shm", choices=("on", "off"), default="off", help="Zenoh shared memory")
     ap.add_argument("--out", type=Path, default=RESULTS, help="directory of the results")
-    ap.add_argument(
-        "--keep",
-        type=Path,
-        help="keep each fleet's agent logs (verbose), state and status files in DIR/LOG-N "
-        "(default: a temporary directory, removed after the run)",
-    )
+    add_keep_argument(ap, "LOG-N")
     args = ap.parse_args(argv)
     if min(args.robots) < 2:
         ap.error(f"--robots must be at least 2, got {args.robots}")
     if args.speed <= 0 or (args.timeout is not None and args.timeout <= 0):
         ap.error("--speed and --timeout must be > 0")
-    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
-        # a fleet's agents would restore the state an earlier run left there
-        ap.error(f"--keep must be a new or empty directory: {args.keep}")
+    check_keep(ap, args.keep)
     return args
 
 
@@ -429,11 +421,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for building in buildings:
         rows = []
         for n in args.robots:
-            with contextlib.ExitStack() as stack:
-                if args.keep is None:
-                    workdir = Path(stack.enter_context(tempfile.TemporaryDirectory()))
-                else:
-                    workdir = args.keep / f"{building.name}-{n}"
+            with fleet_dir(args.keep, f"{building.name}-{n}") as workdir:
                 print(f"fleet of {n} agents on {building.name} in {workdir} ...", flush=True)
                 timeout = args.timeout or default_timeout(n)
                 keep = args.keep is not None

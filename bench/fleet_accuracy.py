@@ -43,13 +43,11 @@ after every case, so an interrupted run leaves the cases it finished.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import itertools
 import json
 import math
 import os
 import sys
-import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -63,6 +61,7 @@ from agent.scenario import LOG, check_run, random_frames, segments
 from agent.sources import CarmenSource, parse_frame, parse_source
 from bench import fleet_history as fh
 from bench.data.sources import SHARED, SOURCES
+from bench.workdirs import add_keep_argument, check_keep, fleet_dir
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SHARED_LOGS = SHARED / "logs"
@@ -593,16 +592,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     ap.add_argument("--max-cells", type=float, default=fh.Tolerance.cells)
     ap.add_argument("--min-overlap", type=float, default=Settings.min_overlap)
     ap.add_argument("--out", type=Path, default=RESULTS, help="directory of the results")
-    ap.add_argument(
-        "--keep",
-        type=Path,
-        help="keep each run's agent logs (verbose), state and status files in "
-        "DIR/BUILDING-N-seedS (default: a temporary directory, removed after the run)",
-    )
+    add_keep_argument(ap, "BUILDING-N-seedS")
     args = ap.parse_args(argv)
-    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
-        # a fleet's agents would restore the state an earlier run left there
-        ap.error(f"--keep must be a new or empty directory: {args.keep}")
+    check_keep(ap, args.keep)
     if args.quick and args.held_out:
         ap.error("--quick and --held-out exclude each other")
     if args.held_out and args.buildings:
@@ -655,12 +647,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for building, seed, n in itertools.product(buildings, settings.seeds, sizes):
         name = f"{building.name} N={n} seed {seed}"
         print(f"fleet_accuracy: {name} ...", file=sys.stderr, flush=True)
-        with contextlib.ExitStack() as stack:
-            if args.keep is None:
-                tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="pgvd-accuracy-"))
-                workdir = Path(tmp)
-            else:
-                workdir = args.keep / f"{building.name}-{n}-seed{seed}"
+        with fleet_dir(args.keep, f"{building.name}-{n}-seed{seed}") as workdir:
             case = run_case(building, n, seed, settings, workdir, verbose=args.keep is not None)
         cases.append(case)
         write_results(cases, argv, settings, time.time() - t_start, args.out, args.held_out)
