@@ -19,6 +19,7 @@ rotation blur and leaves the Schur complement for the translation blur
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -194,15 +195,47 @@ def release_caches() -> None:
 _CACHED_KEY: set[tuple[object, ...]] = set()
 
 
+#: Fewest empty angle bins in a row for which the polar bins are cut to the arc the image
+#: spans (:func:`_polar_geometry`): more than the polar blur's reach, ``3 sigma_bins``
+#: rounded, which is at most 10 bins whenever 12 bins can be empty (``n_theta > 12`` makes
+#: ``sigma_psi < pi / 2``, so ``sigma_bins <= 3 + sigma_psi / (2 pi) < 3.25``).
+_ARC_GAP = 12
+
+
+@dataclass(frozen=True)
+class _Polar:
+    """The polar bins of every pixel of an image about a centre (:func:`_polar_geometry`).
+
+    Attributes
+    ----------
+    idx : (N, 2) flat indices of the two bins each pixel splats into and reads from.
+    wts : (N, 2) float32 weights of those bins.
+    totals : float32, the total weight of all pixels in each bin.
+    n_rings, n_cols : the bins as ``n_rings x n_cols``, rings by angle.
+    wrap : whether the angle columns go round the whole circle; else they are the arc the
+        image spans, and beyond it every bin is empty.
+    """
+
+    idx: np.ndarray
+    wts: np.ndarray
+    totals: np.ndarray
+    n_rings: int
+    n_cols: int
+    wrap: bool
+
+
 @lru_cache(maxsize=1)
-def _polar_geometry(
-    shape: tuple[int, int], center: tuple[float, float], n_theta: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
+def _polar_geometry(shape: tuple[int, int], center: tuple[float, float], n_theta: int) -> _Polar:
     """Polar bins of every pixel about ``center``: linear in radius, nearest in angle.
 
-    Returns the two flat bin indices (N, 2), their weights (N, 2), the
-    per-bin total weight of all pixels, the number of rings, and which angle
-    bins hold a pixel (n_theta,) bool.
+    A centre at or beyond the image's edge sees the image under an angle of 180 degrees or
+    less (90 at a corner; a few degrees from a centre far off, where eq. (8)'s heading
+    error acts about a point the translation's correlation with the heading moves away),
+    so most of the circle's angle bins hold nothing.  When at least :data:`_ARC_GAP` in a
+    row are empty, the columns are cut to the arc that holds pixels: the bins, the splat
+    and the blur shrink by the share of the circle left out, and their sums are the
+    circle's at every bin: the blur reads zeros beyond the arc's ends as it would in the
+    gap, which is wider than its reach, so neither end reaches the other round the circle.
     """
     h, w = shape
     # offsets in float64 first: the same pixel gets the same bins whichever window it is in
@@ -221,19 +254,35 @@ def _polar_geometry(
     a = np.rint(t).astype(itype)
     a[a < 0] += n_theta
     a[a >= n_theta] -= n_theta
-    held = np.zeros(n_theta, bool)
-    held[a] = True
+    a, n_cols = _cut_to_arc(a, n_theta)
     idx = np.empty((r.size, 2), itype)
-    np.multiply(ring.astype(itype), n_theta, out=idx[:, 0])
+    np.multiply(ring.astype(itype), n_cols, out=idx[:, 0])
     idx[:, 0] += a
-    np.add(idx[:, 0], n_theta, out=idx[:, 1])
+    np.add(idx[:, 0], n_cols, out=idx[:, 1])
     wts = np.empty((r.size, 2), np.float32)
     np.subtract(np.float32(1.0), fr, out=wts[:, 0])
     wts[:, 1] = fr
-    totals = np.bincount(idx.ravel(), wts.ravel(), minlength=n_rings * n_theta).astype(np.float32)
-    for arr in (idx, wts, totals, held):
+    totals = np.bincount(idx.ravel(), wts.ravel(), minlength=n_rings * n_cols).astype(np.float32)
+    for arr in (idx, wts, totals):
         arr.setflags(write=False)
-    return idx, wts, totals, n_rings, held
+    return _Polar(idx, wts, totals, n_rings, n_cols, n_cols == n_theta)
+
+
+def _cut_to_arc(a: np.ndarray, n_theta: int) -> tuple[np.ndarray, int]:
+    """Angle bins ``a`` (of ``n_theta`` round the circle) renumbered from the first of the
+    arc that holds them, and the arc's length in bins; ``a`` and ``n_theta`` as they are
+    when no :data:`_ARC_GAP` bins in a row are empty."""
+    held = np.zeros(n_theta, bool)
+    held[a] = True
+    cols = np.flatnonzero(held)
+    # the widest run of empty bins, around the circle: from cols[k] to cols[k + 1]
+    gaps = np.diff(cols, append=cols[0] + n_theta) - 1
+    k = int(np.argmax(gaps))
+    if gaps[k] < _ARC_GAP:
+        return a, n_theta
+    a -= cols[(k + 1) % cols.size]
+    a %= n_theta
+    return a, n_theta - int(gaps[k])
 
 
 def rotation_blur(
@@ -297,7 +346,7 @@ def rotation_blur(
         # not after, which held both at once (~20 MB more on a 550 x 550 global map)
         release_caches()
         _CACHED_KEY.add(key)
-    idx, wts, totals, n_rings, _ = _polar_geometry(*key)
+    geo = _polar_geometry(*key)
     # nearest-bin splat and read each add the variance of a uniform bin (1/12 bin^2)
     sigma_bins = round(math.sqrt(max((sigma_psi * n_theta / (2 * math.pi)) ** 2 - 1 / 6, 0)), 9)
     if sigma_bins == 0:  # under a bin's own quantisation: scipy would divide by 0
@@ -305,15 +354,16 @@ def rotation_blur(
     # The bins outnumber the pixels ~10 to 1 (rings half a pixel apart, one bin per pixel at
     # r_max): each array of them is ~10 MB on a 550 x 550 global map, so as few are alive at
     # once as can be. The float64 counts go as soon as they are float32.
-    binned = np.bincount(idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=totals.size)
-    binned = binned.astype(np.float32)
-    polar = _angular_blur(binned.reshape(n_rings, n_theta), sigma_bins, _arc(key, sigma_bins))
+    binned = np.bincount(
+        geo.idx.ravel(), (geo.wts * img.reshape(-1, 1)).ravel(), minlength=geo.totals.size
+    ).astype(np.float32)
+    polar = _angular_blur(binned.reshape(geo.n_rings, geo.n_cols), sigma_bins, geo.wrap)
     del binned
     # normalised only at the bins a pixel reads: a tenth of the bins, the same quotients
     norm = _blurred_totals(*key, sigma_bins)
-    read = np.zeros(idx.shape, np.float32)
-    np.divide(polar[idx], norm, out=read, where=norm > 1e-6)
-    return np.einsum("ij,ij->i", read, wts).reshape(h, w)
+    read = np.zeros(geo.idx.shape, np.float32)
+    np.divide(polar[geo.idx], norm, out=read, where=norm > 1e-6)
+    return np.einsum("ij,ij->i", read, geo.wts).reshape(h, w)
 
 
 @lru_cache(maxsize=1)
@@ -322,49 +372,18 @@ def _blurred_totals(
 ) -> np.ndarray:
     """The normaliser of the polar blur: the blurred per-bin pixel weights, at the two bins
     each pixel reads (N, 2)."""
-    key = (shape, center, n_theta)
-    idx, _, totals, n_rings, _ = _polar_geometry(*key)
-    out = _angular_blur(totals.reshape(n_rings, n_theta), sigma_bins, _arc(key, sigma_bins))[idx]
+    geo = _polar_geometry(shape, center, n_theta)
+    totals = geo.totals.reshape(geo.n_rings, geo.n_cols)
+    out = _angular_blur(totals, sigma_bins, geo.wrap)[geo.idx]
     out.setflags(write=False)
     return out
 
 
-def _arc(
-    key: tuple[tuple[int, int], tuple[float, float], int], sigma_bins: float
-) -> np.ndarray | None:
-    """The angle bins, in order around the circle, that the polar blur of
-    :func:`rotation_blur` needs: those holding a pixel and ``3 sigma_bins`` on either side;
-    None when that is the whole circle.
-
-    A centre at or beyond the image's edge sees the image under an angle of 180 degrees or
-    less (90 at a corner, the fusion's own frame), so most bins hold nothing, and blurring
-    them costs as much as the rest.
-    """
-    held = _polar_geometry(*key)[4]
-    n_theta = held.size
-    reach = int(3.0 * sigma_bins + 0.5)  # gaussian_filter1d's radius at truncate=3
-    cols = np.flatnonzero(held)
-    # the widest run of empty bins, around the circle: from cols[k] to cols[k + 1]
-    gaps = np.diff(cols, append=cols[0] + n_theta) - 1
-    k = int(np.argmax(gaps))
-    if gaps[k] <= 2 * reach:
-        return None
-    start = int(cols[(k + 1) % cols.size]) - reach
-    return (start + np.arange(n_theta - int(gaps[k]) + 2 * reach)) % n_theta
-
-
-def _angular_blur(bins: np.ndarray, sigma_bins: float, arc: np.ndarray | None) -> np.ndarray:
-    """``bins`` (rings x angle) blurred along the angle, flat; only over ``arc`` (:func:`_arc`)
-    when given, where the bins beyond it are empty: the same sums, bit for bit, as the
-    blur around the whole circle, at the bins any pixel reads."""
-    if arc is None:
-        out = ndimage.gaussian_filter1d(bins, sigma_bins, axis=1, mode="wrap", truncate=3.0)
-        return out.ravel()
-    out = np.zeros_like(bins)
-    out[:, arc] = ndimage.gaussian_filter1d(
-        bins[:, arc], sigma_bins, axis=1, mode="constant", truncate=3.0
-    )
-    return out.ravel()
+def _angular_blur(bins: np.ndarray, sigma_bins: float, wrap: bool) -> np.ndarray:
+    """``bins`` (rings x angle) blurred along the angle, flat: round the circle when
+    ``wrap``, else over an arc beyond which every bin is empty (:func:`_polar_geometry`)."""
+    mode = "wrap" if wrap else "constant"
+    return ndimage.gaussian_filter1d(bins, sigma_bins, axis=1, mode=mode, truncate=3.0).ravel()
 
 
 def translation_blur(image: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
@@ -221,31 +220,28 @@ def test_rotation_blur_below_one_angle_bin_is_identity_not_a_crash() -> None:
     assert out.shape == img.shape and np.isfinite(out).all()
 
 
-@pytest.mark.parametrize("center", [(0.0, 0.0), (-40.0, 10.0), (0.0, 60.0), (45.5, 30.5)])
-def test_the_polar_blur_over_the_bins_it_needs_is_the_whole_circles_bit_for_bit(
-    center: tuple[float, float],
+@pytest.mark.parametrize(
+    "center", [(0.0, 0.0), (-40.0, 10.0), (0.0, 60.0), (45.5, 30.5), (-3000.0, 2500.0)]
+)
+def test_the_polar_blur_cut_to_the_images_arc_is_the_whole_circles_bit_for_bit(
+    center: tuple[float, float], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A centre at a corner, outside, on an edge and inside: the angle bins no pixel holds
-    are left out of the polar blur (_arc), which changes no bin any pixel reads."""
+    """A centre at a corner, outside, on an edge, inside and far off: the polar bins are cut
+    to the arc of angles the image spans (_polar_geometry), which changes no pixel of the
+    blur; with no gap wide enough to cut, the whole circle is kept."""
     rng = np.random.default_rng(3)
     img = rng.random((80, 90)).astype(np.float32) - 0.5
-    sigma_psi = 0.01
-    out = rotation_blur(img, sigma_psi, center)
+    uncertainty.release_caches()
+    cut = rotation_blur(img, 0.01, center)
     (key,) = uncertainty._CACHED_KEY
-    idx, wts, _, n_rings, _ = uncertainty._polar_geometry(*key)
-    n_theta = key[2]
-    sigma_bins = round(math.sqrt((sigma_psi * n_theta / (2 * math.pi)) ** 2 - 1 / 6), 9)
-    binned = np.bincount(
-        idx.ravel(), (wts * img.reshape(-1, 1)).ravel(), minlength=n_rings * n_theta
-    )
-    bins = binned.astype(np.float32).reshape(n_rings, n_theta)
-    arc = uncertainty._arc(key, sigma_bins)
-    assert (arc is None) == (center == (45.5, 30.5))  # inside: every angle holds a pixel
-    restricted = uncertainty._angular_blur(bins, sigma_bins, arc)
-    whole = uncertainty._angular_blur(bins, sigma_bins, None)
-    read = np.unique(idx)
-    assert restricted[read].tobytes() == whole[read].tobytes()
-    assert out.shape == img.shape and np.isfinite(out).all()
+    geo = uncertainty._polar_geometry(*key)
+    assert geo.wrap == (center == (45.5, 30.5))  # inside: every angle holds a pixel
+    uncertainty.release_caches()
+    monkeypatch.setattr(uncertainty, "_ARC_GAP", 10**9)
+    whole = rotation_blur(img, 0.01, center)
+    assert uncertainty._polar_geometry(*key).n_cols == key[2]
+    assert cut.tobytes() == whole.tobytes()
+    uncertainty.release_caches()
 
 
 def _walls(shared_dir, name: str):
