@@ -6,7 +6,7 @@ everything that takes CPU time, the merge (Sec. IV) and the fusion (33)-(37), ru
 job at a time:
 
 1. if some pair lacks a link of its latest versions and it is this agent's turn
-   (:func:`agent.links.due_keys`), register it, cache and publish the link, loop;
+   (:meth:`agent.links.Turns.due`), register it, cache and publish the link, loop;
 2. otherwise, if the maps or the chosen links changed, rebuild the global maps.
 
 Verify before you search: when the accepted links already place both robots of a pair in one
@@ -65,10 +65,11 @@ from agent.fusecache import LayerCache
 from agent.globalmap import Component, Soundness, build_components, usable_links
 from agent.greycycle import on_cycle_candidate
 from agent.links import (
+    GATED,
     LinkKey,
     LinkRecord,
+    Turns,
     Waves,
-    due_keys,
     epoch_of,
     stale_candidate,
     version_text,
@@ -144,8 +145,6 @@ GateFn = Callable[[Grid], str | None]
 #: across and soon grow into a new epoch, whose pair is then searched before any further
 #: one; a map that stays too small (a robot that stopped) holds the waves no longer.
 GATE_HOLD_S = 10.0
-#: What a gated pair's rejection reason starts with, on every agent (:meth:`FusionWorker._gated`).
-GATED = "not searched: "
 
 #: Seconds a solution of the pose graph keeps serving predictions once newer accepted links
 #: arrived (:meth:`FusionWorker._solved_for`).
@@ -650,6 +649,7 @@ class FusionWorker:
         #: The keys open, kept from one change of the book to the next (:meth:`_open`), and
         #: the :class:`Chains` they were last placed by.
         self._waves = Waves()
+        self._turns = Turns()
         self._waves_chains: Chains | None = None
         #: :class:`Chains` of the links held, with the signature of what they depend on.
         self._chains: tuple[object, Chains | None] = (None, None)
@@ -696,6 +696,9 @@ class FusionWorker:
         #: The link ids of the book, and this agent's candidates already tried against a
         #: cycle under them (:meth:`_cycled`).
         self._cycle_tried: tuple[tuple[object, ...], set[tuple[object, ...]]] = ((), set())
+        #: :func:`corner_spread` of each candidate :meth:`_cycled` tried, by its identity and
+        #: map B's shape and resolution.
+        self._spreads: dict[tuple[object, ...], float] = {}
         #: Wall seconds the last rebuild took (:meth:`preview_gap`).
         self._rebuild_seconds = 0.0
         self._thread = threading.Thread(
@@ -753,7 +756,7 @@ class FusionWorker:
         # would be past its timeout at once and search it too.
         self._opened_at = {k: self._opened_at.get(k, now) for k in opened}
         self._deferred &= set(opened)
-        due = due_keys(
+        due = self._turns.due(
             self.me,
             opened,
             self._opened_at,
@@ -910,7 +913,7 @@ class FusionWorker:
             grid_b = snap.maps[ln.b][1]
             # The verdict reads the candidate alone: one its covariance keeps from the map
             # needs no pose graph (at 32 robots 93 % of the tries, 99 % of their CPU).
-            spread = corner_spread(ln.matrix, ln.covariance, grid_b)
+            spread = self._spread(snap, ln, grid_b)
             verdict = cycle_verdict(ln.margin, spread, "consistent cycle of candidates")
             if verdict is None:  # its record stays; the next epoch decides
                 continue
@@ -922,6 +925,20 @@ class FusionWorker:
             self._record(base, res, verdict, "cycle", _Clock.start())
             return True
         return False
+
+    def _spread(self, snap: Snapshot, ln: LinkRecord, grid_b: Grid) -> float:
+        """:func:`corner_spread` of ``ln`` on ``grid_b``, kept: a record never changes, and
+        :meth:`_cycled` tries each candidate again at every change of the links held (at 64
+        robots the spreads, worked out again each time, were a twentieth of the worker's
+        CPU).  Those of links no longer held go once the kept outnumber the held twice."""
+        key = (ln.identity, grid_b.shape, grid_b.resolution)
+        spread = self._spreads.get(key)
+        if spread is None:
+            if len(self._spreads) > 2 * len(snap.links) + 64:
+                held = {x.identity for x in snap.links}
+                self._spreads = {k: v for k, v in self._spreads.items() if k[0] in held}
+            spread = self._spreads[key] = corner_spread(ln.matrix, ln.covariance, grid_b)
+        return spread
 
     def _cycle_pose(
         self, snap: Snapshot, held: LinkRecord, versions: dict[str, int]
@@ -1338,11 +1355,7 @@ class FusionWorker:
         """
         if snap.generation is None or snap.generation != self._gated_links[0]:
             versions = {r: v for r, (v, _) in snap.maps.items()}
-            found = {
-                ln.identity: ln.pair
-                for ln in snap.links
-                if not ln.accepted and GATED in ln.reason and ln.current(versions)
-            }
+            found = {ln.identity: ln.pair for ln in snap.gated() if ln.current(versions)}
             self._gated_links = (snap.generation, found)
         gated = self._gated_links[1]
         self._held_since = {k: self._held_since.get(k, now) for k in gated}

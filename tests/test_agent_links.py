@@ -7,13 +7,14 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.links import (
     EPOCH_SHIFT,
     LinkCache,
     LinkRecord,
+    Turns,
     due_keys,
     dumps,
     epoch_of,
@@ -173,6 +174,36 @@ def test_due_keys_put_own_pairs_first() -> None:
     keys = [("r1", 1, "r2", 1), ("r3", 1, "r4", 1)]
     first = dict.fromkeys(keys, 0.0)
     assert due_keys("r3", keys, first, 100.0, 1.0) == [("r3", 1, "r4", 1), ("r1", 1, "r2", 1)]
+
+
+_ROBOTS = [f"r{i}" for i in range(1, 7)]
+_KEY = st.tuples(
+    st.sampled_from(_ROBOTS), st.integers(1, 3), st.sampled_from(_ROBOTS), st.integers(1, 3)
+).filter(lambda k: k[0] < k[2])
+_CALL = st.tuples(
+    st.lists(_KEY, max_size=8, unique=True),
+    st.sampled_from([0.0, 1.5, 4.5]),  # now: before, between and after the waits of 4 s
+    st.sampled_from([4.0, 4.0, 1.0]),  # timeout
+    st.none() | st.frozensets(st.sampled_from(_ROBOTS)),  # alive
+    st.booleans(),  # the circle without its last robot
+)
+
+
+@settings(max_examples=300)
+@given(
+    st.sampled_from(_ROBOTS),
+    st.lists(st.sampled_from(_ROBOTS), min_size=3, unique=True),
+    st.lists(_CALL, min_size=1, max_size=12),
+)
+def test_turns_kept_from_call_to_call_are_due_keys_of_each_call(me, robots, calls) -> None:
+    """A worker's Turns keeps each key's wait while the circle, the robots alive and the
+    timeout stay: whatever the calls before, its answer is due_keys of the same call."""
+    turns, circle = Turns(), sorted(robots)
+    for keys, now, timeout, alive, smaller in calls:
+        robots = circle[:-1] if smaller else circle
+        opened = dict.fromkeys(keys, 0.0)
+        want = due_keys(me, keys, opened, now, timeout, robots, alive)
+        assert turns.due(me, keys, opened, now, timeout, robots, alive) == want
 
 
 def test_select_links_prefers_current_epochs_and_reports_settled() -> None:

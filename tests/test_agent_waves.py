@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.book import FleetBook, Snapshot
-from agent.links import EPOCH_SHIFT, LinkKey, LinkRecord, open_keys
+from agent.links import EPOCH_SHIFT, GATED, LinkKey, LinkRecord, open_keys
 from agent.scenario import LOG
-from agent.worker import GATED, Chains, FusionWorker, Registration
+from agent.worker import Chains, FusionWorker, Registration
 from pgvd.grid import Grid
 from pgvd.posegraph import components
 

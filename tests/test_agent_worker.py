@@ -12,13 +12,12 @@ import pytest
 from numpy.linalg import inv
 
 from agent.book import FleetBook, Snapshot
-from agent.links import EPOCH_SHIFT, LinkRecord, open_keys
+from agent.links import EPOCH_SHIFT, GATED, LinkRecord, open_keys
 from agent.trust import CANDIDATE, CONFIRMED, REJECTED, WITHDRAWN
 from agent.worker import (
     APART,
     CHECKS_PREVIEW_SHARE,
     GATE_HOLD_S,
-    GATED,
     PREVIEW_SHARE,
     RESOLVE_AFTER,
     Chains,
