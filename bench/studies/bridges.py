@@ -43,26 +43,14 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 from bench import fleet_accuracy as fa
+from pgvd.posegraph import components
 
 Edge = tuple[str, str]
 
 
 def _connected(nodes: Iterable[str], edges: Iterable[Edge]) -> list[set[str]]:
-    """The connected components of the graph ``nodes``, ``edges``."""
-    parent = {n: n for n in nodes}
-
-    def root(n: str) -> str:
-        while parent[n] != n:
-            parent[n] = parent[parent[n]]
-            n = parent[n]
-        return n
-
-    for a, b in edges:
-        parent[root(a)] = root(b)
-    groups: dict[str, set[str]] = {}
-    for n in parent:
-        groups.setdefault(root(n), set()).add(n)
-    return list(groups.values())
+    """The connected components of the graph ``nodes``, ``edges``, as sets."""
+    return [set(group) for group in components(nodes, edges)]
 
 
 def bridges(nodes: Sequence[str], edges: Sequence[Edge]) -> set[frozenset[str]]:
