@@ -577,26 +577,10 @@ def wait_before_computing(
     return 2.0 * timeout
 
 
-def due_keys(
-    me: str,
-    keys: Iterable[LinkKey],
-    opened_at: Mapping[LinkKey, float],
-    now: float,
-    timeout: float,
-    robots: Sequence[str] = (),
-    alive: Collection[str] | None = None,
-) -> list[LinkKey]:
-    """Of ``keys``, those this agent should register now, own pairs first, then by key.
-
-    ``opened_at`` says since when each key has been open (:func:`open_keys`): the waits of
-    :func:`wait_before_computing` count from then.
-    """
-    return Turns().due(me, keys, opened_at, now, timeout, robots, alive)
-
-
 class Turns:
-    """:func:`due_keys` of one agent, each key's wait (:func:`wait_before_computing`) kept
-    while the circle of robots, the robots alive and the timeout stay as they were.
+    """Which open keys one agent should register now (:meth:`due`), each key's wait
+    (:func:`wait_before_computing`) kept while the circle of robots, the robots alive and
+    the timeout stay as they were.
 
     A worker asks at every step, and at 64 robots about a hundred keys are open at each:
     their waits, worked out again each time, were a tenth of a worker's CPU.
@@ -617,7 +601,12 @@ class Turns:
         robots: Sequence[str] = (),
         alive: Collection[str] | None = None,
     ) -> list[LinkKey]:
-        """:func:`due_keys` of these arguments."""
+        """Of ``keys``, those agent ``me`` should register now, own pairs first, then by
+        key.
+
+        ``opened_at`` says since when each key has been open (:func:`open_keys`): the waits
+        of :func:`wait_before_computing` count from then.
+        """
         keys = list(keys)
         basis = (me, tuple(robots), None if alive is None else frozenset(alive), timeout)
         if basis != self._basis or len(self._waits) > 2 * len(keys) + 64:

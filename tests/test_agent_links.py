@@ -15,7 +15,6 @@ from agent.links import (
     LinkCache,
     LinkRecord,
     Turns,
-    due_keys,
     dumps,
     epoch_of,
     first_registrar,
@@ -157,9 +156,9 @@ def test_one_robot_of_the_pair_registers_first_others_after_timeouts() -> None:
     assert wait_before_computing(second, key, 4.0, ring) == 4.0
     assert wait_before_computing("r1", key, 4.0, ring) == 8.0
     seen = {key: 100.0}
-    assert due_keys(second, [key], seen, 103.9, 4.0, ring) == []
-    assert due_keys(second, [key], seen, 104.0, 4.0, ring) == [key]
-    assert due_keys(first, [key], seen, 100.0, 4.0, ring) == [key]
+    assert Turns().due(second, [key], seen, 103.9, 4.0, ring) == []
+    assert Turns().due(second, [key], seen, 104.0, 4.0, ring) == [key]
+    assert Turns().due(first, [key], seen, 100.0, 4.0, ring) == [key]
 
 
 @pytest.mark.parametrize("n", [2, 3, 5, 8])
@@ -170,10 +169,10 @@ def test_first_registrars_spread_the_work_evenly(n: int) -> None:
     assert sum(load) == len(pairs) and max(load) - min(load) <= 1
 
 
-def test_due_keys_put_own_pairs_first() -> None:
+def test_own_pairs_are_due_first() -> None:
     keys = [("r1", 1, "r2", 1), ("r3", 1, "r4", 1)]
     first = dict.fromkeys(keys, 0.0)
-    assert due_keys("r3", keys, first, 100.0, 1.0) == [("r3", 1, "r4", 1), ("r1", 1, "r2", 1)]
+    assert Turns().due("r3", keys, first, 100.0, 1.0) == [("r3", 1, "r4", 1), ("r1", 1, "r2", 1)]
 
 
 _ROBOTS = [f"r{i}" for i in range(1, 7)]
@@ -195,14 +194,14 @@ _CALL = st.tuples(
     st.lists(st.sampled_from(_ROBOTS), min_size=3, unique=True),
     st.lists(_CALL, min_size=1, max_size=12),
 )
-def test_turns_kept_from_call_to_call_are_due_keys_of_each_call(me, robots, calls) -> None:
+def test_turns_kept_from_call_to_call_answer_as_new_ones(me, robots, calls) -> None:
     """A worker's Turns keeps each key's wait while the circle, the robots alive and the
-    timeout stay: whatever the calls before, its answer is due_keys of the same call."""
+    timeout stay: whatever the calls before, it answers as a new Turns would."""
     turns, circle = Turns(), sorted(robots)
     for keys, now, timeout, alive, smaller in calls:
         robots = circle[:-1] if smaller else circle
         opened = dict.fromkeys(keys, 0.0)
-        want = due_keys(me, keys, opened, now, timeout, robots, alive)
+        want = Turns().due(me, keys, opened, now, timeout, robots, alive)
         assert turns.due(me, keys, opened, now, timeout, robots, alive) == want
 
 
