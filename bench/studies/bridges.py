@@ -75,21 +75,25 @@ def cycle_groups(component: Mapping) -> list[set[str]]:
     return _connected(nodes, [e for e in edges if frozenset(e) not in cut])
 
 
-def _together(global_map: Mapping, a: str, b: str) -> bool:
-    """Whether ``a`` and ``b`` share a 2-edge-connected group of ``global_map``."""
-    return any(a in g and b in g for comp in global_map["components"] for g in cycle_groups(comp))
+def _map_groups(global_map: Mapping) -> list[set[str]]:
+    """The 2-edge-connected groups of every component of ``global_map``."""
+    return [g for comp in global_map["components"] for g in cycle_groups(comp)]
 
 
-def _on_cycle(global_map: Mapping, robot: str) -> bool:
-    """Whether ``robot`` shares a 2-edge-connected group with another robot."""
-    return any(
-        robot in g and len(g) > 1 for comp in global_map["components"] for g in cycle_groups(comp)
-    )
+def _together(groups: Sequence[set[str]], a: str, b: str) -> bool:
+    """Whether ``a`` and ``b`` share one of ``groups`` (:func:`_map_groups`)."""
+    return any(a in g and b in g for g in groups)
 
 
-def _map_at(maps: Sequence[Mapping], agent: str, t: float) -> Mapping | None:
-    """The global map ``agent`` showed at ``t``: its last before or at ``t``."""
-    shown = [m for m in maps if m["agent"] == agent and m["t"] <= t + 1e-6]
+def _on_cycle(groups: Sequence[set[str]], robot: str) -> bool:
+    """Whether ``robot`` shares one of ``groups`` (:func:`_map_groups`) with another robot."""
+    return any(robot in g and len(g) > 1 for g in groups)
+
+
+def _map_at(maps: Sequence[Mapping], agent: str, t: float) -> int | None:
+    """The index in ``maps`` of the global map ``agent`` showed at ``t``: its last before or
+    at ``t``."""
+    shown = [i for i, m in enumerate(maps) if m["agent"] == agent and m["t"] <= t + 1e-6]
     return shown[-1] if shown else None
 
 
@@ -114,26 +118,29 @@ def _decisions(global_map: Mapping, case: Mapping, t: float, robot: str | None =
 def study_case(case: Mapping) -> dict:
     """Placement, delay and wrong spells of one fleet run (module docstring)."""
     maps = case["history"]["maps"]
+    # each map's groups once: every pair's delay and every spell reads them
+    groups = [_map_groups(m) for m in maps]
     last = maps[-1] if maps else {"components": []}
     placed = sorted(
         r for comp in last["components"] if len(comp["members"]) > 1 for r in comp["members"]
     )
-    on_cycle = [r for r in placed if _on_cycle(last, r)]
+    on_cycle = [r for r in placed if _on_cycle(groups[-1] if groups else [], r)]
     extra, never = [], 0
     # two robots hold one link, which no cycle can check: only larger fleets have a delay
     placed_pairs = [d for d in case["summary"]["delays"] if d.get("placed_at") is not None]
     for delay in placed_pairs if case["robots"] >= 3 else []:
         a, b = delay["pair"].split("-")
-        shown = next((m["t"] for m in maps if _together(m, a, b)), None)
+        times = (m["t"] for m, g in zip(maps, groups, strict=True) if _together(g, a, b))
+        shown = next(times, None)
         if shown is None:
             never += 1
         else:
             extra.append(round(max(shown - delay["placed_at"], 0.0), 3))
     spells = []
     for spell in case["summary"]["wrong_spells"]:
-        shown = _map_at(maps, spell["agent"], spell["start"])
-        bridged = shown is not None and not _on_cycle(shown, spell["robot"])
-        held_by = [] if shown is None else _decisions(shown, case, spell["start"], spell["robot"])
+        i = _map_at(maps, spell["agent"], spell["start"])
+        bridged = i is not None and not _on_cycle(groups[i], spell["robot"])
+        held_by = [] if i is None else _decisions(maps[i], case, spell["start"], spell["robot"])
         spells.append({**spell, "by_bridges": bridged, "held_by": held_by})
     return {
         "building": case["building"],
