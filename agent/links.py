@@ -609,10 +609,10 @@ class Turns:
         """
         keys = list(keys)
         basis = (me, tuple(robots), None if alive is None else frozenset(alive), timeout)
-        if basis != self._basis or len(self._waits) > 2 * len(keys) + 64:
-            if basis != self._basis:
-                self._ring = Ring(robots)
-            self._basis, self._waits = basis, {}
+        if basis != self._basis:
+            self._basis, self._ring, self._waits = basis, Ring(robots), {}
+        elif len(self._waits) > 2 * len(keys) + 64:  # waits of keys long closed
+            self._waits = {}
         waits = self._waits
         # no wait is longer: a key open that long is due whoever registers it first
         longest = max(0.0, timeout, 2.0 * timeout)
